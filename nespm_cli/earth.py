@@ -1,0 +1,87 @@
+"""WGS-84 earth model: radii of curvature, normal gravity, earth rate, transport rate.
+
+Positions are ``pos = [lat, lon, h]`` (..., 3) with latitude and longitude in rad and
+``h`` the ellipsoidal height in m, positive up (below the sea surface it is negative).
+Every function is batched over leading axes. Formulas follow Groves, *Principles of
+GNSS, Inertial, and Multisensor Integrated Navigation Systems*, 2nd ed., ch. 2 and 5.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+A = 6378137.0  # semi-major axis [m]
+F = 1.0 / 298.257223563  # flattening
+E2 = F * (2.0 - F)  # first eccentricity squared
+B = A * (1.0 - F)  # semi-minor axis [m]
+OMEGA_IE = 7.292115e-5  # earth rotation rate [rad/s]
+MU = 3.986004418e14  # gravitational constant [m^3/s^2]
+GAMMA_E = 9.7803253359  # normal gravity at the equator [m/s^2]
+K_SOMIGLIANA = 1.931853e-3  # Somigliana's constant
+
+
+def radii(lat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Meridian ``R_N`` and transverse ``R_E`` radii of curvature [m] at latitude ``lat`` [rad].
+
+    Groves eqs 2.105-2.106. (The papers call them R_n and R_e.)
+    """
+    s2 = np.sin(lat) ** 2
+    den = 1.0 - E2 * s2
+    R_N = A * (1.0 - E2) / den**1.5
+    R_E = A / np.sqrt(den)
+    return R_N, R_E
+
+
+def gravity_n(pos: np.ndarray) -> np.ndarray:
+    """Gravity vector g^n [m/s^2] in NED (..., 3) at ``pos`` (..., 3).
+
+    Somigliana normal gravity with the second-order height correction and the small
+    north component (Groves eqs 2.134 and 2.140).
+    """
+    lat, h = pos[..., 0], pos[..., 2]
+    s2 = np.sin(lat) ** 2
+    g0 = GAMMA_E * (1.0 + K_SOMIGLIANA * s2) / np.sqrt(1.0 - E2 * s2)
+    m = OMEGA_IE**2 * A**2 * B / MU
+    g_down = g0 * (1.0 - 2.0 / A * (1.0 + F + m - 2.0 * F * s2) * h + 3.0 * h * h / A**2)
+    g_north = -8.08e-9 * h * np.sin(2.0 * lat)
+    return np.stack([g_north, np.zeros_like(g_down), g_down], axis=-1)
+
+
+def w_ie_n(pos: np.ndarray) -> np.ndarray:
+    """Earth rate w_ie^n [rad/s] in NED (..., 3): ``Omega [cos L, 0, -sin L]``."""
+    lat = pos[..., 0]
+    return np.stack(
+        [OMEGA_IE * np.cos(lat), np.zeros_like(lat), -OMEGA_IE * np.sin(lat)], axis=-1
+    )
+
+
+def w_en_n(pos: np.ndarray, v_n: np.ndarray) -> np.ndarray:
+    """Transport rate w_en^n [rad/s] in NED (..., 3) for velocity ``v_n`` (..., 3) [m/s].
+
+    Groves eq 5.44: ``[v_E/(R_E+h), -v_N/(R_N+h), -v_E tan L/(R_E+h)]``.
+    """
+    lat, h = pos[..., 0], pos[..., 2]
+    R_N, R_E = radii(lat)
+    vN, vE = v_n[..., 0], v_n[..., 1]
+    return np.stack(
+        [vE / (R_E + h), -vN / (R_N + h), -vE * np.tan(lat) / (R_E + h)], axis=-1
+    )
+
+
+def d_w_en_d_v(pos: np.ndarray) -> np.ndarray:
+    """Jacobian ∂w_en^n/∂v^n (..., 3, 3) [1/m] at ``pos`` (w_en is linear in v)."""
+    lat, h = pos[..., 0], pos[..., 2]
+    R_N, R_E = radii(lat)
+    J = np.zeros(lat.shape + (3, 3))
+    J[..., 0, 1] = 1.0 / (R_E + h)
+    J[..., 1, 0] = -1.0 / (R_N + h)
+    J[..., 2, 1] = -np.tan(lat) / (R_E + h)
+    return J
+
+
+def ned_offset(pos: np.ndarray, pos0: np.ndarray) -> np.ndarray:
+    """Local NED offset [m] (..., 3) of ``pos`` from ``pos0`` (small-distance approximation)."""
+    R_N, R_E = radii(pos0[..., 0])
+    dN = (pos[..., 0] - pos0[..., 0]) * (R_N + pos0[..., 2])
+    dE = (pos[..., 1] - pos0[..., 1]) * (R_E + pos0[..., 2]) * np.cos(pos0[..., 0])
+    dD = -(pos[..., 2] - pos0[..., 2])
+    return np.stack([dN, dE, dD], axis=-1)

@@ -1,0 +1,123 @@
+"""100 Hz truth and clean IMU from 1 Hz ground truth (inverse strapdown).
+
+The IMU grid divides every GT interval into ``substeps`` equal steps (100 by default;
+the Snapir GT step is 400/399 s, so the IMU step is 10.025 ms), so that every GT and DVL
+epoch is an IMU sample. Velocity is interpolated with a not-a-knot cubic spline and
+attitude with a rotation spline (C2 in angle), both exact at the GT epochs; position is
+integrated from velocity with the trapezoid of eqs 28-30. The clean specific force and
+angular rate are then solved step by step from :func:`strapdown.na_cycle_inverse`, so
+feeding them to ``na_cycle`` from the initial truth reproduces the truth to round-off.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.interpolate import CubicSpline
+from scipy.spatial.transform import Rotation, RotationSpline
+
+from .earth import radii
+from .errors import NespmError
+from .rotations import euler_to_dcm
+from .strapdown import na_cycle_inverse
+
+
+@dataclass(frozen=True)
+class ImuTruth:
+    """A 100 Hz truth trajectory and the IMU that reproduces it.
+
+    Attributes (M IMU steps, M+1 samples, N GT epochs):
+        t: (M+1,) sample times [s].
+        dt: (M,) step durations [s]; step j goes from sample j to j+1.
+        pos, v_n: (M+1, 3) truth ``[lat, lon, h]`` and NED velocity.
+        C_bn: (M+1, 3, 3) truth attitude.
+        f_b, w_ib_b: (M, 3) clean specific force [m/s^2] and angular rate [rad/s] of step j.
+        epoch_index: (N,) index into ``t`` of every GT epoch.
+        exact: True when the IMU was synthesized (truth is exact), False for a recorded IMU.
+    """
+
+    t: np.ndarray
+    dt: np.ndarray
+    pos: np.ndarray
+    v_n: np.ndarray
+    C_bn: np.ndarray
+    f_b: np.ndarray
+    w_ib_b: np.ndarray
+    epoch_index: np.ndarray
+    exact: bool = True
+
+    @property
+    def steps(self) -> int:
+        return len(self.dt)
+
+
+def integrate_position(pos0: np.ndarray, v_n: np.ndarray, dt: np.ndarray, iters: int = 4) -> np.ndarray:
+    """Integrate eqs 28-30 from ``pos0`` (3,) over velocities ``v_n`` (M+1, 3) -> (M+1, 3).
+
+    The recursion only depends on L_k through the slowly varying radii, so it is solved
+    by a vectorized fixed-point iteration on cumulative sums (converged to round-off in
+    about three passes) rather than a loop over 40,000 samples.
+    """
+    half = 0.5 * dt
+    h = pos0[2] - np.concatenate([[0.0], np.cumsum((v_n[1:, 2] + v_n[:-1, 2]) * half)])
+    lat = np.full(len(v_n), pos0[0])
+    for _ in range(iters):
+        R_N, _ = radii(lat[:-1])
+        dlat = (v_n[:-1, 0] / (R_N + h[:-1]) + v_n[1:, 0] / (R_N + h[1:])) * half
+        lat = pos0[0] + np.concatenate([[0.0], np.cumsum(dlat)])
+    _, R_E = radii(lat)
+    rate = v_n[:, 1] / ((R_E + h) * np.cos(lat))
+    lon = pos0[1] + np.concatenate([[0.0], np.cumsum((rate[:-1] + rate[1:]) * half)])
+    return np.stack([lat, lon, h], axis=-1)
+
+
+def synthesize(track, substeps: int = 100) -> ImuTruth:
+    """Build the 100 Hz truth and the clean IMU of ``track`` (a :class:`tracks.Track`).
+
+    Cost: about half a second for a 400 s track (40,000 steps), all vectorized.
+    """
+    t_gt = np.asarray(track.t, dtype=float)
+    n = len(t_gt)
+    if n < 4:
+        raise NespmError(f"track {track.number}: needs at least 4 GT epochs for IMU synthesis, has {n}")
+    frac = np.arange(substeps) / substeps
+    t = np.concatenate([(t_gt[:-1, None] + np.diff(t_gt)[:, None] * frac).ravel(), t_gt[-1:]])
+    epoch_index = np.arange(n) * substeps
+    t[epoch_index] = t_gt  # exact epochs
+
+    v_n = CubicSpline(t_gt, track.v_n, axis=0, bc_type="not-a-knot")(t)
+    v_n[epoch_index] = track.v_n
+    C_gt = euler_to_dcm(track.euler)
+    C_bn = RotationSpline(t_gt, Rotation.from_matrix(C_gt))(t).as_matrix()
+    C_bn[epoch_index] = C_gt
+
+    dt = np.diff(t)
+    pos = integrate_position(np.asarray(track.pos[0], dtype=float), v_n, dt)
+    f_b, w_ib_b = na_cycle_inverse(pos[:-1], v_n[:-1], C_bn[:-1], pos[1:], v_n[1:], C_bn[1:], dt)
+    return ImuTruth(t, dt, pos, v_n, C_bn, f_b, w_ib_b, epoch_index, exact=True)
+
+
+def from_recorded(track) -> ImuTruth:
+    """Use the track's recorded IMU (``track.imu``, (M, 7) ``[t, f, w]``) as the clean IMU.
+
+    Truth is only known at the GT epochs, which are matched to the nearest IMU sample; the
+    100 Hz ``pos/v_n/C_bn`` arrays are NaN except at those samples. Runs start at the
+    first GT epoch.
+    """
+    if track.imu is None:
+        raise NespmError(f"track {track.number}: --imu recorded needs IMU_trajectory{track.number}.csv")
+    imu = np.asarray(track.imu, dtype=float)
+    t = imu[:, 0]
+    if t[0] > track.t[0] + 0.02 or t[-1] < track.t[-1] - 0.02:
+        raise NespmError(
+            f"track {track.number}: recorded IMU covers {t[0]:.2f}-{t[-1]:.2f} s, GT {track.t[0]:.2f}-{track.t[-1]:.2f} s"
+        )
+    idx = np.clip(np.searchsorted(t, track.t), 1, len(t) - 1)
+    idx = np.where(np.abs(t[idx - 1] - track.t) < np.abs(t[idx] - track.t), idx - 1, idx)
+    ref = synthesize(track)
+    pos = np.full((len(t), 3), np.nan)
+    vel = np.full((len(t), 3), np.nan)
+    C = np.full((len(t), 3, 3), np.nan)
+    e = ref.epoch_index
+    pos[idx], vel[idx], C[idx] = ref.pos[e], ref.v_n[e], ref.C_bn[e]
+    return ImuTruth(t, np.diff(t), pos, vel, C, imu[1:, 1:4], imu[1:, 4:7], idx, exact=False)
