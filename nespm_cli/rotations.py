@@ -46,8 +46,19 @@ def exp_so3(phi: np.ndarray) -> np.ndarray:
 
     Rodrigues' formula with Taylor series below 1e-4 rad, exact to double precision.
     """
-    phi = np.asarray(phi, dtype=float)
-    th2 = np.einsum("...i,...i->...", phi, phi)
+    return _exp_parts(np.asarray(phi, dtype=float), minus_identity=False)
+
+
+def exp_so3_minus_identity(phi: np.ndarray) -> np.ndarray:
+    """``exp([phi x]) - I`` (..., 3, 3) without the cancellation of forming exp first.
+
+    Used where a small rotation acts on a large vector and only the change matters.
+    """
+    return _exp_parts(np.asarray(phi, dtype=float), minus_identity=True)
+
+
+def _exp_parts(phi: np.ndarray, minus_identity: bool) -> np.ndarray:
+    th2 = (phi * phi).sum(axis=-1)
     th = np.sqrt(th2)
     small = th < _SMALL
     th_safe = np.where(small, 1.0, th)
@@ -56,9 +67,8 @@ def exp_so3(phi: np.ndarray) -> np.ndarray:
         small, 0.5 - th2 / 24.0 + th2 * th2 / 720.0, (1.0 - np.cos(th_safe)) / (th_safe * th_safe)
     )
     # [phi x]^2 = phi phi^T - theta^2 I, so exp = (1 - b theta^2) I + a [phi x] + b phi phi^T
-    K = skew(phi * a[..., None])
-    out = K + b[..., None, None] * (phi[..., :, None] * phi[..., None, :])
-    diag = 1.0 - b * th2
+    out = skew(phi * a[..., None]) + b[..., None, None] * (phi[..., :, None] * phi[..., None, :])
+    diag = -b * th2 if minus_identity else 1.0 - b * th2
     out[..., 0, 0] += diag
     out[..., 1, 1] += diag
     out[..., 2, 2] += diag

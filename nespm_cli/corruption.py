@@ -1,0 +1,183 @@
+"""The papers' corruption protocol: one reproducible realization per (track, run).
+
+Every random draw of run ``r`` on track ``N`` comes from
+``SeedSequence(seed, spawn_key=(N, r, stream))`` with a fixed stream number per kind of
+draw (below), so a realization never depends on chunking, job count or filter, and each
+filter sees the identical realization.
+
+Protocol (ukf-nespm.md section IV-A, anukf.md section IV-A), all std values options:
+
+* initial velocity error N(0, 0.25²) north and east, N(0, 0.05²) down [m/s];
+* initial misalignment N(0, (0.01 deg)²) per axis (nav frame, ⊕ of eq 37);
+* white noise 0.03 m/s² (accelerometers), 7.3e-6 rad/s (gyros): std per 100 Hz sample;
+* biases N(0, 0.3²) m/s² and N(0, (7.3e-5)²) rad/s per axis, constant over the track.
+
+Schedules:
+
+* ``constant`` (UKF-NESPM paper): the biases and noise std above, unchanged.
+* ``dynamic`` (ANUKF paper, "changed dynamically, multiplied by factors of 1-6"): the
+  track is cut into segments of ``segment_s`` seconds (default 20 s); in each segment
+  the accelerometer noise std and bias are multiplied by a factor drawn uniformly from
+  [1, 6], and independently so are the gyro noise std and bias. A 20 s segment gives the
+  400 s tracks 20 regimes (enough for the adaptive filters to see several) while each
+  regime spans 20 DVL updates (long enough to be estimated). Bias steps at segment
+  boundaries are abrupt, as a re-scaled constant bias would be.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .errors import NespmError
+
+STREAM_INIT, STREAM_ACC, STREAM_GYRO, STREAM_DVL, STREAM_SCHEDULE = range(5)
+SCHEDULES = ("constant", "dynamic")
+
+
+@dataclass(frozen=True)
+class CorruptionConfig:
+    """Standard deviations of the protocol; defaults are the papers' values."""
+
+    vel_h_std: float = 0.25  # m/s, north and east
+    vel_v_std: float = 0.05  # m/s, down
+    misalignment_deg: float = 0.01  # deg per axis
+    heading_deg: float | None = None  # if set, overrides the yaw-axis (down) misalignment std
+    acc_noise: float = 0.03  # m/s^2 per sample
+    gyro_noise: float = 7.3e-6  # rad/s per sample
+    acc_bias: float = 0.3  # m/s^2
+    gyro_bias: float = 7.3e-5  # rad/s
+    schedule: str = "constant"
+    segment_s: float = 20.0  # dynamic schedule segment length
+    factor_min: float = 1.0
+    factor_max: float = 6.0
+    dvl_noise: float = 0.02  # m/s, synthetic DVL
+
+    def __post_init__(self):
+        if self.schedule not in SCHEDULES:
+            raise NespmError(f"--schedule: unknown schedule {self.schedule!r}; choose from {', '.join(SCHEDULES)}")
+        if self.segment_s <= 0:
+            raise NespmError("--segment-length must be positive")
+
+
+def stream(seed: int, track: int, run: int, kind: int) -> np.random.Generator:
+    """The generator of one kind of draw for run ``run`` of track ``track``."""
+    return np.random.Generator(np.random.PCG64(np.random.SeedSequence(seed, spawn_key=(track, run, kind))))
+
+
+@dataclass
+class Realization:
+    """The draws of R runs of one track (leading axis = run).
+
+    Attributes:
+        runs: (R,) run indices.
+        dv0: (R, 3) initial velocity error [m/s] (estimate = truth + dv0).
+        dpsi0: (R, 3) initial misalignment [rad] (C_est = exp([dpsi0 x]) C_true).
+        b_a, b_g: (R, 3) base biases [m/s^2], [rad/s].
+        acc_factors, gyro_factors: (R, S) per-segment factors (ones for ``constant``).
+    """
+
+    seed: int
+    track: int
+    runs: np.ndarray
+    config: CorruptionConfig
+    dv0: np.ndarray
+    dpsi0: np.ndarray
+    b_a: np.ndarray
+    b_g: np.ndarray
+    acc_factors: np.ndarray
+    gyro_factors: np.ndarray
+    _cache: dict = field(default_factory=dict, repr=False)
+
+
+def n_segments(duration: float, segment_s: float) -> int:
+    return max(1, int(np.ceil(duration / segment_s - 1e-9)))
+
+
+def draw(seed: int, track: int, runs, duration: float, config: CorruptionConfig) -> Realization:
+    """Draw the initial errors, biases and schedule factors of ``runs`` on ``track``.
+
+    One small generator per run is unavoidable (each run's stream must not depend on the
+    other runs in its chunk); the draws themselves are a few numbers per run.
+    """
+    runs = np.asarray(runs, dtype=np.int64)
+    S = n_segments(duration, config.segment_s)
+    std_v = np.array([config.vel_h_std, config.vel_h_std, config.vel_v_std])
+    mis = np.deg2rad(config.misalignment_deg)
+    std_psi = np.array([mis, mis, np.deg2rad(config.heading_deg) if config.heading_deg is not None else mis])
+    z = np.empty((len(runs), 12))
+    fac = np.ones((len(runs), 2, S))
+    for i, r in enumerate(runs):  # one generator per run (see docstring)
+        z[i] = stream(seed, track, int(r), STREAM_INIT).standard_normal(12)
+        if config.schedule == "dynamic":
+            fac[i] = stream(seed, track, int(r), STREAM_SCHEDULE).uniform(config.factor_min, config.factor_max, (2, S))
+    return Realization(
+        seed=seed,
+        track=track,
+        runs=runs,
+        config=config,
+        dv0=z[:, 0:3] * std_v,
+        dpsi0=z[:, 3:6] * std_psi,
+        b_a=z[:, 6:9] * config.acc_bias,
+        b_g=z[:, 9:12] * config.gyro_bias,
+        acc_factors=fac[:, 0],
+        gyro_factors=fac[:, 1],
+    )
+
+
+def segment_index(t_rel: np.ndarray, segment_s: float, S: int) -> np.ndarray:
+    """Segment of each time since the start [s] (..., ) -> int index in [0, S)."""
+    return np.minimum((np.asarray(t_rel) / segment_s + 1e-9).astype(np.int64), S - 1)
+
+
+def imu_errors(real: Realization, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Additive IMU errors of every run on the IMU steps ending at ``t[1:]``.
+
+    Args:
+        t: (M+1,) IMU sample times [s]; step j covers (t[j], t[j+1]].
+
+    Returns:
+        ``(e_f, e_w)``, each (R, M, 3): bias x factor + noise std x factor x N(0, 1), to be
+        added to the clean specific force [m/s^2] and angular rate [rad/s].
+    """
+    key = ("imu", len(t))
+    if key in real._cache:
+        return real._cache[key]
+    M = len(t) - 1
+    R = len(real.runs)
+    seg = segment_index(t[1:] - t[0], real.config.segment_s, real.acc_factors.shape[1])
+    fa = real.acc_factors[:, seg][..., None]  # (R, M, 1)
+    fg = real.gyro_factors[:, seg][..., None]
+    n_f = np.empty((R, M, 3))
+    n_w = np.empty((R, M, 3))
+    for i, r in enumerate(real.runs):  # per-run noise streams (see draw)
+        n_f[i] = stream(real.seed, real.track, int(r), STREAM_ACC).standard_normal((M, 3))
+        n_w[i] = stream(real.seed, real.track, int(r), STREAM_GYRO).standard_normal((M, 3))
+    e_f = fa * (real.b_a[:, None, :] + real.config.acc_noise * n_f)
+    e_w = fg * (real.b_g[:, None, :] + real.config.gyro_noise * n_w)
+    real._cache[key] = (e_f, e_w)
+    return e_f, e_w
+
+
+def dvl_noise(real: Realization, n_epochs: int) -> np.ndarray:
+    """Synthetic DVL noise (R, N, 3) [m/s], N(0, dvl_noise²) per axis and epoch."""
+    out = np.empty((len(real.runs), n_epochs, 3))
+    for i, r in enumerate(real.runs):
+        out[i] = stream(real.seed, real.track, int(r), STREAM_DVL).standard_normal((n_epochs, 3))
+    return real.config.dvl_noise * out
+
+
+def to_rows(real: Realization) -> list[dict]:
+    """One dict per run holding every draw of the realization (for realizations.parquet)."""
+    rows = []
+    for i, r in enumerate(real.runs):
+        row = {"track": real.track, "run": int(r), "seed": real.seed, "schedule": real.config.schedule,
+               "segment_s": real.config.segment_s}
+        for name, arr, comps in (("dv0", real.dv0, "ned"), ("dpsi0", real.dpsi0, "xyz"),
+                                 ("ba", real.b_a, "xyz"), ("bg", real.b_g, "xyz")):
+            for j, c in enumerate(comps):
+                row[f"{name}_{c}"] = float(arr[i, j])
+        row["acc_factors"] = real.acc_factors[i].tolist()
+        row["gyro_factors"] = real.gyro_factors[i].tolist()
+        rows.append(row)
+    return rows

@@ -1,0 +1,401 @@
+"""Ground-truth tracks: load, validate, summarize and write A-KIT style Snapir track folders.
+
+A data folder holds ``TrajectoryN/GT_trajectoryN.csv`` and ``TrajectoryN/DVL_trajectoryN.csv``
+(and optionally ``TrajectoryN/IMU_trajectoryN.csv``), with the exact headers in
+:data:`GT_COLUMNS`, :data:`DVL_COLUMNS` and :data:`IMU_COLUMNS` (surrounding whitespace in a
+header name is ignored, extra columns are ignored). Without a data folder (no ``--data-dir`` and
+no ``NESPM_DATA_DIR``) the deterministic embedded tracks of :mod:`nespm_cli.embedded` are used.
+
+Every validation failure raises :class:`~nespm_cli.errors.NespmError` with a one-line message
+``"<file>: data row R, column 'C': ..."``; *data rows* are numbered from 1 after the header line
+(so data row R is line R + 1 of the file when it has no blank lines).
+
+Conventions: ``pos = [lat rad, lon rad, alt m]`` with the altitude positive up (negative below
+the sea surface, as in the files; depth = -alt), ``v_n`` is NED [m/s], ``euler`` is
+``[roll, pitch, yaw]`` [rad], ZYX, body -> NED (see :mod:`nespm_cli.rotations`).
+"""
+from __future__ import annotations
+
+import os
+import re
+from collections.abc import Iterable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from .errors import NespmError
+from .rotations import euler_to_dcm, log_so3, skew
+
+ENV_DATA_DIR = "NESPM_DATA_DIR"
+GT_COLUMNS = (
+    "Time [s]",
+    "Longitude [rad]",
+    "Latitude [rad]",
+    "Altitude [m]",
+    "V North [m/s]",
+    "V East [m/s]",
+    "V Down [m/s]",
+    "Roll [rad]",
+    "Pitch [rad]",
+    "Yaw [rad]",
+)
+DVL_COLUMNS = ("Time [s]", "DVL X [m/s]", "DVL Y [m/s]", "DVL Z [m/s]")
+IMU_COLUMNS = (
+    "Time [s]",
+    "ACC X [m/s^2]",
+    "ACC Y [m/s^2]",
+    "ACC Z [m/s^2]",
+    "GYRO X [rad/s]",
+    "GYRO Y [rad/s]",
+    "GYRO Z [rad/s]",
+)
+MAX_SPEED = 20.0  # [m/s]; a GT or DVL speed at or above this is rejected as a unit/column error
+EPOCH_TOL = 1e-6  # [s]; GT and DVL time stamps must agree to this
+_TRACK_DIR = re.compile(r"Trajectory(\d+)")
+
+
+@dataclass(frozen=True, eq=False)
+class Track:
+    """One ground-truth track with its DVL record (all arrays read-only).
+
+    Attributes:
+        number: track number N (``TrajectoryN``).
+        t: (N,) time [s], strictly increasing, as in the file (not shifted to 0).
+        pos: (N, 3) ``[lat rad, lon rad, alt m]``, alt positive up (negative below the surface).
+        v_n: (N, 3) NED velocity [m/s].
+        euler: (N, 3) ``[roll, pitch, yaw]`` [rad], ZYX, body -> NED.
+        dvl: (N, 3) body-frame DVL velocity [m/s] on the epochs ``t``.
+        imu: (M, 7) ``[t s, fx, fy, fz m/s^2, wx, wy, wz rad/s]`` recorded IMU, or None.
+        source: the ``TrajectoryN`` folder the track was read from, or ``"embedded"``.
+    """
+
+    number: int
+    t: np.ndarray
+    pos: np.ndarray
+    v_n: np.ndarray
+    euler: np.ndarray
+    dvl: np.ndarray
+    imu: np.ndarray | None
+    source: str
+
+    def __post_init__(self) -> None:
+        n = len(self.t)
+        for name in ("pos", "v_n", "euler", "dvl"):
+            if np.shape(getattr(self, name)) != (n, 3):
+                shape = np.shape(getattr(self, name))
+                raise ValueError(f"Track.{name} must have shape ({n}, 3), got {shape}")
+        if self.imu is not None and (np.ndim(self.imu) != 2 or np.shape(self.imu)[1] != 7):
+            raise ValueError(f"Track.imu must have shape (M, 7), got {np.shape(self.imu)}")
+        for name in ("t", "pos", "v_n", "euler", "dvl", "imu"):
+            a = getattr(self, name)
+            if a is not None:
+                a = np.array(a, dtype=float)  # private copy, then frozen
+                a.flags.writeable = False
+                object.__setattr__(self, name, a)
+
+    @property
+    def C_bn(self) -> np.ndarray:
+        """(N, 3, 3) body -> NED direction cosine matrices from :attr:`euler`."""
+        return euler_to_dcm(self.euler)
+
+    @property
+    def duration(self) -> float:
+        """Time span ``t[-1] - t[0]`` [s]."""
+        return float(self.t[-1] - self.t[0])
+
+
+# ----------------------------------------------------------------------------- data folders
+
+
+def resolve_data_dir(data_dir: str | Path | None) -> Path | None:
+    """The data folder to use: ``data_dir`` (``--data-dir``), else ``$NESPM_DATA_DIR``, else None.
+
+    None means the embedded tracks. An empty string counts as not given. Raises
+    :class:`NespmError` if the chosen folder does not exist or is not a directory.
+    """
+    origin = ""
+    if data_dir is None or str(data_dir).strip() == "":
+        env = os.environ.get(ENV_DATA_DIR, "").strip()
+        if not env:
+            return None
+        data_dir, origin = env, f" (from {ENV_DATA_DIR})"
+    path = Path(data_dir).expanduser()
+    _check_dir(path, origin)
+    return path
+
+
+def _check_dir(path: Path, origin: str = "") -> None:
+    if not path.exists():
+        raise NespmError(f"{path}: data directory not found{origin}")
+    if not path.is_dir():
+        raise NespmError(f"{path}: data directory is not a directory{origin}")
+
+
+def available_tracks(data_dir: Path | None) -> list[int]:
+    """Sorted track numbers in ``data_dir`` (``TrajectoryN`` sub-folders); None -> embedded [1..6].
+
+    Raises :class:`NespmError` if the folder does not exist or holds no ``TrajectoryN`` folder.
+    """
+    if data_dir is None:
+        from .embedded import EMBEDDED_TRACKS
+
+        return list(EMBEDDED_TRACKS)
+    data_dir = Path(data_dir)
+    _check_dir(data_dir)
+    numbers = sorted(
+        int(m.group(1))
+        for p in data_dir.iterdir()
+        if p.is_dir() and (m := _TRACK_DIR.fullmatch(p.name))
+    )
+    if not numbers:
+        raise NespmError(
+            f"{data_dir}: no TrajectoryN folders found "
+            "(expected TrajectoryN/GT_trajectoryN.csv and TrajectoryN/DVL_trajectoryN.csv)"
+        )
+    return numbers
+
+
+def load_track(number: int, data_dir: str | Path | None = None) -> Track:
+    """Load and validate track ``number`` from ``data_dir`` (None -> ``$NESPM_DATA_DIR`` -> embedded).
+
+    Raises :class:`NespmError` (one line, naming the file and first bad data row / column) on an
+    unknown track number, a missing or empty file, a missing column, non-numeric text, NaN/inf,
+    time not strictly increasing, GT/DVL epochs that differ, |lat| > pi/2, |lon| > pi, or a speed
+    >= 20 m/s.
+    """
+    folder = resolve_data_dir(data_dir)
+    if folder is None:
+        from .embedded import embedded_track
+
+        return embedded_track(number)
+    numbers = available_tracks(folder)
+    if number not in numbers:
+        raise NespmError(f"{folder}: no track {number} (available: {_fmt_numbers(numbers)})")
+    tdir = folder / f"Trajectory{number}"
+    gt_path = tdir / f"GT_trajectory{number}.csv"
+    dvl_path = tdir / f"DVL_trajectory{number}.csv"
+    imu_path = tdir / f"IMU_trajectory{number}.csv"
+
+    gt = _read_table(gt_path, GT_COLUMNS)
+    _check_time(gt_path, gt[:, 0])
+    _check_range(gt_path, gt[:, 2], GT_COLUMNS[2], np.pi / 2, "pi/2")
+    _check_range(gt_path, gt[:, 1], GT_COLUMNS[1], np.pi, "pi")
+    _check_speed(gt_path, gt[:, 4:7], GT_COLUMNS[4:7])
+
+    dvl = _read_table(dvl_path, DVL_COLUMNS)
+    _check_time(dvl_path, dvl[:, 0])
+    _check_epochs(dvl_path, dvl[:, 0], gt_path, gt[:, 0])
+    _check_speed(dvl_path, dvl[:, 1:4], DVL_COLUMNS[1:4])
+
+    imu = None
+    if imu_path.exists():
+        imu = _read_table(imu_path, IMU_COLUMNS)
+        _check_time(imu_path, imu[:, 0])
+
+    return Track(
+        number=number,
+        t=gt[:, 0],
+        pos=gt[:, [2, 1, 3]],
+        v_n=gt[:, 4:7],
+        euler=gt[:, 7:10],
+        dvl=dvl[:, 1:4],
+        imu=imu,
+        source=str(tdir),
+    )
+
+
+def load_tracks(numbers: Iterable[int] | None, data_dir: str | Path | None = None) -> list[Track]:
+    """Load several tracks (None -> every available track) from one data folder (or embedded)."""
+    folder = resolve_data_dir(data_dir)
+    if numbers is None:
+        numbers = available_tracks(folder)
+    if folder is None:
+        from .embedded import embedded_track
+
+        return [embedded_track(int(n)) for n in numbers]
+    return [load_track(int(n), folder) for n in numbers]
+
+
+def write_akit(track: Track, folder: str | Path) -> Path:
+    """Write ``track`` as ``folder/TrajectoryN/{GT,DVL[,IMU]}_trajectoryN.csv``; return that folder.
+
+    Full precision (``%.17g``), exact headers, so :func:`load_track` reads back the same floats.
+    """
+    tdir = Path(folder) / f"Trajectory{track.number}"
+    tdir.mkdir(parents=True, exist_ok=True)
+    gt = np.column_stack([track.t, track.pos[:, 1], track.pos[:, 0], track.pos[:, 2], track.v_n, track.euler])
+    _write_csv(tdir / f"GT_trajectory{track.number}.csv", gt, GT_COLUMNS)
+    _write_csv(tdir / f"DVL_trajectory{track.number}.csv", np.column_stack([track.t, track.dvl]), DVL_COLUMNS)
+    if track.imu is not None:
+        _write_csv(tdir / f"IMU_trajectory{track.number}.csv", track.imu, IMU_COLUMNS)
+    return tdir
+
+
+def _write_csv(path: Path, data: np.ndarray, columns: tuple[str, ...]) -> None:
+    pd.DataFrame(np.asarray(data, dtype=float), columns=list(columns)).to_csv(
+        path, index=False, float_format="%.17g"
+    )
+
+
+def _fmt_numbers(numbers: list[int]) -> str:
+    return ", ".join(str(n) for n in numbers)
+
+
+# ----------------------------------------------------------------------------- validation
+
+
+def _one_line(text: str) -> str:
+    return " ".join(str(text).split())
+
+
+def _read_table(path: Path, columns: tuple[str, ...]) -> np.ndarray:
+    """Read ``columns`` of the CSV ``path`` as a finite float array (rows, len(columns))."""
+    if not path.is_file():
+        raise NespmError(f"{path}: file not found")
+    try:
+        df = pd.read_csv(path, encoding="utf-8-sig")
+    except pd.errors.EmptyDataError:
+        raise NespmError(f"{path}: empty file") from None
+    except (pd.errors.ParserError, UnicodeDecodeError, ValueError) as exc:
+        raise NespmError(f"{path}: not a readable CSV file ({_one_line(exc)})") from None
+    df.columns = [str(c).strip() for c in df.columns]
+    for col in columns:
+        if col not in df.columns:
+            raise NespmError(f"{path}: missing column '{col}' (header has: {', '.join(df.columns)})")
+    if len(df) == 0:
+        raise NespmError(f"{path}: no data rows after the header")
+    if len(df) < 2:
+        raise NespmError(f"{path}: needs at least 2 data rows, has {len(df)}")
+    out = np.empty((len(df), len(columns)))
+    for j, col in enumerate(columns):
+        s = df[col]
+        if not pd.api.types.is_numeric_dtype(s.dtype):
+            num = pd.to_numeric(s, errors="coerce")
+            bad = np.flatnonzero((num.isna() & s.notna()).to_numpy())
+            if bad.size:
+                r = int(bad[0])
+                text = str(s.iloc[r]).strip()
+                raise NespmError(f"{path}: data row {r + 1}, column '{col}': not a number ({text!r})")
+            s = num
+        out[:, j] = s.to_numpy(dtype=float)
+    bad_rows = np.flatnonzero(~np.isfinite(out).all(axis=1))
+    if bad_rows.size:
+        r = int(bad_rows[0])
+        j = int(np.flatnonzero(~np.isfinite(out[r]))[0])
+        raise NespmError(
+            f"{path}: data row {r + 1}, column '{columns[j]}': missing or non-finite value ({float(out[r, j])})"
+        )
+    return out
+
+
+def _check_time(path: Path, t: np.ndarray) -> None:
+    bad = np.flatnonzero(np.diff(t) <= 0.0)
+    if bad.size:
+        r = int(bad[0]) + 1  # 0-based index of the offending row
+        raise NespmError(
+            f"{path}: data row {r + 1}, column 'Time [s]': time {float(t[r])!r} is not after the previous "
+            f"row's {float(t[r - 1])!r} (must be strictly increasing)"
+        )
+
+
+def _check_epochs(path: Path, t: np.ndarray, gt_path: Path, t_gt: np.ndarray) -> None:
+    if len(t) != len(t_gt):
+        raise NespmError(
+            f"{path}: {len(t)} data rows but {gt_path.name} has {len(t_gt)} (DVL must be on the GT epochs)"
+        )
+    bad = np.flatnonzero(np.abs(t - t_gt) > EPOCH_TOL)
+    if bad.size:
+        r = int(bad[0])
+        raise NespmError(
+            f"{path}: data row {r + 1}, column 'Time [s]': time {float(t[r])!r} differs from {gt_path.name} "
+            f"time {float(t_gt[r])!r} by more than {EPOCH_TOL:g} s"
+        )
+
+
+def _check_range(path: Path, x: np.ndarray, col: str, limit: float, limit_name: str) -> None:
+    bad = np.flatnonzero(np.abs(x) > limit)
+    if bad.size:
+        r = int(bad[0])
+        raise NespmError(
+            f"{path}: data row {r + 1}, column '{col}': |{float(x[r])!r}| > {limit_name} (radians expected)"
+        )
+
+
+def _check_speed(path: Path, v: np.ndarray, cols: tuple[str, ...]) -> None:
+    speed = np.linalg.norm(v, axis=1)
+    bad = np.flatnonzero(speed >= MAX_SPEED)
+    if bad.size:
+        r = int(bad[0])
+        raise NespmError(
+            f"{path}: data row {r + 1}, columns {', '.join(repr(c) for c in cols)}: "
+            f"speed {speed[r]:.4g} m/s >= {MAX_SPEED:g} m/s"
+        )
+
+
+# ----------------------------------------------------------------------------- analysis
+
+
+def body_rate_fd(t: np.ndarray, C_bn: np.ndarray) -> np.ndarray:
+    """Body rate w_nb^b [rad/s] (N, 3) from an attitude sequence by finite differences.
+
+    Interior epochs: ``log(C_{k-1}^T C_{k+1}) / (t_{k+1} - t_{k-1})`` (central); the first and last
+    epochs use the one-sided difference. ``t`` (N,) [s], ``C_bn`` (N, 3, 3) body -> NED, N >= 2.
+    """
+    t = np.asarray(t, dtype=float)
+    C_bn = np.asarray(C_bn, dtype=float)
+    CT = np.swapaxes(C_bn, -1, -2)
+    w = np.empty((len(t), 3))
+    w[1:-1] = log_so3(CT[:-2] @ C_bn[2:]) / (t[2:] - t[:-2])[:, None]
+    w[0] = log_so3(CT[0] @ C_bn[1]) / (t[1] - t[0])
+    w[-1] = log_so3(CT[-2] @ C_bn[-1]) / (t[-1] - t[-2])
+    return w
+
+
+def dvl_lever_arm_fit(track: Track) -> tuple[np.ndarray, np.ndarray]:
+    """Least-squares DVL lever arm ``l`` (3,) [m, body] and residual (N, 3) [m/s].
+
+    Model: ``dvl ≈ C_bn^T v_n + w_nb^b x l`` with ``w_nb^b`` from :func:`body_rate_fd` on the GT
+    attitude. The residual is ``dvl - C_bn^T v_n - w x l``. On a straight track (no rotation)
+    ``l`` is not observable and the minimum-norm solution is returned.
+    """
+    C = track.C_bn
+    w = body_rate_fd(track.t, C)
+    r0 = np.asarray(track.dvl) - np.einsum("nji,nj->ni", C, track.v_n)
+    A = skew(w)  # w x l = [w x] l
+    lever, *_ = np.linalg.lstsq(A.reshape(-1, 3), r0.reshape(-1), rcond=None)
+    return lever, r0 - A @ lever
+
+
+def track_summary(track: Track) -> dict:
+    """Summary numbers of a track (plain Python types, JSON-ready).
+
+    Keys: ``track``; ``duration_s`` [s]; ``epochs``; ``distance_m`` (horizontal, trapezoid
+    integral of |v_N, v_E|) [m]; ``mean_speed`` (mean |v_n|) [m/s]; ``max_yaw_rate_dps`` (max
+    |d unwrap(yaw)/dt|) [deg/s]; ``depth_min``, ``depth_max`` (depth = -alt) [m]; ``imu`` (bool);
+    ``dvl_resid_std`` (RMS over the 3 axes of the per-axis residual std after the lever-arm fit)
+    [m/s]; ``dvl_resid_std_xyz`` (the per-axis stds) [m/s]; ``lever_arm`` (x, y, z) [m, body].
+    """
+    t = np.asarray(track.t)
+    v = np.asarray(track.v_n)
+    hspeed = np.hypot(v[:, 0], v[:, 1])
+    distance = float(np.sum(0.5 * (hspeed[1:] + hspeed[:-1]) * np.diff(t)))
+    yaw_rate = np.diff(np.unwrap(track.euler[:, 2])) / np.diff(t)
+    depth = -np.asarray(track.pos[:, 2])
+    lever, resid = dvl_lever_arm_fit(track)
+    std_xyz = resid.std(axis=0)
+    return {
+        "track": int(track.number),
+        "duration_s": track.duration,
+        "epochs": int(len(t)),
+        "distance_m": distance,
+        "mean_speed": float(np.linalg.norm(v, axis=1).mean()),
+        "max_yaw_rate_dps": float(np.degrees(np.abs(yaw_rate).max())),
+        "depth_min": float(depth.min()),
+        "depth_max": float(depth.max()),
+        "imu": track.imu is not None,
+        "dvl_resid_std": float(np.sqrt(np.mean(std_xyz**2))),
+        "dvl_resid_std_xyz": tuple(float(s) for s in std_xyz),
+        "lever_arm": tuple(float(x) for x in lever),
+    }
