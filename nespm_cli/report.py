@@ -483,7 +483,7 @@ def _main_table(table: pd.DataFrame) -> str:
                 _fmt_ci(r.vrmse_ci_lo, r.vrmse_ci_hi, r.vrmse_ci_excludes_0),
                 _fmt(r.mrmse), _fmt_pct(r.mrmse_imprv),
                 _fmt_ci(r.mrmse_ci_lo, r.mrmse_ci_hi, r.mrmse_ci_excludes_0),
-                _fmt(r.nees, ".3g"), f"{r.diverged} / {r.runs}",
+                _fmt(r.nees, ".2f"), f"{r.diverged} / {r.runs}",
             ]
         )
     return _md_table(headers, rows)
@@ -493,7 +493,7 @@ def _track_md(tt: pd.DataFrame) -> str:
     """Markdown of :func:`track_table`."""
     headers = ["Track", "Method", "VRMSE [m/s]", "MRMSE [rad]", "mean NEES", "diverged"]
     rows = [
-        [str(r.track), r.filter, _fmt(r.vrmse), _fmt(r.mrmse), _fmt(r.nees, ".3g"),
+        [str(r.track), r.filter, _fmt(r.vrmse), _fmt(r.mrmse), _fmt(r.nees, ".2f"),
          f"{r.diverged} / {r.runs}"]
         for r in tt.itertuples(index=False)
     ]

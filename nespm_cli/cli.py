@@ -1,0 +1,253 @@
+"""The ``nespm`` command line: parse, call the library, print.
+
+Every bad input ends in one line ``nespm: error: ...`` on stderr and exit code 2.
+"""
+from __future__ import annotations
+
+import functools
+import inspect
+import json
+import sys
+import time
+from pathlib import Path
+from typing import Optional, Tuple
+
+import typer
+from typer.exceptions import Abort, Exit, TyperException
+
+from .corruption import CorruptionConfig
+from .errors import NespmError
+from .filters import FilterConfig
+
+app = typer.Typer(
+    add_completion=False,
+    no_args_is_help=True,
+    pretty_exceptions_enable=False,
+    rich_markup_mode=None,
+    help="Monte Carlo experiments for nonlinear INS/DVL navigation filters (EKF, UKF, UKF-NESPM).\n\n"
+    "Tracks come from --data-dir (A-KIT layout: TrajectoryN/{GT,DVL}_trajectoryN.csv), else "
+    "$NESPM_DATA_DIR, else six embedded Snapir-like tracks.",
+)
+
+DATA_DIR = typer.Option(None, "--data-dir", help="Folder in the A-KIT layout (default: $NESPM_DATA_DIR, else the embedded tracks).")
+
+
+def _tracks(text: str) -> tuple[int, ...]:
+    try:
+        out = tuple(int(x) for x in text.replace(",", " ").split())
+    except ValueError:
+        raise NespmError(f"--tracks: expected track numbers like '5 6' or '5,6', got {text!r}") from None
+    if not out:
+        raise NespmError("--tracks: give at least one track number")
+    return out
+
+
+def _filters(text: str) -> tuple[str, ...]:
+    return tuple(x.strip().lower() for x in text.split(",") if x.strip())
+
+
+def _spec(**kw):
+    from .experiment import Spec
+
+    corr = CorruptionConfig(
+        schedule=kw.pop("schedule"), segment_s=kw.pop("segment_length"),
+        misalignment_deg=kw.pop("misalignment_deg"), vel_h_std=kw.pop("vel_h_std"),
+        vel_v_std=kw.pop("vel_v_std"), acc_noise=kw["acc_noise"], gyro_noise=kw["gyro_noise"],
+        acc_bias=kw.pop("acc_bias"), gyro_bias=kw.pop("gyro_bias"), dvl_noise=kw.pop("dvl_noise"),
+    )
+    fcfg = FilterConfig(
+        alpha=kw.pop("alpha"), time_update=kw.pop("time_update"), acc_noise=kw.pop("acc_noise"),
+        gyro_noise=kw.pop("gyro_noise"), acc_bias_rw=kw.pop("acc_bias_rw"), gyro_bias_rw=kw.pop("gyro_bias_rw"),
+        p0_vel=(corr.vel_h_std, corr.vel_h_std, corr.vel_v_std), p0_att_deg=(corr.misalignment_deg,) * 3,
+        p0_acc_bias=corr.acc_bias, p0_gyro_bias=corr.gyro_bias,
+    )
+    return Spec(corruption=corr, filter_config=fcfg, **kw)
+
+
+_COMMON = [  # (name, type, default, flag, help): the options that define an experiment
+    ("scenario", str, "nominal", "--scenario", "nominal, or outage: no DVL for --outage-length s from --outage-start s."),
+    ("schedule", str, "constant", "--schedule", "IMU error schedule: constant (UKF-NESPM paper) or dynamic (ANUKF paper: noise and bias x U[1,6] per segment)."),
+    ("segment_length", float, 20.0, "--segment-length", "Dynamic schedule segment [s]."),
+    ("seed", int, 0, "--seed", "Master seed; run r of track N draws from SeedSequence(seed, spawn_key=(N, r, stream))."),
+    ("data_dir", Optional[str], None, "--data-dir", "Folder in the A-KIT layout (default: $NESPM_DATA_DIR, else the embedded tracks)."),
+    ("imu", str, "synthetic", "--imu", "synthetic (inverse strapdown of GT: exact truth) or recorded (IMU_trajectoryN.csv)."),
+    ("dvl", str, "recorded", "--dvl", "recorded (the track's DVL file) or synthetic (C_n^b v + w_nb x l + N(0, dvl-noise^2))."),
+    ("dvl_noise", float, 0.02, "--dvl-noise", "Synthetic DVL noise std [m/s]."),
+    ("dvl_lever_arm", Tuple[float, float, float], (0.0, 0.0, 0.0), "--dvl-lever-arm", "DVL lever arm X Y Z [m, body] in the measurement model (and in synthetic DVL)."),
+    ("dvl_r_std", Optional[float], None, "--dvl-r-std", "Filter DVL std [m/s] (default 0.02 with synthetic DVL, 0.1 with recorded)."),
+    ("outage_start", float, 180.0, "--outage-start", "Outage start [s after the first epoch]."),
+    ("outage_length", float, 20.0, "--outage-length", "Outage length [s]."),
+    ("misalignment_deg", float, 0.01, "--misalignment-deg", "Initial misalignment std per axis [deg]."),
+    ("vel_h_std", float, 0.25, "--vel-h-std", "Initial north/east velocity error std [m/s]."),
+    ("vel_v_std", float, 0.05, "--vel-v-std", "Initial down velocity error std [m/s]."),
+    ("acc_noise", float, 0.03, "--acc-noise", "Accelerometer white noise std per 100 Hz sample [m/s^2]."),
+    ("gyro_noise", float, 7.3e-6, "--gyro-noise", "Gyro white noise std per sample [rad/s]."),
+    ("acc_bias", float, 0.3, "--acc-bias", "Accelerometer bias std [m/s^2]."),
+    ("gyro_bias", float, 7.3e-5, "--gyro-bias", "Gyro bias std [rad/s]."),
+    ("acc_bias_rw", float, 1e-3, "--acc-bias-rw", "Filter accelerometer bias random walk [m/s^2/sqrt(s)]."),
+    ("gyro_bias_rw", float, 1e-6, "--gyro-bias-rw", "Filter gyro bias random walk [rad/s/sqrt(s)]."),
+    ("alpha", float, 1e-3, "--alpha", "UKF sigma-point spread alpha (beta = 2, kappa = 0)."),
+    ("time_update", str, "dvl", "--time-update", "dvl: one time update per DVL interval (sigma points carried through all its IMU steps); imu: every IMU step."),
+]
+
+
+def _common(f):
+    """Give command ``f`` (which takes ``**kw``) every experiment option of ``_COMMON``."""
+    own = [p for p in inspect.signature(f).parameters.values() if p.kind != p.VAR_KEYWORD]
+    extra = [inspect.Parameter(n, inspect.Parameter.KEYWORD_ONLY, annotation=t,
+                               default=typer.Option(d, flag, help=h, show_default=d is not None))
+             for n, t, d, flag, h in _COMMON]
+
+    @functools.wraps(f)
+    def wrapper(**kwargs):
+        return f(**kwargs)
+
+    wrapper.__signature__ = inspect.Signature(own + extra)
+    return wrapper
+
+
+@app.command()
+def tracks(data_dir: Optional[str] = DATA_DIR) -> None:
+    """List the tracks: duration, distance, speed, yaw rate, depth, DVL residual and lever arm."""
+    from rich.console import Console
+    from rich.table import Table
+
+    from .tracks import available_tracks, load_track, resolve_data_dir, track_summary
+
+    d = resolve_data_dir(data_dir)
+    table = Table(title=f"tracks in {d if d else 'the embedded default'}")
+    for c in ("track", "duration [s]", "epochs", "distance [m]", "mean speed [m/s]", "max yaw rate [deg/s]",
+              "depth [m]", "IMU", "DVL resid std [m/s]", "lever arm [m]"):
+        table.add_column(c, justify="right")
+    for n in available_tracks(d):
+        s = track_summary(load_track(n, d))
+        table.add_row(str(n), f"{s['duration_s']:.1f}", str(s["epochs"]), f"{s['distance_m']:.0f}",
+                      f"{s['mean_speed']:.2f}", f"{s['max_yaw_rate_dps']:.1f}",
+                      f"{s['depth_min']:.1f}-{s['depth_max']:.1f}", "yes" if s["imu"] else "no",
+                      f"{s['dvl_resid_std']:.3f}", "(" + ", ".join(f"{x:.2f}" for x in s["lever_arm"]) + ")")
+    Console().print(table)
+
+
+@app.command()
+def corrupt(
+    tracks_: str = typer.Option("5 6", "--tracks", help="Track numbers, e.g. '5 6' or 5,6."),
+    runs: int = typer.Option(100, "--runs", help="Monte Carlo runs per track."),
+    seed: int = typer.Option(0, "--seed", help="Master seed."),
+    schedule: str = typer.Option("constant", "--schedule", help="constant or dynamic."),
+    segment_length: float = typer.Option(20.0, "--segment-length", help="Dynamic schedule segment [s]."),
+    out: Path = typer.Option(..., "--out", help="Output folder (realizations.parquet)."),
+    materialize: bool = typer.Option(False, "--materialize", help="Also write the 100 Hz IMU error streams (large)."),
+    data_dir: Optional[str] = DATA_DIR,
+) -> None:
+    """Draw the realizations (initial errors, biases, schedule factors) into DIR/realizations.parquet."""
+    from .realizations import write_realizations
+
+    path = write_realizations(_tracks(tracks_), runs, seed, CorruptionConfig(schedule=schedule, segment_s=segment_length),
+                              out, data_dir=data_dir, materialize=materialize)
+    typer.echo(f"wrote {path}")
+
+
+@app.command()
+@_common
+def run(
+    track: int = typer.Option(..., "--track", help="Track number."),
+    filt: str = typer.Option("ukf-nespm", "--filter", help="ins, ekf, ukf or ukf-nespm."),
+    run: int = typer.Option(0, "--run", help="Realization index (same index = same realization as in mc)."),
+    clean: bool = typer.Option(False, "--clean", help="No corruption: exact initial state, clean IMU, noise-free synthetic DVL."),
+    as_json: bool = typer.Option(False, "--json", help="Print one JSON object with the run's metrics."),
+    out: Optional[str] = typer.Option(None, "--out", help="Write the run's time series (Parquet, or CSV if the name ends in .csv)."),
+    **kw,
+) -> None:
+    """Run one realization of one filter on one track; print its metrics."""
+    from .single import run_single
+
+    spec = _spec(tracks=(track,), runs=run + 1, filters=(filt.lower(),), **kw)
+    t0 = time.perf_counter()
+    summary = run_single(spec, track, filt.lower(), run, clean=clean, out=out)
+    summary["seconds"] = round(time.perf_counter() - t0, 3)
+    if as_json:
+        typer.echo(json.dumps(summary))
+    else:
+        for k, v in summary.items():
+            typer.echo(f"{k:>12}: {v}")
+
+
+@app.command()
+@_common
+def mc(
+    tracks_: str = typer.Option("5 6", "--tracks", help="Track numbers: --tracks 5 6 or --tracks 5,6."),
+    runs: int = typer.Option(100, "--runs", help="Monte Carlo runs per track."),
+    filters_: str = typer.Option("ekf,ukf,ukf-nespm", "--filters", help="Comma list of ins, ekf, ukf, ukf-nespm."),
+    jobs: int = typer.Option(2, "--jobs", help="joblib worker processes (results do not depend on it)."),
+    chunk_size: int = typer.Option(50, "--chunk-size", help="Runs per batch, the resumable unit."),
+    out: str = typer.Option("results/mc", "--out", help="Output folder."),
+    no_progress: bool = typer.Option(False, "--no-progress", help="No progress bar."),
+    **kw,
+) -> None:
+    """Monte Carlo: every filter on the same realizations; metrics/epochs Parquet, manifest; resumable."""
+    from .experiment import run_mc
+
+    spec = _spec(tracks=_tracks(tracks_), runs=runs, filters=_filters(filters_), chunk_size=chunk_size, **kw)
+    t0 = time.perf_counter()
+    m = run_mc(spec, out, jobs=jobs, progress=not no_progress)
+    div = int(m["diverged"].sum())
+    typer.echo(f"{len(m)} rows (track x filter x run) in {time.perf_counter() - t0:.1f} s, {div} diverged "
+               f"-> {out}/metrics.parquet; next: nespm report {out}")
+
+
+@app.command()
+def report(
+    out_dir: Path = typer.Argument(..., help="Folder written by 'nespm mc'."),
+    baseline: Optional[str] = typer.Option(None, "--baseline", help="Filter whose improvement over each other row is shown (the papers' 'Imprv.' column)."),
+    n_boot: int = typer.Option(2000, "--n-boot", help="Paired bootstrap resamples for the 95 % intervals."),
+) -> None:
+    """Write DIR/report.md (Tables I/II layout, paired 95 % intervals, published values) and figures."""
+    from .report import write_report
+
+    path = write_report(out_dir, baseline, n_boot=n_boot)
+    typer.echo(path.read_text())
+    typer.echo(f"wrote {path}")
+
+
+def _normalize_argv(argv: list[str]) -> list[str]:
+    """Let ``--tracks 5 6`` mean ``--tracks '5 6'`` (click options take one value)."""
+    out, i = [], 0
+    while i < len(argv):
+        a = argv[i]
+        if a == "--tracks":
+            vals = []
+            i += 1
+            while i < len(argv) and not argv[i].startswith("-"):
+                vals.append(argv[i])
+                i += 1
+            out += [a, " ".join(vals)]
+            continue
+        out.append(a)
+        i += 1
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = _normalize_argv(list(sys.argv[1:] if argv is None else argv))
+    try:
+        rv = typer.main.get_command(app).main(args=argv, prog_name="nespm", standalone_mode=False)
+        return rv if isinstance(rv, int) else 0
+    except NespmError as exc:
+        typer.echo(f"nespm: error: {str(exc).splitlines()[0]}", err=True)
+        return exc.exit_code
+    except Exit as exc:
+        return exc.exit_code
+    except Abort:
+        typer.echo("nespm: aborted", err=True)
+        return 130
+    except TyperException as exc:
+        msg = exc.format_message().splitlines()
+        typer.echo(f"nespm: error: {msg[0] if msg else exc}", err=True)
+        return 2
+    except KeyboardInterrupt:
+        typer.echo("nespm: interrupted; finished chunks are kept, re-run the same command to resume", err=True)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,336 @@
+"""The Monte Carlo runner: realizations x filters x tracks, in joblib workers, resumable.
+
+The unit of work is a chunk: ``chunk_size`` consecutive runs of one track, run as one
+batch through every requested filter (all filters see the identical realization). Each
+finished chunk writes one Parquet file per filter into ``DIR/chunks/`` atomically; a
+re-run of the same command skips those and only computes what is missing, then
+assembles ``metrics.parquet`` and ``epochs.parquet`` (docs/results-schema.md).
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import platform
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from . import __version__
+from .corruption import SCHEDULES, CorruptionConfig, draw, dvl_noise, imu_errors
+from .errors import NespmError
+from .earth import ned_offset
+from .filters import FILTERS, FilterConfig, initial_nav, run_filter
+from .metrics import epoch_errors, run_metrics
+from .rotations import log_so3
+from .synthesis import ImuTruth, from_recorded, synthesize
+from .tracks import Track, available_tracks, load_track, resolve_data_dir
+
+SCENARIOS = ("nominal", "outage")
+
+
+@dataclass(frozen=True)
+class Spec:
+    """Everything that determines an experiment's numbers (``jobs`` does not)."""
+
+    tracks: tuple = (5, 6)
+    runs: int = 100
+    filters: tuple = ("ekf", "ukf", "ukf-nespm")
+    scenario: str = "nominal"
+    schedule: str = "constant"
+    seed: int = 0
+    chunk_size: int = 50
+    data_dir: str | None = None
+    imu: str = "synthetic"
+    dvl: str = "recorded"
+    dvl_lever_arm: tuple = (0.0, 0.0, 0.0)
+    dvl_r_std: float | None = None  # None: 0.02 synthetic, 0.1 recorded
+    outage_start: float = 180.0
+    outage_length: float = 20.0
+    corruption: CorruptionConfig = field(default_factory=CorruptionConfig)
+    filter_config: FilterConfig = field(default_factory=FilterConfig)
+
+    def as_dict(self) -> dict:
+        d = dataclasses.asdict(self)
+        d["tracks"] = list(self.tracks)
+        d["filters"] = list(self.filters)
+        return json.loads(json.dumps(d, default=list))
+
+
+def validate(spec: Spec) -> Spec:
+    """Check every option against the data; return the spec with ``data_dir`` resolved."""
+    if spec.runs < 1:
+        raise NespmError(f"--runs must be at least 1, got {spec.runs}")
+    if spec.chunk_size < 1:
+        raise NespmError(f"--chunk-size must be at least 1, got {spec.chunk_size}")
+    for f in spec.filters:
+        if f not in FILTERS:
+            raise NespmError(f"--filters: unknown filter {f!r}; choose from {', '.join(FILTERS)}")
+    if len(set(spec.filters)) != len(spec.filters) or not spec.filters:
+        raise NespmError("--filters: give each filter once, at least one")
+    if spec.scenario not in SCENARIOS:
+        raise NespmError(f"--scenario: unknown scenario {spec.scenario!r}; choose from {', '.join(SCENARIOS)}")
+    if spec.schedule not in SCHEDULES:
+        raise NespmError(f"--schedule: unknown schedule {spec.schedule!r}; choose from {', '.join(SCHEDULES)}")
+    if spec.imu not in ("synthetic", "recorded"):
+        raise NespmError(f"--imu: choose synthetic or recorded, got {spec.imu!r}")
+    if spec.dvl not in ("synthetic", "recorded"):
+        raise NespmError(f"--dvl: choose synthetic or recorded, got {spec.dvl!r}")
+    if spec.filter_config.time_update not in ("dvl", "imu"):
+        raise NespmError(f"--time-update: choose dvl or imu, got {spec.filter_config.time_update!r}")
+    d = resolve_data_dir(spec.data_dir)
+    have = available_tracks(d)
+    for n in spec.tracks:
+        if n not in have:
+            where = d if d is not None else "the embedded default"
+            raise NespmError(f"--tracks: no track {n} in {where}; available: {', '.join(map(str, have))}")
+    if spec.scenario == "outage":
+        if spec.outage_length <= 0 or spec.outage_start <= 0:
+            raise NespmError("--outage-start and --outage-length must be positive")
+        for n in spec.tracks:
+            dur = load_track(n, d).duration
+            if spec.outage_start + spec.outage_length > dur:
+                raise NespmError(
+                    f"--outage-start {spec.outage_start:g} + --outage-length {spec.outage_length:g} s "
+                    f"ends past track {n}'s end ({dur:.1f} s)"
+                )
+    return dataclasses.replace(spec, data_dir=str(d) if d is not None else None)
+
+
+@lru_cache(maxsize=16)
+def prepared(number: int, data_dir: str | None, imu: str) -> tuple[Track, ImuTruth]:
+    """Track and its 100 Hz truth/IMU, computed once per worker process."""
+    track = load_track(number, data_dir)
+    return track, (synthesize(track) if imu == "synthetic" else from_recorded(track))
+
+
+def dvl_mask(spec: Spec, t_rel: np.ndarray) -> np.ndarray:
+    """Epochs (N,) at which a DVL update is applied (never at epoch 0)."""
+    m = np.ones(len(t_rel), dtype=bool)
+    m[0] = False
+    if spec.scenario == "outage":
+        m &= ~((t_rel >= spec.outage_start - 1e-9) & (t_rel < spec.outage_start + spec.outage_length - 1e-9))
+    return m
+
+
+def filter_config(spec: Spec) -> FilterConfig:
+    r = spec.dvl_r_std if spec.dvl_r_std is not None else (0.02 if spec.dvl == "synthetic" else 0.1)
+    return dataclasses.replace(spec.filter_config, dvl_std=r, lever_arm=tuple(spec.dvl_lever_arm))
+
+
+def body_rate_truth(truth: ImuTruth) -> np.ndarray:
+    """True w_nb^b (N, 3) at each epoch from the last IMU step before it (eq 31)."""
+    e = truth.epoch_index
+    j = np.maximum(e - 1, 0)
+    C0, C1 = truth.C_bn[j], truth.C_bn[j + 1]
+    w = log_so3(np.swapaxes(C0, -1, -2) @ C1) / truth.dt[j][:, None]
+    w[e == 0] = w[1] if len(w) > 1 else 0.0
+    return w
+
+
+def simulate(spec: Spec, number: int, runs: np.ndarray, filters=None, clean: bool = False):
+    """Run ``filters`` on the realizations ``runs`` of track ``number``.
+
+    Returns ``{filter: (FilterOutput, EpochErrors, seconds)}`` plus the truth object.
+    """
+    track, truth = prepared(number, spec.data_dir, spec.imu)
+    e = truth.epoch_index
+    t_rel = truth.t[e] - truth.t[e[0]]
+    R = len(runs)
+    real = draw(spec.seed, number, runs, float(t_rel[-1]), spec.corruption)
+    lever = np.asarray(spec.dvl_lever_arm, dtype=float)
+    C_t, v_t, p_t = truth.C_bn[e], truth.v_n[e], truth.pos[e]
+    if spec.dvl == "synthetic":
+        dvl = (np.swapaxes(C_t, -1, -2) @ v_t[..., None])[..., 0] + np.cross(body_rate_truth(truth), lever)
+        dvl = np.broadcast_to(dvl, (R,) + dvl.shape)
+        if not clean:
+            dvl = dvl + dvl_noise(real, len(e))
+    else:
+        dvl = np.broadcast_to(np.asarray(track.dvl, dtype=float), (R, len(e), 3))
+    if clean:
+        f = np.broadcast_to(truth.f_b, (R,) + truth.f_b.shape)
+        w = np.broadcast_to(truth.w_ib_b, (R,) + truth.w_ib_b.shape)
+        nav0 = initial_nav(p_t[0], v_t[0], C_t[0], np.zeros((R, 3)), np.zeros((R, 3)))
+    else:
+        ef, ew = imu_errors(real, truth.t)
+        f, w = truth.f_b + ef, truth.w_ib_b + ew
+        nav0 = initial_nav(p_t[0], v_t[0], C_t[0], real.dv0, real.dpsi0)
+    mask = dvl_mask(spec, t_rel)
+    cfg = filter_config(spec)
+    results = {}
+    for name in filters or spec.filters:
+        t0 = time.perf_counter()
+        out = run_filter(name, cfg, f, w, truth.dt, e, dvl, mask, nav0)
+        err = epoch_errors(out, v_t, C_t, p_t)
+        results[name] = (out, err, time.perf_counter() - t0)
+    return results, truth, real
+
+
+# --- chunked, resumable runner ---------------------------------------------------------
+
+def _chunk_name(kind: str, track: int, filt: str, first: int) -> str:
+    return f"{kind}-{track}-{filt}-{first:06d}.parquet"
+
+
+def write_parquet_atomic(df: pd.DataFrame, path: Path) -> None:
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    df.to_parquet(tmp, index=False)
+    os.replace(tmp, path)
+
+
+def run_chunk(spec: Spec, number: int, first: int, out_dir: str) -> dict:
+    """Compute one chunk (all filters not yet on disk) and write its files. Runs in a worker."""
+    chunks = Path(out_dir) / "chunks"
+    runs = np.arange(first, min(first + spec.chunk_size, spec.runs))
+    todo = [f for f in spec.filters if not (chunks / _chunk_name("metrics", number, f, first)).exists()]
+    timings = {}
+    if not todo:
+        return timings
+    results, truth, _ = simulate(spec, number, runs, todo)
+    e = truth.epoch_index
+    t_rel = truth.t[e] - truth.t[e[0]]
+    for name, (out, err, secs) in results.items():
+        m = run_metrics(err, out.diverged)
+        df = pd.DataFrame({"track": number, "filter": name, "run": runs, "scenario": spec.scenario,
+                           "schedule": spec.schedule, "seed": spec.seed, **m,
+                           "seconds": secs / len(runs)})
+        R, N = err.vel.shape
+        series = pd.DataFrame({
+            "track": number, "filter": name, "run": np.repeat(runs, N), "epoch": np.tile(np.arange(N), R),
+            "t": np.tile(t_rel, R), "vel_err": err.vel.ravel(), "att_err": err.att.ravel(),
+            "nees": err.nees.ravel(), "north_err": err.ne[..., 0].ravel(), "east_err": err.ne[..., 1].ravel(),
+            "dvl_used": np.tile(out.dvl_used, R), "diverged": np.repeat(out.diverged, N),
+        })
+        # series first: a metrics file marks the chunk complete
+        write_parquet_atomic(series, chunks / _chunk_name("series", number, name, first))
+        write_parquet_atomic(df, chunks / _chunk_name("metrics", number, name, first))
+        timings[f"{number}-{name}-{first}"] = secs
+    return timings
+
+
+def chunk_tasks(spec: Spec) -> list[tuple[int, int]]:
+    return [(n, first) for n in spec.tracks for first in range(0, spec.runs, spec.chunk_size)]
+
+
+def _versions() -> dict:
+    import joblib, pyarrow, scipy  # noqa: E401
+
+    return {"python": platform.python_version(), "nespm": __version__, "numpy": np.__version__,
+            "scipy": scipy.__version__, "pandas": pd.__version__, "pyarrow": pyarrow.__version__,
+            "joblib": joblib.__version__}
+
+
+def _git_commit() -> str | None:
+    try:
+        r = subprocess.run(["git", "rev-parse", "HEAD"], cwd=Path(__file__).parent, capture_output=True,
+                           text=True, timeout=5)
+        return r.stdout.strip() or None if r.returncode == 0 else None
+    except (OSError, subprocess.SubprocessError):
+        return None
+
+
+def _check_existing(out: Path, options: dict) -> dict | None:
+    mf = out / "manifest.json"
+    if not mf.exists():
+        if (out / "chunks").exists() and any((out / "chunks").iterdir()):
+            raise NespmError(f"{out}: has chunk files but no manifest.json; use a new --out folder")
+        return None
+    try:
+        old = json.loads(mf.read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise NespmError(f"{mf}: unreadable manifest ({exc.__class__.__name__}); use a new --out folder") from None
+    if old.get("options") != options:
+        diff = sorted(k for k in set(old.get("options", {})) | set(options)
+                      if old.get("options", {}).get(k) != options.get(k))
+        raise NespmError(f"{out}: holds results of a different experiment (differs in: {', '.join(diff)}); "
+                         "use a new --out folder or the same options to resume")
+    return old
+
+
+def assemble(out: Path) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """Concatenate the chunk files into metrics.parquet and aggregate epochs.parquet."""
+    chunks = out / "chunks"
+    metrics = pd.concat([pd.read_parquet(p) for p in sorted(chunks.glob("metrics-*.parquet"))], ignore_index=True)
+    metrics = metrics.sort_values(["track", "filter", "run"], kind="stable").reset_index(drop=True)
+    series = pd.concat([pd.read_parquet(p) for p in sorted(chunks.glob("series-*.parquet"))], ignore_index=True)
+    ok = series[~series["diverged"]]
+    g = ok.groupby(["track", "filter", "epoch"], sort=True)
+    epochs = g.agg(t=("t", "first"), vel_err_mean=("vel_err", "mean"), vel_err_std=("vel_err", lambda x: x.std(ddof=0)),
+                   att_err_mean=("att_err", "mean"), att_err_std=("att_err", lambda x: x.std(ddof=0)),
+                   nees_mean=("nees", "mean"), north_err_mean=("north_err", "mean"),
+                   east_err_mean=("east_err", "mean"), dvl_used=("dvl_used", "first"),
+                   n_runs=("run", "count")).reset_index()
+    write_parquet_atomic(metrics, out / "metrics.parquet")
+    return metrics, epochs
+
+
+def add_true_track(epochs: pd.DataFrame, spec: Spec) -> pd.DataFrame:
+    parts = []
+    for n, df in epochs.groupby("track", sort=True):
+        _, truth = prepared(int(n), spec.data_dir, spec.imu)
+        p = truth.pos[truth.epoch_index]
+        ne = ned_offset(p, p[0])
+        df = df.copy()
+        df["north_true"] = ne[df["epoch"].to_numpy(), 0]
+        df["east_true"] = ne[df["epoch"].to_numpy(), 1]
+        parts.append(df)
+    return pd.concat(parts, ignore_index=True)
+
+
+def run_mc(spec: Spec, out_dir: str | Path, jobs: int = 2, progress: bool = True, argv=None) -> pd.DataFrame:
+    """Run (or resume) the experiment into ``out_dir``; return the metrics table."""
+    from joblib import Parallel, delayed
+
+    spec = validate(spec)
+    if jobs < 1:
+        raise NespmError(f"--jobs must be at least 1, got {jobs}")
+    out = Path(out_dir)
+    options = spec.as_dict()
+    if out.exists() and not out.is_dir():
+        raise NespmError(f"--out {out}: exists and is not a folder")
+    old = _check_existing(out, options)
+    (out / "chunks").mkdir(parents=True, exist_ok=True)
+    started = datetime.now(timezone.utc).isoformat(timespec="seconds")
+    manifest = {"command": list(argv or sys.argv), "options": options, "seed": spec.seed,
+                "data_dir": spec.data_dir or "embedded", "versions": _versions(), "git_commit": _git_commit(),
+                "started": (old or {}).get("started", started), "finished": None,
+                "chunk_seconds": (old or {}).get("chunk_seconds", {})}
+    (out / "manifest.json").write_text(json.dumps(manifest, indent=2))
+
+    tasks = chunk_tasks(spec)
+    chunks = out / "chunks"
+    todo = [t for t in tasks if any(not (chunks / _chunk_name("metrics", t[0], f, t[1])).exists() for f in spec.filters)]
+    t0 = time.perf_counter()
+    if todo:
+        calls = (delayed(run_chunk)(spec, n, first, str(out)) for n, first in todo)
+        par = Parallel(n_jobs=min(jobs, len(todo)), backend="loky", return_as="generator_unordered")
+        if progress:
+            from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+
+            cols = (TextColumn("[bold]mc[/] {task.description}"), BarColumn(), MofNCompleteColumn(),
+                    TimeElapsedColumn(), TimeRemainingColumn())
+            with Progress(*cols, transient=False) as bar:
+                task = bar.add_task(f"{len(todo)} chunks x {len(spec.filters)} filters", total=len(todo))
+                for timings in par(calls):
+                    manifest["chunk_seconds"].update(timings)
+                    bar.advance(task)
+        else:
+            for timings in par(calls):
+                manifest["chunk_seconds"].update(timings)
+    metrics, epochs = assemble(out)
+    epochs = add_true_track(epochs, spec)
+    write_parquet_atomic(epochs, out / "epochs.parquet")
+    manifest.update(finished=datetime.now(timezone.utc).isoformat(timespec="seconds"),
+                    wall_seconds=round(time.perf_counter() - t0 + (old or {}).get("wall_seconds", 0.0), 3),
+                    chunks=len(tasks))
+    tmp = out / ".manifest.json.tmp"
+    tmp.write_text(json.dumps(manifest, indent=2))
+    os.replace(tmp, out / "manifest.json")
+    return metrics

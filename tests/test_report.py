@@ -1,0 +1,325 @@
+"""Tests of nespm_cli.report: eq 50-51 tables, improvement, paired bootstrap, report.md, figures."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from nespm_cli.errors import NespmError
+from nespm_cli.report import (
+    PUBLISHED,
+    _fmt_pct,
+    default_reference,
+    filter_table,
+    load_results,
+    paired_bootstrap,
+    track_table,
+    write_report,
+)
+
+TRACKS = (5, 6)
+
+
+def make_metrics(
+    vel: dict[tuple[int, str], np.ndarray],
+    att: dict[tuple[int, str], np.ndarray] | None = None,
+    scenario: str = "nominal",
+) -> pd.DataFrame:
+    """metrics.parquet rows with sse_vel = n * v**2, sse_att = n * a**2, n_samples = 300 + 7 * run + track."""
+    rows = []
+    for (track, filt), v in vel.items():
+        a = att[(track, filt)] if att is not None else 0.1 * np.asarray(v)
+        for run, (vi, ai) in enumerate(zip(v, a)):
+            n = 300 + 7 * run + track
+            rows.append(
+                {
+                    "track": track, "filter": filt, "run": run, "scenario": scenario,
+                    "schedule": "constant", "seed": 7, "vrmse": float(vi), "mrmse": float(ai),
+                    "sse_vel": n * vi**2, "sse_att": n * ai**2, "n_samples": n,
+                    "max_vel_err": 2 * vi, "max_att_err": 2 * ai, "nees": 6.0 + vi,
+                    "diverged": False, "seconds": 0.1,
+                }
+            )
+    return pd.DataFrame(rows)
+
+
+def noisy_metrics(
+    runs: int, bases: dict[str, float], noise: float = 0.01, seed: int = 1
+) -> pd.DataFrame:
+    """2 tracks × len(bases) filters × runs, per-run v = base (+0.01 on track 6) + N(0, noise)."""
+    rng = np.random.default_rng(seed)
+    vel = {
+        (tr, f): b + 0.01 * (tr == 6) + noise * rng.standard_normal(runs)
+        for tr in TRACKS
+        for f, b in bases.items()
+    }
+    return make_metrics(vel)
+
+
+def hand_vrmse(m: pd.DataFrame, filt: str, col: str = "sse_vel") -> float:
+    """Eq 50-51 by hand: sqrt(mean over tracks of sum(sse)/sum(n)), non-diverged rows."""
+    ms = []
+    for tr in sorted(m["track"].unique()):
+        d = m[(m["track"] == tr) & (m["filter"] == filt) & ~m["diverged"]]
+        ms.append(d[col].sum() / d["n_samples"].sum())
+    return float(np.sqrt(np.mean(ms)))
+
+
+@pytest.fixture
+def three() -> pd.DataFrame:
+    """2 tracks × 3 filters × 20 runs with distinct, deterministic per-run errors."""
+    r = np.arange(20)
+    vel = {}
+    for tr in TRACKS:
+        vel[(tr, "ukf")] = 0.10 + 0.002 * r + 0.01 * (tr == 6)
+        vel[(tr, "anekf")] = 0.09 + 0.001 * (r % 5) + 0.02 * (tr == 6)
+        vel[(tr, "anukf")] = 0.08 + 0.0015 * ((3 * r) % 7)
+    return make_metrics(vel)
+
+
+# ----------------------------------------------------------------------------- point values
+
+
+def test_vrmse_mrmse_match_eq_50_51(three: pd.DataFrame) -> None:
+    table = filter_table(three, "anukf", n_boot=0)
+    for row in table.itertuples():
+        assert row.vrmse == pytest.approx(hand_vrmse(three, row.filter), abs=1e-12)
+        assert row.mrmse == pytest.approx(hand_vrmse(three, row.filter, "sse_att"), abs=1e-12)
+    # eq 50 weights by n_samples: differs from the mean of the per-run vrmse column
+    ukf = three[three["filter"] == "ukf"]
+    naive = np.sqrt(np.mean([np.mean(g["vrmse"] ** 2) for _, g in ukf.groupby("track")]))
+    assert abs(table.loc[0, "vrmse"] - naive) > 1e-6
+
+
+def test_improvement_formula(three: pd.DataFrame) -> None:
+    table = filter_table(three, "anukf", n_boot=0).set_index("filter")
+    ref_v, ref_a = hand_vrmse(three, "anukf"), hand_vrmse(three, "anukf", "sse_att")
+    for f in ("ukf", "anekf"):
+        v, a = hand_vrmse(three, f), hand_vrmse(three, f, "sse_att")
+        assert table.loc[f, "vrmse_imprv"] == pytest.approx(100 * (v - ref_v) / v, abs=1e-12)
+        assert table.loc[f, "mrmse_imprv"] == pytest.approx(100 * (a - ref_a) / a, abs=1e-12)
+    assert np.isnan(table.loc["anukf", "vrmse_imprv"])
+    assert table.loc["anukf", "is_reference"]
+    assert table.attrs["reference"] == "anukf"
+
+
+def test_table_I_of_anukf_reproduced() -> None:
+    pub = PUBLISHED["anukf-table1"]["values"]
+    vel = {(tr, f): np.full(20, pub[f]["vrmse"]) for tr in TRACKS for f in ("ukf", "anekf", "anukf")}
+    att = {(tr, f): np.full(20, pub[f]["mrmse"]) for tr in TRACKS for f in ("ukf", "anekf", "anukf")}
+    table = filter_table(make_metrics(vel, att), "anukf", n_boot=0).set_index("filter")
+    assert table.loc["ukf", "vrmse"] == pytest.approx(0.1172, abs=1e-12)
+    assert table.loc["anukf", "vrmse"] == pytest.approx(0.0922, abs=1e-12)
+    # the paper's "ANUKF Imprv." column: 21.3 %, 8.2 % (VRMSE) and 5.4 %, 32.1 % (MRMSE)
+    assert _fmt_pct(table.loc["ukf", "vrmse_imprv"]) == "21.3 %"
+    assert _fmt_pct(table.loc["anekf", "vrmse_imprv"]) == "8.2 %"
+    assert _fmt_pct(table.loc["ukf", "mrmse_imprv"]) == "5.4 %"
+    assert _fmt_pct(table.loc["anekf", "mrmse_imprv"]) == "32.1 %"
+
+
+def test_diverged_run_excluded_and_counted(three: pd.DataFrame) -> None:
+    m = three.copy()
+    hit = (m["track"] == 6) & (m["filter"] == "anekf") & (m["run"] == 3)
+    m.loc[hit, ["diverged"]] = True
+    m.loc[hit, ["sse_vel", "sse_att", "nees"]] = np.nan
+    table = filter_table(m, "anukf", n_boot=200).set_index("filter")
+    assert table.loc["anekf", "diverged"] == 1
+    assert table.loc["anekf", "runs"] == 40
+    assert table.loc["ukf", "diverged"] == 0
+    assert np.isfinite(table.loc["anekf", "vrmse"])
+    assert table.loc["anekf", "vrmse"] == pytest.approx(hand_vrmse(m, "anekf"), abs=1e-12)
+    assert table.loc["anekf", "vrmse"] != pytest.approx(hand_vrmse(three, "anekf"), abs=1e-9)
+    assert np.isfinite(table.loc["anekf", "vrmse_ci_lo"])
+    tt = track_table(m).set_index(["track", "filter"])
+    assert tt.loc[(6, "anekf"), "diverged"] == 1 and tt.loc[(6, "anekf"), "runs"] == 20
+    assert tt.loc[(5, "anekf"), "diverged"] == 0
+
+
+def test_all_runs_diverged_on_a_track_gives_nan() -> None:
+    m = noisy_metrics(10, {"ukf": 0.12, "anukf": 0.09})
+    hit = (m["track"] == 5) & (m["filter"] == "ukf")
+    m.loc[hit, "diverged"] = True
+    m.loc[hit, ["sse_vel", "sse_att"]] = np.nan
+    table = filter_table(m, "anukf", n_boot=50).set_index("filter")
+    assert np.isnan(table.loc["ukf", "vrmse"]) and np.isnan(table.loc["ukf", "vrmse_ci_lo"])
+    assert table.loc["ukf", "diverged"] == 10
+
+
+def test_track_table_values(three: pd.DataFrame) -> None:
+    tt = track_table(three)
+    assert list(tt["track"]) == [5, 5, 5, 6, 6, 6]
+    assert list(tt["filter"]) == ["ukf", "anekf", "anukf"] * 2
+    for r in tt.itertuples():
+        d = three[(three["track"] == r.track) & (three["filter"] == r.filter)]
+        assert r.vrmse == pytest.approx(np.sqrt(d["sse_vel"].sum() / d["n_samples"].sum()), abs=1e-12)
+        assert r.nees == pytest.approx(d["nees"].mean(), abs=1e-12)
+        assert r.runs == 20 and r.diverged == 0
+
+
+def test_default_reference() -> None:
+    m = noisy_metrics(3, {"ekf": 0.1, "ukf-nespm": 0.08, "ukf": 0.09})
+    assert default_reference(m) == "ukf-nespm"
+    m2 = noisy_metrics(3, {"ekf": 0.1, "ukf": 0.09})
+    assert default_reference(m2) == "ukf"
+    assert filter_table(m2, None, n_boot=0).attrs["reference"] == "ukf"
+    with pytest.raises(NespmError, match="unknown baseline filter 'anukf'") as err:
+        filter_table(m2, "anukf")
+    assert "\n" not in str(err.value)
+
+
+# ----------------------------------------------------------------------------- bootstrap
+
+
+def naive_bootstrap(m: pd.DataFrame, row: str, ref: str, n_boot: int, seed: int) -> np.ndarray:
+    """Loop over resamples with the same draws as the implementation (reference check)."""
+    per_track = []
+    for tr in sorted(m["track"].unique()):
+        rng = np.random.default_rng([seed, int(tr)])
+        a = m[(m["track"] == tr) & (m["filter"] == row)].set_index("run").sort_index()
+        b = m[(m["track"] == tr) & (m["filter"] == ref)].set_index("run").sort_index()
+        ok = ~(a["diverged"].to_numpy() | b["diverged"].to_numpy())
+        a, b = a[ok], b[ok]
+        idx = rng.integers(0, len(a), size=(n_boot, len(a)))
+        per_track.append(
+            [
+                (
+                    a["sse_vel"].to_numpy()[i].sum() / a["n_samples"].to_numpy()[i].sum(),
+                    b["sse_vel"].to_numpy()[i].sum() / b["n_samples"].to_numpy()[i].sum(),
+                )
+                for i in idx
+            ]
+        )
+    arr = np.array(per_track)  # (tracks, n_boot, 2)
+    va, vb = np.sqrt(arr[..., 0].mean(axis=0)), np.sqrt(arr[..., 1].mean(axis=0))
+    return 100 * (va - vb) / va
+
+
+def test_bootstrap_matches_naive_loop(three: pd.DataFrame) -> None:
+    m = three.copy()
+    m.loc[(m["track"] == 5) & (m["filter"] == "ukf") & (m["run"] == 2), "diverged"] = True
+    boot = paired_bootstrap(m, "ukf", "anukf", n_boot=300, seed=4)
+    np.testing.assert_allclose(boot["vrmse"], naive_bootstrap(m, "ukf", "anukf", 300, 4), atol=1e-10)
+
+
+def test_bootstrap_ci_contains_point_and_shrinks() -> None:
+    bases = {"ukf": 0.12, "anukf": 0.09}
+    widths = []
+    for runs in (20, 200):
+        t = filter_table(noisy_metrics(runs, bases, noise=0.02), "anukf", n_boot=2000).set_index("filter")
+        lo, hi, point = t.loc["ukf", ["vrmse_ci_lo", "vrmse_ci_hi", "vrmse_imprv"]]
+        assert lo < point < hi
+        assert t.loc["ukf", "vrmse_ci_excludes_0"]
+        widths.append(hi - lo)
+    assert widths[1] < 0.6 * widths[0]
+
+
+def test_bootstrap_ci_includes_zero_for_equal_filters() -> None:
+    t = filter_table(noisy_metrics(20, {"ukf": 0.1, "anukf": 0.1}, noise=0.03), "anukf", n_boot=2000)
+    row = t.set_index("filter").loc["ukf"]
+    assert row["vrmse_ci_lo"] < 0 < row["vrmse_ci_hi"]
+    assert not row["vrmse_ci_excludes_0"]
+
+
+def test_bootstrap_deterministic_for_seed() -> None:
+    m = noisy_metrics(20, {"ukf": 0.12, "anekf": 0.1, "anukf": 0.09})
+    cols = ["vrmse_ci_lo", "vrmse_ci_hi", "mrmse_ci_lo", "mrmse_ci_hi"]
+    a = filter_table(m, "anukf", n_boot=500, seed=3)[cols].to_numpy()
+    b = filter_table(m, "anukf", n_boot=500, seed=3)[cols].to_numpy()
+    c = filter_table(m, "anukf", n_boot=500, seed=4)[cols].to_numpy()
+    np.testing.assert_array_equal(a, b)
+    assert not np.allclose(a[:2], c[:2])
+
+
+# ----------------------------------------------------------------------------- report + figures
+
+
+def make_epochs(tracks: tuple[int, ...], filters: tuple[str, ...], n: int = 300) -> pd.DataFrame:
+    """epochs.parquet rows: a curved path, errors growing in a 20 s DVL outage from t = 180 s."""
+    rows = []
+    t = np.arange(n, dtype=float)
+    outage = (t >= 180) & (t < 200)
+    for tr in tracks:
+        east, north = 200 * np.sin(t / 80 + tr), 1.5 * t + 30 * np.cos(t / 50)
+        for k, f in enumerate(filters):
+            ve = 0.05 * (k + 1) * (1 + 0.3 * np.sin(t / 9)) + np.where(outage, 0.01 * (t - 180), 0)
+            ae = 0.005 * (k + 1) * (1 + 0.2 * np.cos(t / 13))
+            for i in range(n):
+                rows.append(
+                    {
+                        "track": tr, "filter": f, "epoch": i, "t": t[i],
+                        "vel_err_mean": ve[i], "vel_err_std": 0.4 * ve[i],
+                        "att_err_mean": ae[i], "att_err_std": 0.3 * ae[i], "nees_mean": 6.0,
+                        "north_err_mean": (k + 1) * 0.02 * t[i], "east_err_mean": -(k + 1) * 0.01 * t[i],
+                        "north_true": north[i], "east_true": east[i],
+                        "dvl_used": bool(not outage[i] and i > 0), "n_runs": 20,
+                    }
+                )
+    return pd.DataFrame(rows)
+
+
+def test_write_report(tmp_path: Path) -> None:
+    filters = ("ukf", "anekf", "anukf")
+    m = noisy_metrics(20, {"ukf": 0.12, "anekf": 0.1, "anukf": 0.09})
+    m.to_parquet(tmp_path / "metrics.parquet")
+    make_epochs(TRACKS, filters).to_parquet(tmp_path / "epochs.parquet")
+    manifest = {"seed": 7, "data_dir": "/data/snapir", "wall_seconds": 12.5,
+                "options": {"scenario": "nominal", "schedule": "constant"}}
+    (tmp_path / "manifest.json").write_text(json.dumps(manifest))
+
+    path = write_report(tmp_path, reference="anukf", n_boot=300)
+    assert path == tmp_path / "report.md"
+    text = path.read_text()
+    for f in filters:
+        assert f"| {f}" in text
+    assert "0.1172" in text and "0.0922" in text  # anukf.md Table I beside ours
+    assert "ukf-nespm.md Table I" in text and "0.08" in text  # anukf in the NESPM paper too
+    assert "anukf Imprv." in text and "95 % CI" in text and "eq 50" in text
+    assert "/data/snapir" in text and "12.5 s" in text and "runs per track 20" in text
+    pngs = sorted((tmp_path / "figures").glob("*.png"))
+    assert len(pngs) == 3 * len(TRACKS)
+    for p in pngs:
+        assert p.stat().st_size > 5_000
+        assert f"(figures/{p.name})" in text
+
+
+def test_write_report_outage_without_epochs(tmp_path: Path) -> None:
+    rng = np.random.default_rng(0)
+    vel = {(tr, f): b + 0.01 * rng.standard_normal(10) for tr in TRACKS for f, b in (("anekf", 0.2), ("anukf", 0.1))}
+    make_metrics(vel, scenario="outage").to_parquet(tmp_path / "metrics.parquet")
+    text = write_report(tmp_path, n_boot=100).read_text()
+    assert "0.222" in text and "0.1183" in text  # anukf.md Table II
+    assert "0.1172" not in text  # Table I is for the nominal scenario
+    assert "epochs.parquet` is absent" in text
+    assert not (tmp_path / "figures").exists()
+
+
+def test_published_dash_for_unpublished_filter(tmp_path: Path) -> None:
+    m = noisy_metrics(5, {"ekf": 0.15, "ukf": 0.12, "ukf-nespm": 0.1})
+    m.to_parquet(tmp_path / "metrics.parquet")
+    text = write_report(tmp_path, n_boot=50).read_text()
+    pub = text.split("## Comparison with the published tables")[1].split("## Figures")[0]
+    assert "0.1172" in pub
+    ekf_row = next(line for line in pub.splitlines() if line.startswith("| ekf "))
+    assert ekf_row.count("—") == 2
+    assert "ukf-nespm Imprv." in text  # default reference
+
+
+def test_load_results_errors(tmp_path: Path) -> None:
+    with pytest.raises(NespmError, match="results folder not found") as err:
+        load_results(tmp_path / "nope")
+    assert "\n" not in str(err.value)
+    with pytest.raises(NespmError, match="metrics.parquet not found") as err:
+        write_report(tmp_path)
+    assert "\n" not in str(err.value)
+    pd.DataFrame({"track": [1], "filter": ["ukf"]}).to_parquet(tmp_path / "metrics.parquet")
+    with pytest.raises(NespmError, match="missing column"):
+        load_results(tmp_path)
+
+
+def test_load_results_optional_files(tmp_path: Path) -> None:
+    noisy_metrics(3, {"ukf": 0.1}).to_parquet(tmp_path / "metrics.parquet")
+    metrics, epochs, manifest = load_results(tmp_path)
+    assert len(metrics) == 6 and epochs is None and manifest == {}
