@@ -209,6 +209,39 @@ def report(
     typer.echo(f"wrote {path}")
 
 
+def _expand_config(argv: list[str]) -> list[str]:
+    """Replace ``--config FILE`` by the options in the TOML file, placed before the rest
+    of the command line so that explicit options override the file."""
+    if "--config" not in argv:
+        return argv
+    i = argv.index("--config")
+    if i + 1 >= len(argv):
+        raise NespmError("--config needs a file")
+    path = Path(argv[i + 1])
+    try:
+        import tomllib
+    except ModuleNotFoundError:  # Python 3.10
+        import tomli as tomllib
+    try:
+        cfg = tomllib.loads(path.read_text())
+    except OSError as exc:
+        raise NespmError(f"--config {path}: cannot read ({exc.strerror})") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise NespmError(f"--config {path}: not valid TOML ({str(exc).splitlines()[0]})") from None
+    opts: list[str] = []
+    for key, val in cfg.items():
+        flag = "--" + key.replace("_", "-")
+        if isinstance(val, bool):
+            opts += [flag] if val else []
+        elif isinstance(val, list):
+            opts += [flag] + [str(v) for v in val]
+        else:
+            opts += [flag, str(val)]
+    rest = argv[:i] + argv[i + 2:]
+    cmd = 1 if rest and not rest[0].startswith("-") else 0
+    return rest[:cmd] + opts + rest[cmd:]
+
+
 def _normalize_argv(argv: list[str]) -> list[str]:
     """Let ``--tracks 5 6`` mean ``--tracks '5 6'`` (click options take one value)."""
     out, i = [], 0
@@ -228,8 +261,8 @@ def _normalize_argv(argv: list[str]) -> list[str]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    argv = _normalize_argv(list(sys.argv[1:] if argv is None else argv))
     try:
+        argv = _normalize_argv(_expand_config(list(sys.argv[1:] if argv is None else argv)))
         rv = typer.main.get_command(app).main(args=argv, prog_name="nespm", standalone_mode=False)
         return rv if isinstance(rv, int) else 0
     except NespmError as exc:

@@ -16,7 +16,7 @@ B = A * (1.0 - F)  # semi-minor axis [m]
 OMEGA_IE = 7.292115e-5  # earth rotation rate [rad/s]
 MU = 3.986004418e14  # gravitational constant [m^3/s^2]
 GAMMA_E = 9.7803253359  # normal gravity at the equator [m/s^2]
-K_SOMIGLIANA = 1.931853e-3  # Somigliana's constant
+K_SOMIGLIANA = 1.93185265241e-3  # Somigliana constant (WGS-84)
 
 
 def radii(lat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -74,7 +74,7 @@ def integrate_position(pos0: np.ndarray, v_n: np.ndarray, dt: np.ndarray, iters:
 def synthesize(track, substeps: int = 100) -> ImuTruth:
     """Build the 100 Hz truth and the clean IMU of ``track`` (a :class:`tracks.Track`).
 
-    Cost: about half a second for a 400 s track (40,000 steps), all vectorized.
+    Cost: about 0.06 s for a 400 s track (39,900 steps), all vectorized.
     """
     t_gt = np.asarray(track.t, dtype=float)
     n = len(t_gt)

@@ -1,0 +1,48 @@
+# nespm: every target creates and uses the local virtual environment .venv.
+PYTHON ?= python3
+VENV   := .venv
+BIN    := $(VENV)/bin
+NESPM  := $(BIN)/nespm
+DATA   ?=
+RUNS   ?= 100
+JOBS   ?= 2
+DATA_OPT := $(if $(DATA),--data-dir $(DATA),)
+
+.PHONY: setup run test smoke table1 table2 bench clean
+
+setup: $(VENV)/.installed
+
+$(VENV)/.installed: pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/pip install --quiet --upgrade pip
+	$(BIN)/pip install --quiet -e '.[test]'
+	touch $@
+
+# The main job: EKF, UKF and UKF-NESPM on tracks 5 and 6, 100 MC runs, then the report.
+run: setup
+	$(NESPM) mc --tracks 5 6 --runs $(RUNS) --jobs $(JOBS) $(DATA_OPT) --out results/main
+	$(NESPM) report results/main
+
+test: setup
+	$(BIN)/python -m pytest -q
+
+# A short end-to-end CLI run (about a minute).
+smoke: setup
+	$(NESPM) tracks $(DATA_OPT)
+	$(NESPM) mc --tracks 5 --runs 2 --filters ekf,ukf,ukf-nespm --jobs $(JOBS) $(DATA_OPT) --out results/smoke
+	$(NESPM) report results/smoke
+
+table1: setup
+	$(NESPM) mc --config experiments/table1.toml --jobs $(JOBS) $(DATA_OPT) --out results/table1$(if $(DATA),-data,)
+	$(NESPM) report results/table1$(if $(DATA),-data,)
+
+table2: setup
+	$(NESPM) mc --config experiments/table2.toml --jobs $(JOBS) $(DATA_OPT) --out results/table2$(if $(DATA),-data,)
+	$(NESPM) report results/table2$(if $(DATA),-data,)
+
+bench: setup
+	$(BIN)/python benchmarks/bench_foundation.py
+	$(BIN)/python benchmarks/bench_mc.py $(DATA_OPT)
+
+clean:
+	rm -rf $(VENV) *.egg-info
