@@ -164,7 +164,8 @@ def filters_in_order(metrics: pd.DataFrame) -> list[str]:
 
 
 def default_reference(metrics: pd.DataFrame, reference: str | None = None) -> str:
-    """The reference filter: ``reference`` if given, else ``ukf-nespm`` if present, else the last.
+    """The reference filter: ``reference`` if given, else ``ukf-nespm`` if present, else the
+    last filter that is not the free-inertial ``ins``.
 
     Raises NespmError if ``reference`` is not one of the filters in ``metrics``.
     """
@@ -172,10 +173,13 @@ def default_reference(metrics: pd.DataFrame, reference: str | None = None) -> st
     if reference:
         if reference not in names:
             raise NespmError(
-                f"unknown baseline filter '{reference}': the results hold {', '.join(names)}"
+                f"--baseline: unknown filter '{reference}': the results hold {', '.join(names)}"
             )
         return reference
-    return DEFAULT_REFERENCE if DEFAULT_REFERENCE in names else names[-1]
+    if DEFAULT_REFERENCE in names:
+        return DEFAULT_REFERENCE
+    aided = [n for n in names if n != "ins"]
+    return aided[-1] if aided else names[-1]
 
 
 def _sums(metrics: pd.DataFrame) -> pd.DataFrame:
@@ -376,16 +380,23 @@ def _fmt(x: Any, spec: str = ".4g") -> str:
     return format(x, spec)
 
 
+def _pct(x: float) -> str:
+    """One decimal like the papers (21.3), more where that would print 0.0 or -0.0."""
+    if abs(x) >= 0.05 or x == 0.0:
+        return f"{x:.1f}"
+    return f"{x:.2g}" if abs(x) >= 1e-4 else f"{x:.1e}"
+
+
 def _fmt_pct(x: Any) -> str:
-    """Improvement in percent with one decimal, e.g. ``21.3 %``."""
-    return DASH if x is None or not np.isfinite(x) else f"{x:.1f} %"
+    """Improvement in percent, e.g. ``21.3 %`` (small values keep two significant digits)."""
+    return DASH if x is None or not np.isfinite(x) else f"{_pct(x)} %"
 
 
 def _fmt_ci(lo: float, hi: float, excludes_0: bool) -> str:
     """``[lo, hi] %`` with a trailing ``*`` when the interval excludes zero."""
     if not (np.isfinite(lo) and np.isfinite(hi)):
         return DASH
-    return f"[{lo:.1f}, {hi:.1f}] %" + (" *" if excludes_0 else "")
+    return f"[{_pct(lo)}, {_pct(hi)}] %" + (" *" if excludes_0 else "")
 
 
 def _md_table(headers: Sequence[str], rows: Iterable[Sequence[str]]) -> str:

@@ -165,7 +165,7 @@ def test_default_reference() -> None:
     m2 = noisy_metrics(3, {"ekf": 0.1, "ukf": 0.09})
     assert default_reference(m2) == "ukf"
     assert filter_table(m2, None, n_boot=0).attrs["reference"] == "ukf"
-    with pytest.raises(NespmError, match="unknown baseline filter 'anukf'") as err:
+    with pytest.raises(NespmError, match="--baseline: unknown filter 'anukf'") as err:
         filter_table(m2, "anukf")
     assert "\n" not in str(err.value)
 
