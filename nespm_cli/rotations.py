@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-_SMALL = 1e-4  # below this angle [rad] the Taylor series are exact to double precision
+_SMALL = 1e-4  # below this angle [rad] the log's Taylor series is exact to double precision
 _SERIES2 = 1e-4  # squared angle (0.01 rad) below which the 3-term nested series is used for a whole batch
 
 
@@ -60,18 +60,15 @@ def exp_so3_minus_identity(phi: np.ndarray) -> np.ndarray:
 
 def _exp_parts(phi: np.ndarray, minus_identity: bool) -> np.ndarray:
     th2 = (phi * phi).sum(axis=-1)
-    if th2.size and th2.max() < _SERIES2:
-        # every angle below 0.01 rad (one IMU step): the series to th^6 is exact to double precision
-        a = 1.0 - th2 / 6.0 * (1.0 - th2 / 20.0 * (1.0 - th2 / 42.0))
-        b = 0.5 - th2 / 24.0 * (1.0 - th2 / 30.0 * (1.0 - th2 / 56.0))
-    else:
-        th = np.sqrt(th2)
-        small = th < _SMALL
-        th_safe = np.where(small, 1.0, th)
-        a = np.where(small, 1.0 - th2 / 6.0 + th2 * th2 / 120.0, np.sin(th_safe) / th_safe)
-        b = np.where(
-            small, 0.5 - th2 / 24.0 + th2 * th2 / 720.0, (1.0 - np.cos(th_safe)) / (th_safe * th_safe)
-        )
+    # per element: below 0.01 rad (every IMU step) the series to th^6 is exact to double
+    # precision; larger angles use sin/cos. The choice never depends on the rest of the batch.
+    a = np.asarray(1.0 - th2 / 6.0 * (1.0 - th2 / 20.0 * (1.0 - th2 / 42.0)))
+    b = np.asarray(0.5 - th2 / 24.0 * (1.0 - th2 / 30.0 * (1.0 - th2 / 56.0)))
+    big = th2 >= _SERIES2
+    if big.any():
+        th = np.sqrt(th2[big])
+        a[big] = np.sin(th) / th
+        b[big] = (1.0 - np.cos(th)) / (th * th)
     # [phi x]^2 = phi phi^T - theta^2 I, so exp = (1 - b theta^2) I + a [phi x] + b phi phi^T
     out = skew(phi * a[..., None]) + b[..., None, None] * (phi[..., :, None] * phi[..., None, :])
     diag = -b * th2 if minus_identity else 1.0 - b * th2
