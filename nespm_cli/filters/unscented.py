@@ -64,12 +64,15 @@ def moments(dx: np.ndarray, weights: UTWeights, dz: np.ndarray | None = None):
     """
     w = weights.w
     k = weights.Wc - 2.0
-    m = w * dx.sum(axis=-2)
+    n = dx.shape[-2] // 2
+    # each ± pair first: their sum is the small second-order part, so the mean of a linear
+    # map is exactly zero and the large first-order parts never meet the big weight
+    m = w * (dx[..., :n, :] + dx[..., n:, :]).sum(axis=-2)
     P = w * (np.swapaxes(dx, -1, -2) @ dx) + k * (m[..., :, None] * m[..., None, :])
     P = 0.5 * (P + np.swapaxes(P, -1, -2))
     if dz is None:
         return m, P
-    mz = w * dz.sum(axis=-2)
+    mz = w * (dz[..., :n, :] + dz[..., n:, :]).sum(axis=-2)
     Pzz = w * (np.swapaxes(dz, -1, -2) @ dz) + k * (mz[..., :, None] * mz[..., None, :])
     Pzz = 0.5 * (Pzz + np.swapaxes(Pzz, -1, -2))
     Pxz = w * (np.swapaxes(dx, -1, -2) @ dz) + k * (m[..., :, None] * mz[..., None, :])
