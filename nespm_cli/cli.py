@@ -125,7 +125,7 @@ def tracks(data_dir: Optional[str] = DATA_DIR) -> None:
                       f"{s['mean_speed']:.2f}", f"{s['max_yaw_rate_dps']:.1f}",
                       f"{s['depth_min']:.1f}-{s['depth_max']:.1f}", "yes" if s["imu"] else "no",
                       f"{s['dvl_resid_std']:.3f}", "(" + ", ".join(f"{x:.2f}" for x in s["lever_arm"]) + ")")
-    Console().print(table)
+    Console(width=None if sys.stdout.isatty() else 200).print(table)
 
 
 @app.command()
@@ -189,7 +189,7 @@ def mc(
 
     spec = _spec(tracks=_tracks(tracks_), runs=runs, filters=_filters(filters_), chunk_size=chunk_size, **kw)
     t0 = time.perf_counter()
-    m = run_mc(spec, out, jobs=jobs, progress=not no_progress)
+    m = run_mc(spec, out, jobs=jobs, progress=not no_progress, argv=["nespm", *_ARGV])
     div = int(m["diverged"].sum())
     typer.echo(f"{len(m)} rows (track x filter x run) in {time.perf_counter() - t0:.1f} s, {div} diverged "
                f"-> {out}/metrics.parquet; next: nespm report {out}")
@@ -260,9 +260,17 @@ def _normalize_argv(argv: list[str]) -> list[str]:
     return out
 
 
+_ARGV: list[str] = []  # the command line main() received, for the manifest
+
+
 def main(argv: list[str] | None = None) -> int:
+    global _ARGV
     try:
-        argv = _normalize_argv(_expand_config(list(sys.argv[1:] if argv is None else argv)))
+        argv = list(sys.argv[1:] if argv is None else [str(a) for a in argv])
+        _ARGV = list(argv)
+        if not argv:
+            argv = ["--help"]
+        argv = _normalize_argv(_expand_config(argv))
         rv = typer.main.get_command(app).main(args=argv, prog_name="nespm", standalone_mode=False)
         return rv if isinstance(rv, int) else 0
     except NespmError as exc:

@@ -56,8 +56,15 @@ class CorruptionConfig:
     def __post_init__(self):
         if self.schedule not in SCHEDULES:
             raise NespmError(f"--schedule: unknown schedule {self.schedule!r}; choose from {', '.join(SCHEDULES)}")
-        if self.segment_s <= 0:
-            raise NespmError("--segment-length must be positive")
+        if not (self.segment_s > 0 and np.isfinite(self.segment_s)):
+            raise NespmError("--segment-length must be a positive number of seconds")
+        for name in ("vel_h_std", "vel_v_std", "misalignment_deg", "acc_noise", "gyro_noise", "acc_bias",
+                     "gyro_bias", "dvl_noise"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v >= 0):
+                raise NespmError(f"--{name.replace('_', '-')}: must be a finite std >= 0, got {v}")
+        if not (1 <= self.factor_min <= self.factor_max):
+            raise NespmError("dynamic schedule factors need 1 <= min <= max")
 
 
 def stream(seed: int, track: int, run: int, kind: int) -> np.random.Generator:

@@ -91,11 +91,12 @@ def validate(spec: Spec) -> Spec:
         if n not in have:
             where = d if d is not None else "the embedded default"
             raise NespmError(f"--tracks: no track {n} in {where}; available: {', '.join(map(str, have))}")
+    durations = {n: load_track(n, d).duration for n in spec.tracks}  # validates every file up front
     if spec.scenario == "outage":
         if spec.outage_length <= 0 or spec.outage_start <= 0:
             raise NespmError("--outage-start and --outage-length must be positive")
         for n in spec.tracks:
-            dur = load_track(n, d).duration
+            dur = durations[n]
             if spec.outage_start + spec.outage_length > dur:
                 raise NespmError(
                     f"--outage-start {spec.outage_start:g} + --outage-length {spec.outage_length:g} s "
@@ -260,13 +261,17 @@ def assemble(out: Path) -> tuple[pd.DataFrame, pd.DataFrame]:
     metrics = pd.concat([pd.read_parquet(p) for p in sorted(chunks.glob("metrics-*.parquet"))], ignore_index=True)
     metrics = metrics.sort_values(["track", "filter", "run"], kind="stable").reset_index(drop=True)
     series = pd.concat([pd.read_parquet(p) for p in sorted(chunks.glob("series-*.parquet"))], ignore_index=True)
-    ok = series[~series["diverged"]]
-    g = ok.groupby(["track", "filter", "epoch"], sort=True)
-    epochs = g.agg(t=("t", "first"), vel_err_mean=("vel_err", "mean"), vel_err_std=("vel_err", lambda x: x.std(ddof=0)),
-                   att_err_mean=("att_err", "mean"), att_err_std=("att_err", lambda x: x.std(ddof=0)),
+    err_cols = ["vel_err", "att_err", "nees", "north_err", "east_err"]
+    series.loc[series["diverged"], err_cols] = np.nan  # diverged runs count in no mean
+    series["ok"] = ~series["diverged"]
+    g = series.groupby(["track", "filter", "epoch"], sort=True)
+    std0 = lambda x: x.std(ddof=0)  # noqa: E731
+    epochs = g.agg(t=("t", "first"), vel_err_mean=("vel_err", "mean"), vel_err_std=("vel_err", std0),
+                   att_err_mean=("att_err", "mean"), att_err_std=("att_err", std0),
                    nees_mean=("nees", "mean"), north_err_mean=("north_err", "mean"),
                    east_err_mean=("east_err", "mean"), dvl_used=("dvl_used", "first"),
-                   n_runs=("run", "count")).reset_index()
+                   n_runs=("ok", "sum")).reset_index()
+    epochs["n_runs"] = epochs["n_runs"].astype(np.int64)
     write_parquet_atomic(metrics, out / "metrics.parquet")
     return metrics, epochs
 

@@ -18,8 +18,16 @@ def run_single(spec: Spec, track: int, filt: str, run: int, clean: bool = False,
     ``out`` (optional): per-epoch time series as Parquet (CSV if it ends in .csv) with
     true and estimated velocity and attitude, errors, covariance diagonal and biases.
     """
+    from .filters import FILTERS
+    from .tracks import available_tracks, resolve_data_dir
+
     if run < 0:
         raise NespmError(f"--run must be >= 0, got {run}")
+    if filt not in FILTERS:
+        raise NespmError(f"--filter: unknown filter {filt!r}; choose from {', '.join(FILTERS)}")
+    have = available_tracks(resolve_data_dir(spec.data_dir))
+    if track not in have:
+        raise NespmError(f"--track: no track {track}; available: {', '.join(map(str, have))}")
     spec = validate(spec)
     results, truth, real = simulate(spec, track, np.array([run]), [filt], clean=clean)
     o, err, secs = results[filt]

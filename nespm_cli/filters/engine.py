@@ -164,8 +164,9 @@ class _Runner:
         """Flag runs whose solution or covariance is non-finite or implausible; sanitize them."""
         nav = self.nav
         speed = np.linalg.norm(nav.v_n, axis=-1)
-        bad_now = ~np.isfinite(speed) | (speed > self.cfg.vel_limit) | ~np.isfinite(nav.C_bn).all(axis=(-2, -1))
-        if self.kind != "ins":
+        bad_now = ~np.isfinite(speed) | ~np.isfinite(nav.C_bn).all(axis=(-2, -1))
+        if self.kind != "ins":  # free inertial is allowed to drift: only a non-finite solution fails it
+            bad_now |= speed > self.cfg.vel_limit
             bad_now |= ~np.isfinite(self.P).all(axis=(-2, -1))
             bad_now |= (np.einsum("...ii->...i", self.P) < 0).any(axis=-1)
         new = bad_now & ~self.bad

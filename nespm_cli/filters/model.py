@@ -60,23 +60,27 @@ class FilterConfig:
     vel_limit: float = 50.0  # m/s: |v_nav| beyond this marks the run diverged
 
     def p0(self) -> np.ndarray:
-        """Initial covariance (12, 12)."""
-        d = np.concatenate([
+        """Initial covariance (12, 12); an overflowing std gives inf (the run then diverges)."""
+        with np.errstate(over="ignore"):
+            return np.diag(self._p0_diag())
+
+    def _p0_diag(self) -> np.ndarray:
+        return np.concatenate([
             np.asarray(self.p0_vel, float) ** 2,
             np.deg2rad(np.asarray(self.p0_att_deg, float)) ** 2,
-            np.full(3, self.p0_acc_bias**2),
-            np.full(3, self.p0_gyro_bias**2),
+            np.full(3, np.square(np.float64(self.p0_acc_bias))),
+            np.full(3, np.square(np.float64(self.p0_gyro_bias))),
         ])
-        return np.diag(d)
 
     def q_psd(self, dt_imu: float) -> np.ndarray:
         """Diagonal (12,) of the continuous noise PSD Q* (anukf.md eq 32)."""
-        return np.concatenate([
-            np.full(3, self.acc_noise**2 * dt_imu),
-            np.full(3, self.gyro_noise**2 * dt_imu),
-            np.full(3, self.acc_bias_rw**2),
-            np.full(3, self.gyro_bias_rw**2),
-        ])
+        with np.errstate(over="ignore"):
+            return np.concatenate([
+                np.full(3, np.square(np.float64(self.acc_noise)) * dt_imu),
+                np.full(3, np.square(np.float64(self.gyro_noise)) * dt_imu),
+                np.full(3, np.square(np.float64(self.acc_bias_rw))),
+                np.full(3, np.square(np.float64(self.gyro_bias_rw))),
+            ])
 
 
 @dataclass

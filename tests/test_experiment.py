@@ -1,0 +1,483 @@
+"""End-to-end tests of ``nespm mc`` (nespm_cli.experiment.run_mc through nespm_cli.cli.main).
+
+Checked: results do not depend on --jobs (bit for bit) nor on --chunk-size (to 1e-12); an
+interrupted experiment (a deleted chunk, or a process killed mid-run) resumes by computing
+only the missing chunks and ends with the uninterrupted numbers; a different command on an
+existing folder is refused; metrics/epochs/manifest follow docs/results-schema.md; every
+filter sees the same realization; the outage scenario switches the DVL off exactly for
+[start, start + length); ``nespm report`` renders the tables.
+
+Cost: one filter over the 400 s track is ~6 s (ins) to ~10 s (ekf) whatever the number of
+runs in the batch, so the experiments are tiny (track 5, 4 runs, ins and ekf) and each one
+is computed once per module (module-scoped fixtures) and shared by the tests that read it.
+"""
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import os
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from nespm_cli.cli import main
+from nespm_cli.tracks import load_track
+
+DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "snapir-akit"
+SCHEMA_DOC = Path(__file__).resolve().parents[1] / "docs" / "results-schema.md"
+KEY = ["track", "filter", "run"]
+
+pytestmark = pytest.mark.skipif(not (DATA / "Trajectory5").is_dir(), reason=f"real data not found in {DATA}")
+
+RUNS = 4
+BASE = ["mc", "--tracks", "5", "--runs", str(RUNS), "--data-dir", str(DATA), "--no-progress"]
+INS_EKF = BASE + ["--filters", "ins,ekf"]
+INS = BASE + ["--filters", "ins"]
+
+
+def nespm(*argv) -> tuple[int, str, str]:
+    """Run ``nespm argv...`` in-process (usable from module-scoped fixtures, unlike capsys)."""
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        rc = main([str(a) for a in argv])
+    return rc, out.getvalue(), err.getvalue()
+
+
+def mc(out: Path, *argv) -> Path:
+    rc, stdout, stderr = nespm(*argv, "--out", out)
+    assert rc == 0, stderr
+    assert "Traceback" not in stdout + stderr
+    assert "metrics.parquet" in stdout and f"nespm report {out}" in stdout
+    return out
+
+
+def metrics(d: Path) -> pd.DataFrame:
+    return pd.read_parquet(d / "metrics.parquet")
+
+
+def epochs(d: Path) -> pd.DataFrame:
+    return pd.read_parquet(d / "epochs.parquet")
+
+
+def no_seconds(df: pd.DataFrame) -> pd.DataFrame:
+    """``seconds`` is wall time: the only column allowed to differ between equal experiments."""
+    return df.drop(columns="seconds")
+
+
+def chunk_mtimes(d: Path) -> dict[str, int]:
+    return {p.name: p.stat().st_mtime_ns for p in (d / "chunks").glob("*.parquet")}
+
+
+@pytest.fixture(autouse=True)
+def _no_env_data_dir(monkeypatch):
+    monkeypatch.delenv("NESPM_DATA_DIR", raising=False)
+
+
+@pytest.fixture(scope="module")
+def root(tmp_path_factory) -> Path:
+    return tmp_path_factory.mktemp("mc")
+
+
+@pytest.fixture(scope="module")
+def mc_a(root) -> Path:
+    """ins + ekf, 2 chunks of 2 runs, 2 worker processes."""
+    return mc(root / "A", *INS_EKF, "--chunk-size", "2", "--jobs", "2")
+
+
+@pytest.fixture(scope="module")
+def mc_b(root) -> Path:
+    """The same experiment as A, in-process (--jobs 1). Read-only for the tests using it."""
+    return mc(root / "B", *INS_EKF, "--chunk-size", "2", "--jobs", "1")
+
+
+@pytest.fixture(scope="module")
+def mc_c(root) -> Path:
+    """The same experiment as A, one chunk of 4 runs."""
+    return mc(root / "C", *INS_EKF, "--chunk-size", "4", "--jobs", "1")
+
+
+@pytest.fixture(scope="module")
+def mc_ins(root) -> Path:
+    """ins alone, chunking as in C (one chunk of 4 runs)."""
+    return mc(root / "E", *INS, "--chunk-size", "4", "--jobs", "1")
+
+
+# --------------------------------------------------------------------------- determinism
+
+
+def test_jobs_do_not_change_results(mc_a, mc_b):
+    a, b = metrics(mc_a), metrics(mc_b)
+    assert len(a) == 2 * RUNS
+    pd.testing.assert_frame_equal(no_seconds(a), no_seconds(b), check_exact=True)
+    pd.testing.assert_frame_equal(epochs(mc_a), epochs(mc_b), check_exact=True)
+    for p in (mc_a / "chunks").glob("series-*.parquet"):
+        pd.testing.assert_frame_equal(pd.read_parquet(p), pd.read_parquet(mc_b / "chunks" / p.name), check_exact=True)
+    assert not a.loc[a["filter"] == "ekf", "diverged"].any()
+
+
+def test_chunk_size_does_not_change_results(mc_a, mc_c):
+    """Chunk size changes only how many runs share a batch, and each run's numbers come from
+    its own streams, so the results agree, but not bit for bit: numpy's SIMD loops for the
+    transcendental functions (sin, cos, exp, sqrt...) handle the tail elements that do not fill a
+    vector register with another code path, and the batched matrix products may take other
+    kernels, so the same run at another position / in another batch length can round
+    differently in the last ulp, and the closed-loop filters carry that over the track."""
+    a, c = metrics(mc_a), metrics(mc_c)
+    assert len(c) == len(a) == 2 * RUNS
+    m = a.merge(c, on=KEY, suffixes=("_a", "_c"), validate="one_to_one")
+    assert len(m) == len(a)
+    for col in ("vrmse", "mrmse", "nees", "sse_vel", "sse_att", "max_vel_err", "max_att_err"):
+        x, y = m[f"{col}_a"].to_numpy(), m[f"{col}_c"].to_numpy()
+        assert np.array_equal(np.isnan(x), np.isnan(y)), col
+        ok = ~np.isnan(x)
+        np.testing.assert_allclose(y[ok], x[ok], rtol=1e-12, atol=0, err_msg=col)
+    assert (m["n_samples_a"] == m["n_samples_c"]).all()
+    assert (m["diverged_a"] == m["diverged_c"]).all()
+    # the ins filter has no covariance: NaN NEES; the ekf one is finite
+    assert m.loc[m["filter"] == "ins", "nees_a"].isna().all()
+    assert m.loc[m["filter"] == "ekf", "nees_a"].notna().all()
+    # the runs are different realizations
+    assert m.loc[m["filter"] == "ekf", "vrmse_a"].nunique() == RUNS
+
+
+def test_same_realization_for_every_filter(mc_c, mc_ins):
+    """The ins errors depend only on the realization: running ins alone or next to ekf gives
+    identical ins rows, per-epoch means and per-run per-epoch errors (the chunk series files,
+    which also hold the runs that metrics.parquet marks diverged, i.e. NaN)."""
+    alone = metrics(mc_ins)
+    both = metrics(mc_c)
+    assert set(alone["filter"]) == {"ins"} and len(alone) == RUNS
+    pd.testing.assert_frame_equal(no_seconds(alone),
+                                  no_seconds(both[both["filter"] == "ins"].reset_index(drop=True)),
+                                  check_exact=True)
+    ea, ec = epochs(mc_ins), epochs(mc_c)
+    pd.testing.assert_frame_equal(ea, ec[ec["filter"] == "ins"].reset_index(drop=True), check_exact=True)
+    name = "series-5-ins-000000.parquet"
+    pd.testing.assert_frame_equal(pd.read_parquet(mc_ins / "chunks" / name),
+                                  pd.read_parquet(mc_c / "chunks" / name), check_exact=True)
+
+
+def test_run_matches_mc_row(mc_b):
+    """`nespm run --run r` is run r of `nespm mc` (same realization; batch of 1 instead of 2).
+
+    Free INS with the protocol's 0.3 m/s² biases passes the 50 m/s divergence limit in most
+    runs (NaN metrics), so the comparison uses the last run that stays below it."""
+    m = metrics(mc_b)
+    m = m[m["filter"] == "ins"].set_index("run")
+    ok = m.index[~m["diverged"]]
+    assert len(ok) >= 1
+    run = int(ok[-1])
+    rc, out, err = nespm("run", "--track", "5", "--filter", "ins", "--run", run, "--json", "--data-dir", DATA)
+    assert rc == 0, err
+    s = json.loads(out)
+    row = m.loc[run]
+    assert s["run"] == run and s["diverged"] is False
+    for col in ("vrmse", "mrmse", "max_vel_err", "max_att_err"):
+        assert s[col] == pytest.approx(row[col], rel=1e-12, abs=0), col
+
+
+# --------------------------------------------------------------------------- resume
+
+
+def test_resume_recomputes_only_the_deleted_chunk(mc_b, root):
+    d = root / "D"
+    shutil.copytree(mc_b, d)  # a completed run of the same command
+    started = json.loads((d / "manifest.json").read_text())["started"]
+    gone = ["metrics-5-ins-000002.parquet", "series-5-ins-000002.parquet"]
+    for name in gone:
+        (d / "chunks" / name).unlink()
+    (d / "metrics.parquet").unlink()
+    before = chunk_mtimes(d)
+    assert len(before) == 6
+
+    # --jobs is not part of the experiment's identity: another value resumes
+    mc(d, *INS_EKF, "--chunk-size", "2", "--jobs", "2")
+    after = chunk_mtimes(d)
+    assert set(after) == set(before) | set(gone)
+    assert {k: after[k] for k in before} == before, "an existing chunk file was rewritten"
+
+    m = metrics(d)
+    assert not m.duplicated(KEY).any()
+    assert len(m) == 2 * RUNS
+    pd.testing.assert_frame_equal(no_seconds(m), no_seconds(metrics(mc_b)), check_exact=True)
+    pd.testing.assert_frame_equal(epochs(d), epochs(mc_b), check_exact=True)
+    man = json.loads((d / "manifest.json").read_text())
+    assert man["started"] == started and man["finished"] is not None
+
+    # a second re-run has nothing to compute and changes nothing
+    mtimes = chunk_mtimes(d)
+    mc(d, *INS_EKF, "--chunk-size", "2", "--jobs", "1")
+    assert chunk_mtimes(d) == mtimes
+    pd.testing.assert_frame_equal(no_seconds(metrics(d)), no_seconds(m), check_exact=True)
+
+
+def _console_script() -> list[str]:
+    script = Path(sys.executable).with_name("nespm")
+    return [str(script)] if script.exists() else [sys.executable, "-m", "nespm_cli.cli"]
+
+
+def test_resume_after_killed_process(mc_b, root):
+    """Kill a real `nespm mc` (SIGTERM) after its first of two chunks, re-run the same command.
+
+    The uninterrupted reference is B's ins rows: same realizations and chunking, and the ins
+    results do not depend on the other filters (test_same_realization_for_every_filter)."""
+    f = root / "F"
+    argv = INS + ["--chunk-size", "2", "--jobs", "1", "--out", str(f)]
+    env = {k: v for k, v in os.environ.items() if k != "NESPM_DATA_DIR"}
+    proc = subprocess.Popen(_console_script() + argv[:], stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env)
+    try:
+        deadline = time.monotonic() + 120
+        while not list((f / "chunks").glob("metrics-*.parquet")):
+            assert proc.poll() is None, f"nespm mc ended before its first chunk: {proc.communicate()}"
+            assert time.monotonic() < deadline, "no chunk file after 120 s"
+            time.sleep(0.05)
+        proc.send_signal(signal.SIGTERM)
+        proc.wait(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        proc.stdout.close()
+        proc.stderr.close()
+    assert proc.returncode != 0
+    assert not (f / "metrics.parquet").exists(), "the process finished before it was killed"
+    done = sorted(p.name for p in (f / "chunks").glob("metrics-*.parquet"))
+    assert done == ["metrics-5-ins-000000.parquet"]
+    assert json.loads((f / "manifest.json").read_text())["finished"] is None
+    before = chunk_mtimes(f)
+
+    mc(f, *argv[:-2])
+    after = chunk_mtimes(f)
+    assert {k: after[k] for k in before} == before, "a finished chunk was recomputed"
+    assert sorted(p.name for p in (f / "chunks").glob("metrics-*.parquet")) == [
+        "metrics-5-ins-000000.parquet", "metrics-5-ins-000002.parquet"]
+    m = metrics(f)
+    assert not m.duplicated(KEY).any() and len(m) == RUNS
+    mb, eb = metrics(mc_b), epochs(mc_b)
+    pd.testing.assert_frame_equal(no_seconds(m), no_seconds(mb[mb["filter"] == "ins"].reset_index(drop=True)),
+                                  check_exact=True)
+    pd.testing.assert_frame_equal(epochs(f), eb[eb["filter"] == "ins"].reset_index(drop=True), check_exact=True)
+    for first in (0, 2):
+        name = f"series-5-ins-{first:06d}.parquet"
+        pd.testing.assert_frame_equal(pd.read_parquet(f / "chunks" / name), pd.read_parquet(mc_b / "chunks" / name),
+                                      check_exact=True)
+    assert json.loads((f / "manifest.json").read_text())["finished"] is not None
+
+
+@pytest.mark.parametrize("extra,differs", [
+    (["--seed", "1"], ["seed"]),
+    (["--seed", "1", "--runs", "5"], ["runs", "seed"]),
+    (["--chunk-size", "4"], ["chunk_size"]),
+    (["--scenario", "outage"], ["scenario"]),
+])
+def test_different_command_on_existing_folder(mc_b, extra, differs):
+    manifest = (mc_b / "manifest.json").read_bytes()
+    mtimes = chunk_mtimes(mc_b)
+    argv = INS_EKF + ["--chunk-size", "2", "--jobs", "1"]
+    for i in range(0, len(extra), 2):  # later options override earlier ones
+        argv += extra[i:i + 2]
+    rc, out, err = nespm(*argv, "--out", mc_b)
+    assert rc == 2
+    assert "Traceback" not in out + err
+    lines = err.splitlines()
+    assert len(lines) == 1 and lines[0].startswith("nespm: error: "), lines
+    named = re.search(r"differs in: ([^)]*)\)", lines[0])
+    assert named, lines[0]
+    assert sorted(x.strip() for x in named.group(1).split(",")) == differs
+    assert (mc_b / "manifest.json").read_bytes() == manifest
+    assert chunk_mtimes(mc_b) == mtimes
+
+
+# --------------------------------------------------------------------------- schema
+
+
+def _doc_columns(title: str) -> dict[str, str]:
+    """Column -> documented type of the table under the heading containing ``title``."""
+    text = SCHEMA_DOC.read_text()
+    section = text.split(f"## `DIR/{title}`", 1)[1].split("\n## ", 1)[0]
+    cols: dict[str, str] = {}
+    for line in section.splitlines():
+        if not line.startswith("| `"):
+            continue
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        for name in re.findall(r"`([^`]+)`", cells[0]):
+            cols[name] = cells[1]
+    return cols
+
+
+def _check_dtypes(df: pd.DataFrame, documented: dict[str, str], inherited: dict[str, str]) -> None:
+    for col, typ in documented.items():
+        typ = typ or inherited[col]
+        dt = df[col].dtype
+        if typ == "string":
+            assert pd.api.types.is_string_dtype(dt), (col, dt)
+        elif typ == "bool":
+            assert dt == np.bool_, (col, dt)
+        else:
+            assert dt == np.dtype(typ), (col, dt, typ)
+
+
+def test_metrics_schema(mc_b):
+    documented = _doc_columns("metrics.parquet")
+    assert "vrmse" in documented and "seconds" in documented
+    m = metrics(mc_b)
+    assert sorted(m.columns) == sorted(documented)
+    _check_dtypes(m, documented, {})
+    assert len(m) == 1 * 2 * RUNS
+    assert not m.duplicated(KEY).any()
+    assert sorted(zip(m["track"], m["filter"], m["run"])) == [(5, f, r) for f in ("ekf", "ins") for r in range(RUNS)]
+    assert (m["scenario"] == "nominal").all() and (m["schedule"] == "constant").all() and (m["seed"] == 0).all()
+    assert (m["n_samples"] == 400).all()
+    np.testing.assert_allclose(m["vrmse"], np.sqrt(m["sse_vel"] / m["n_samples"]), rtol=1e-15)
+    np.testing.assert_allclose(m["mrmse"], np.sqrt(m["sse_att"] / m["n_samples"]), rtol=1e-15)
+    assert (m["seconds"] > 0).all()
+    # a diverged run's error sums are NaN, every other run's are finite
+    for col in ("vrmse", "mrmse", "sse_vel", "sse_att", "max_vel_err", "max_att_err"):
+        np.testing.assert_array_equal(m[col].isna().to_numpy(), m["diverged"].to_numpy(), err_msg=col)
+    ok = ~m["diverged"]
+    assert (m.loc[ok, "max_vel_err"] >= m.loc[ok, "vrmse"]).all()
+    ekf = m[m["filter"] == "ekf"]
+    assert not ekf["diverged"].any() and np.isfinite(ekf["nees"]).all()
+    # the filter helps: the DVL-aided ekf beats free-running ins (diverged or not) on every realization
+    piv = m.pivot(index="run", columns="filter", values="vrmse")
+    assert (piv["ekf"] < piv["ins"].fillna(np.inf)).all()
+
+
+def test_epochs_schema(mc_b):
+    documented = _doc_columns("epochs.parquet")
+    assert "vel_err_mean" in documented and "north_true" in documented
+    e = epochs(mc_b)
+    assert sorted(e.columns) == sorted(documented)
+    _check_dtypes(e, documented, _doc_columns("metrics.parquet"))
+    m = metrics(mc_b)
+    track = load_track(5, DATA)
+    n = len(track.t)
+    assert n == 400
+    assert len(e) == 1 * 2 * n
+    assert not e.duplicated(["track", "filter", "epoch"]).any()
+    for filt, g in e.groupby("filter"):
+        np.testing.assert_array_equal(g["epoch"].to_numpy(), np.arange(n))
+        np.testing.assert_allclose(g["t"].to_numpy(), track.t - track.t[0], rtol=0, atol=1e-6)
+        assert (g["n_runs"] == RUNS - m.loc[m["filter"] == filt, "diverged"].sum()).all()
+        assert g["north_true"].iloc[0] == 0.0 and g["east_true"].iloc[0] == 0.0
+        if filt == "ins":  # free inertial: never aided
+            assert not g["dvl_used"].any()
+        else:
+            assert not g["dvl_used"].iloc[0] and g["dvl_used"].iloc[1:].all()
+    # per-epoch means (over non-diverged runs) agree with the per-run sums of metrics.parquet
+    for filt, g in e.groupby("filter"):
+        runs = m[(m["filter"] == filt) & ~m["diverged"]]
+        mean_sq = (g["vel_err_std"] ** 2 + g["vel_err_mean"] ** 2).sum()  # sum over epochs of mean over runs of err²
+        assert mean_sq == pytest.approx(runs["sse_vel"].mean(), rel=1e-9)
+
+
+def test_manifest(mc_b):
+    man = json.loads((mc_b / "manifest.json").read_text())
+    for key in ("command", "options", "seed", "versions", "git_commit", "started", "finished", "wall_seconds",
+                "chunks", "chunk_seconds", "data_dir"):
+        assert key in man, key
+    assert isinstance(man["command"], list) and all(isinstance(a, str) for a in man["command"])
+    assert man["seed"] == 0 and man["options"]["seed"] == 0
+    opts = man["options"]
+    assert opts["tracks"] == [5] and opts["runs"] == RUNS and opts["filters"] == ["ins", "ekf"]
+    assert opts["chunk_size"] == 2 and opts["scenario"] == "nominal" and opts["data_dir"] == str(DATA)
+    assert man["data_dir"] == str(DATA)
+    for lib in ("python", "nespm", "numpy", "scipy", "pandas", "pyarrow", "joblib"):
+        assert isinstance(man["versions"].get(lib), str) and man["versions"][lib], lib
+    assert man["versions"]["numpy"] == np.__version__
+    assert man["git_commit"] is None or re.fullmatch(r"[0-9a-f]{40}", man["git_commit"])
+    from datetime import datetime
+
+    started = datetime.fromisoformat(man["started"])
+    finished = datetime.fromisoformat(man["finished"])
+    assert started.utcoffset().total_seconds() == 0 and started <= finished
+    assert man["wall_seconds"] > 0
+    assert man["chunks"] == 2 and len(man["chunk_seconds"]) == 2 * 2
+
+
+def test_manifest_command_is_the_nespm_command(mc_b):
+    command = json.loads((mc_b / "manifest.json").read_text())["command"]
+    assert "mc" in command and "--runs" in command
+
+
+# --------------------------------------------------------------------------- outage
+
+
+@pytest.fixture(scope="module")
+def mc_outage(root) -> Path:
+    """ekf, runs 0 and 1 (B's first chunk), DVL off for [180, 200) s."""
+    return mc(root / "G", "mc", "--tracks", "5", "--runs", "2", "--data-dir", DATA, "--no-progress",
+              "--filters", "ekf", "--chunk-size", "2", "--jobs", "1",
+              "--scenario", "outage", "--outage-start", "180", "--outage-length", "20")
+
+
+def test_outage(mc_outage, mc_b):
+    e = epochs(mc_outage)
+    assert set(e["filter"]) == {"ekf"} and len(e) == 400
+    t = e["t"].to_numpy()
+    used = e["dvl_used"].to_numpy()
+    expected = ~((t >= 180.0) & (t < 200.0))
+    expected[0] = False
+    np.testing.assert_array_equal(used, expected)
+    assert 15 <= (~used[1:]).sum() <= 21  # ~20 epochs at ~1 Hz
+    err = e["vel_err_mean"].to_numpy()
+    during = err[(t >= 180) & (t < 200)].mean()
+    before = err[(t >= 160) & (t < 180)].mean()
+    assert during > before, (during, before)
+    m = metrics(mc_outage)
+    assert (m["scenario"] == "outage").all() and len(m) == 2
+    # the outage changes nothing before it starts: same runs, same batch as B's first chunk
+    sb = pd.read_parquet(mc_b / "chunks" / "series-5-ekf-000000.parquet")
+    so = pd.read_parquet(mc_outage / "chunks" / "series-5-ekf-000000.parquet")
+    assert len(sb) == len(so) == 2 * 400
+    pre = so["t"] < 180.0
+    np.testing.assert_array_equal(so.loc[pre, "vel_err"].to_numpy(), sb.loc[pre, "vel_err"].to_numpy())
+    assert not np.array_equal(so.loc[~pre, "vel_err"].to_numpy(), sb.loc[~pre, "vel_err"].to_numpy())
+
+
+# --------------------------------------------------------------------------- report
+
+
+def test_report(mc_b, root):
+    d = root / "R"
+    shutil.copytree(mc_b, d)
+    rc, out, err = nespm("report", d, "--n-boot", "200")
+    assert rc == 0, err
+    assert "Traceback" not in out + err
+    md = (d / "report.md").read_text()
+    table = [line for line in md.splitlines() if line.startswith("|")]
+    assert any(re.fullmatch(r"\|(\s*:?-{3,}:?\s*\|)+", line.replace(" ", "")) for line in table), "no table separator"
+    for filt in ("ins", "ekf"):
+        assert any(re.search(rf"\|\s*{filt}\s*\|", line) for line in table), f"no table row for {filt}"
+    assert str(d / "report.md") in out
+
+
+# --------------------------------------------------------------------------- every run diverged
+
+
+def test_every_run_diverged(tmp_path):
+    """A free INS fed an absurd accelerometer bias (1e200 m/s²) overflows to a non-finite
+    solution: every run is marked diverged and mc still finishes with its tables."""
+    from nespm_cli.embedded import embedded_track
+    from nespm_cli.tracks import Track, write_akit
+
+    tr = embedded_track(1)
+    s = slice(0, 31)
+    write_akit(Track(number=1, t=tr.t[s], pos=tr.pos[s], v_n=tr.v_n[s], euler=tr.euler[s], dvl=tr.dvl[s],
+                     imu=None, source="short"), tmp_path / "data")
+    rc, out, err = nespm("mc", "--tracks", "1", "--runs", "2", "--filters", "ins", "--acc-bias", "1e200",
+                         "--chunk-size", "2", "--jobs", "1", "--no-progress", "--data-dir", tmp_path / "data",
+                         "--out", tmp_path / "out")
+    assert rc == 0, err
+    assert "Traceback" not in out + err
+    assert metrics(tmp_path / "out")["diverged"].all()
+    assert (tmp_path / "out" / "epochs.parquet").exists()
