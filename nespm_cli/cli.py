@@ -47,20 +47,17 @@ def _filters(text: str) -> tuple[str, ...]:
 
 
 def _spec(**kw):
-    from .experiment import Spec
+    from .experiment import Spec, couple_filter
 
     corr = CorruptionConfig(
         schedule=kw.pop("schedule"), segment_s=kw.pop("segment_length"),
         misalignment_deg=kw.pop("misalignment_deg"), vel_h_std=kw.pop("vel_h_std"),
-        vel_v_std=kw.pop("vel_v_std"), acc_noise=kw["acc_noise"], gyro_noise=kw["gyro_noise"],
+        vel_v_std=kw.pop("vel_v_std"), acc_noise=kw.pop("acc_noise"), gyro_noise=kw.pop("gyro_noise"),
         acc_bias=kw.pop("acc_bias"), gyro_bias=kw.pop("gyro_bias"), dvl_noise=kw.pop("dvl_noise"),
+        heading_deg=kw.pop("heading_deg"),
     )
-    fcfg = FilterConfig(
-        alpha=kw.pop("alpha"), time_update=kw.pop("time_update"), acc_noise=kw.pop("acc_noise"),
-        gyro_noise=kw.pop("gyro_noise"), acc_bias_rw=kw.pop("acc_bias_rw"), gyro_bias_rw=kw.pop("gyro_bias_rw"),
-        p0_vel=(corr.vel_h_std, corr.vel_h_std, corr.vel_v_std), p0_att_deg=(corr.misalignment_deg,) * 3,
-        p0_acc_bias=corr.acc_bias, p0_gyro_bias=corr.gyro_bias,
-    )
+    fcfg = couple_filter(FilterConfig(alpha=kw.pop("alpha"), time_update=kw.pop("time_update"),
+                                      acc_bias_rw=kw.pop("acc_bias_rw"), gyro_bias_rw=kw.pop("gyro_bias_rw")), corr)
     return Spec(corruption=corr, filter_config=fcfg, **kw)
 
 
@@ -78,6 +75,7 @@ _COMMON = [  # (name, type, default, flag, help): the options that define an exp
     ("outage_start", float, 180.0, "--outage-start", "Outage start [s after the first epoch]."),
     ("outage_length", float, 20.0, "--outage-length", "Outage length [s]."),
     ("misalignment_deg", float, 0.01, "--misalignment-deg", "Initial misalignment std per axis [deg]."),
+    ("heading_deg", Optional[float], None, "--heading-deg", "Initial heading (yaw-axis) misalignment std [deg]; default: --misalignment-deg."),
     ("vel_h_std", float, 0.25, "--vel-h-std", "Initial north/east velocity error std [m/s]."),
     ("vel_v_std", float, 0.05, "--vel-v-std", "Initial down velocity error std [m/s]."),
     ("acc_noise", float, 0.03, "--acc-noise", "Accelerometer white noise std per 100 Hz sample [m/s^2]."),
@@ -91,19 +89,34 @@ _COMMON = [  # (name, type, default, flag, help): the options that define an exp
 ]
 
 
-def _common(f):
-    """Give command ``f`` (which takes ``**kw``) every experiment option of ``_COMMON``."""
-    own = [p for p in inspect.signature(f).parameters.values() if p.kind != p.VAR_KEYWORD]
-    extra = [inspect.Parameter(n, inspect.Parameter.KEYWORD_ONLY, annotation=t,
-                               default=typer.Option(d, flag, help=h, show_default=d is not None))
-             for n, t, d, flag, h in _COMMON]
+_RUNNER = [  # options of the commands that run many realizations (mc, sweep)
+    ("tracks_", str, "5 6", "--tracks", "Track numbers: --tracks 5 6 or --tracks 5,6."),
+    ("runs", int, 100, "--runs", "Monte Carlo runs per track."),
+    ("filters_", str, "ekf,ukf,ukf-nespm", "--filters", "Comma list of ins, ekf, ukf, ukf-nespm."),
+    ("jobs", int, 2, "--jobs", "joblib worker processes (results do not depend on it)."),
+    ("chunk_size", int, 50, "--chunk-size", "Runs per batch, the resumable unit."),
+    ("no_progress", bool, False, "--no-progress", "No progress bar."),
+]
 
-    @functools.wraps(f)
-    def wrapper(**kwargs):
-        return f(**kwargs)
 
-    wrapper.__signature__ = inspect.Signature(own + extra)
-    return wrapper
+def _options(*groups):
+    """Give a command (which takes ``**kw``) the options of ``groups`` after its own."""
+    def deco(f):
+        own = [p for p in inspect.signature(f).parameters.values() if p.kind != p.VAR_KEYWORD]
+        extra = [inspect.Parameter(n, inspect.Parameter.KEYWORD_ONLY, annotation=t,
+                                   default=typer.Option(d, flag, help=h, show_default=d is not None))
+                 for group in groups for n, t, d, flag, h in group]
+
+        @functools.wraps(f)
+        def wrapper(**kwargs):
+            return f(**kwargs)
+
+        wrapper.__signature__ = inspect.Signature(own + extra)
+        return wrapper
+    return deco
+
+
+_common = _options(_COMMON)
 
 
 @app.command()
@@ -172,27 +185,46 @@ def run(
             typer.echo(f"{k:>12}: {v}")
 
 
+def _run_many(tracks_: str, runs: int, filters_: str, jobs: int, chunk_size: int,
+              no_progress: bool, **kw):
+    """Shared body of mc and sweep: build the spec, run, print the summary line."""
+    spec = _spec(tracks=_tracks(tracks_), runs=runs, filters=_filters(filters_), chunk_size=chunk_size, **kw)
+    t0 = time.perf_counter()
+    return spec, t0, dict(jobs=jobs, progress=not no_progress, argv=["nespm", *_ARGV])
+
+
+def _summary(m, t0: float, out: str) -> None:
+    div = int(m["diverged"].sum())
+    typer.echo(f"{len(m)} rows in {time.perf_counter() - t0:.1f} s, {div} diverged "
+               f"-> {out}/metrics.parquet; next: nespm report {out}")
+
+
 @app.command()
-@_common
+@_options(_RUNNER, _COMMON)
 def mc(
-    tracks_: str = typer.Option("5 6", "--tracks", help="Track numbers: --tracks 5 6 or --tracks 5,6."),
-    runs: int = typer.Option(100, "--runs", help="Monte Carlo runs per track."),
-    filters_: str = typer.Option("ekf,ukf,ukf-nespm", "--filters", help="Comma list of ins, ekf, ukf, ukf-nespm."),
-    jobs: int = typer.Option(2, "--jobs", help="joblib worker processes (results do not depend on it)."),
-    chunk_size: int = typer.Option(50, "--chunk-size", help="Runs per batch, the resumable unit."),
     out: str = typer.Option("results/mc", "--out", help="Output folder."),
-    no_progress: bool = typer.Option(False, "--no-progress", help="No progress bar."),
     **kw,
 ) -> None:
     """Monte Carlo: every filter on the same realizations; metrics/epochs Parquet, manifest; resumable."""
     from .experiment import run_mc
 
-    spec = _spec(tracks=_tracks(tracks_), runs=runs, filters=_filters(filters_), chunk_size=chunk_size, **kw)
-    t0 = time.perf_counter()
-    m = run_mc(spec, out, jobs=jobs, progress=not no_progress, argv=["nespm", *_ARGV])
-    div = int(m["diverged"].sum())
-    typer.echo(f"{len(m)} rows (track x filter x run) in {time.perf_counter() - t0:.1f} s, {div} diverged "
-               f"-> {out}/metrics.parquet; next: nespm report {out}")
+    spec, t0, run_kw = _run_many(**kw)
+    _summary(run_mc(spec, out, **run_kw), t0, out)
+
+
+@app.command()
+@_options(_RUNNER, _COMMON)
+def sweep(
+    param: str = typer.Option(..., "--param", help="Parameter to sweep: misalignment-deg, heading-deg, vel-std, acc-bias, gyro-bias, acc-noise, gyro-noise, dvl-noise (with --dvl synthetic), outage-length, alpha."),
+    values: str = typer.Option(..., "--values", help="Comma-separated values, e.g. 0.01,0.1,1,10."),
+    out: str = typer.Option("results/sweep", "--out", help="Output folder."),
+    **kw,
+) -> None:
+    """Paired Monte Carlo per value of one parameter (same seeds across values and filters); resumable."""
+    from .sweep import parse_values, run_sweep
+
+    spec, t0, run_kw = _run_many(**kw)
+    _summary(run_sweep(spec, param, parse_values(values), out, **run_kw), t0, out)
 
 
 @app.command()

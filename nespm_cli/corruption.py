@@ -59,8 +59,10 @@ class CorruptionConfig:
         if not (self.segment_s > 0 and np.isfinite(self.segment_s)):
             raise NespmError("--segment-length must be a positive number of seconds")
         for name in ("vel_h_std", "vel_v_std", "misalignment_deg", "acc_noise", "gyro_noise", "acc_bias",
-                     "gyro_bias", "dvl_noise"):
+                     "gyro_bias", "dvl_noise", "heading_deg"):
             v = getattr(self, name)
+            if v is None:
+                continue
             if not (np.isfinite(v) and v >= 0):
                 raise NespmError(f"--{name.replace('_', '-')}: must be a finite std >= 0, got {v}")
         if not (1 <= self.factor_min <= self.factor_max):

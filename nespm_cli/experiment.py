@@ -176,8 +176,20 @@ def simulate(spec: Spec, number: int, runs: np.ndarray, filters=None, clean: boo
 
 # --- chunked, resumable runner ---------------------------------------------------------
 
-def _chunk_name(kind: str, track: int, filt: str, first: int) -> str:
-    return f"{kind}-{track}-{filt}-{first:06d}.parquet"
+def _chunk_name(kind: str, track: int, filt: str, first: int, tag: str = "") -> str:
+    return f"{kind}-{tag}{track}-{filt}-{first:06d}.parquet"
+
+
+@dataclass(frozen=True)
+class Cell:
+    """One experiment of a run folder: ``mc`` has one, ``sweep`` one per swept value.
+
+    ``tag`` prefixes its chunk files; ``columns`` are added to every row it writes.
+    """
+
+    spec: Spec
+    tag: str = ""
+    columns: tuple = ()
 
 
 def write_parquet_atomic(df: pd.DataFrame, path: Path) -> None:
@@ -186,11 +198,12 @@ def write_parquet_atomic(df: pd.DataFrame, path: Path) -> None:
     os.replace(tmp, path)
 
 
-def run_chunk(spec: Spec, number: int, first: int, out_dir: str) -> dict:
+def run_chunk(cell: Cell, number: int, first: int, out_dir: str) -> dict:
     """Compute one chunk (all filters not yet on disk) and write its files. Runs in a worker."""
+    spec, tag, extra = cell.spec, cell.tag, dict(cell.columns)
     chunks = Path(out_dir) / "chunks"
     runs = np.arange(first, min(first + spec.chunk_size, spec.runs))
-    todo = [f for f in spec.filters if not (chunks / _chunk_name("metrics", number, f, first)).exists()]
+    todo = [f for f in spec.filters if not (chunks / _chunk_name("metrics", number, f, first, tag)).exists()]
     timings = {}
     if not todo:
         return timings
@@ -199,25 +212,25 @@ def run_chunk(spec: Spec, number: int, first: int, out_dir: str) -> dict:
     t_rel = truth.t[e] - truth.t[e[0]]
     for name, (out, err, secs) in results.items():
         m = run_metrics(err, out.diverged)
-        df = pd.DataFrame({"track": number, "filter": name, "run": runs, "scenario": spec.scenario,
+        df = pd.DataFrame({**extra, "track": number, "filter": name, "run": runs, "scenario": spec.scenario,
                            "schedule": spec.schedule, "seed": spec.seed, **m,
                            "seconds": secs / len(runs)})
         R, N = err.vel.shape
         series = pd.DataFrame({
-            "track": number, "filter": name, "run": np.repeat(runs, N), "epoch": np.tile(np.arange(N), R),
+            **extra, "track": number, "filter": name, "run": np.repeat(runs, N), "epoch": np.tile(np.arange(N), R),
             "t": np.tile(t_rel, R), "vel_err": err.vel.ravel(), "att_err": err.att.ravel(),
             "nees": err.nees.ravel(), "north_err": err.ne[..., 0].ravel(), "east_err": err.ne[..., 1].ravel(),
             "dvl_used": np.tile(out.dvl_used, R), "diverged": np.repeat(out.diverged, N),
         })
         # series first: a metrics file marks the chunk complete
-        write_parquet_atomic(series, chunks / _chunk_name("series", number, name, first))
-        write_parquet_atomic(df, chunks / _chunk_name("metrics", number, name, first))
-        timings[f"{number}-{name}-{first}"] = secs
+        write_parquet_atomic(series, chunks / _chunk_name("series", number, name, first, tag))
+        write_parquet_atomic(df, chunks / _chunk_name("metrics", number, name, first, tag))
+        timings[f"{tag}{number}-{name}-{first}"] = secs
     return timings
 
 
-def chunk_tasks(spec: Spec) -> list[tuple[int, int]]:
-    return [(n, first) for n in spec.tracks for first in range(0, spec.runs, spec.chunk_size)]
+def chunk_tasks(cells: list[Cell]) -> list[tuple[Cell, int, int]]:
+    return [(c, n, first) for c in cells for n in c.spec.tracks for first in range(0, c.spec.runs, c.spec.chunk_size)]
 
 
 def _versions() -> dict:
@@ -255,16 +268,20 @@ def _check_existing(out: Path, options: dict) -> dict | None:
     return old
 
 
-def assemble(out: Path) -> tuple[pd.DataFrame, pd.DataFrame]:
-    """Concatenate the chunk files into metrics.parquet and aggregate epochs.parquet."""
+def assemble(out: Path, keys: tuple = ()) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """Concatenate the chunk files into metrics.parquet and aggregate epochs.parquet.
+
+    ``keys``: extra leading key columns (a sweep's ``param``, ``value``).
+    """
+    keys = list(keys)
     chunks = out / "chunks"
     metrics = pd.concat([pd.read_parquet(p) for p in sorted(chunks.glob("metrics-*.parquet"))], ignore_index=True)
-    metrics = metrics.sort_values(["track", "filter", "run"], kind="stable").reset_index(drop=True)
+    metrics = metrics.sort_values(keys + ["track", "filter", "run"], kind="stable").reset_index(drop=True)
     series = pd.concat([pd.read_parquet(p) for p in sorted(chunks.glob("series-*.parquet"))], ignore_index=True)
     err_cols = ["vel_err", "att_err", "nees", "north_err", "east_err"]
     series.loc[series["diverged"], err_cols] = np.nan  # diverged runs count in no mean
     series["ok"] = ~series["diverged"]
-    g = series.groupby(["track", "filter", "epoch"], sort=True)
+    g = series.groupby(keys + ["track", "filter", "epoch"], sort=True)
     std0 = lambda x: x.std(ddof=0)  # noqa: E731
     epochs = g.agg(t=("t", "first"), vel_err_mean=("vel_err", "mean"), vel_err_std=("vel_err", std0),
                    att_err_mean=("att_err", "mean"), att_err_std=("att_err", std0),
@@ -291,46 +308,53 @@ def add_true_track(epochs: pd.DataFrame, spec: Spec) -> pd.DataFrame:
 
 def run_mc(spec: Spec, out_dir: str | Path, jobs: int = 2, progress: bool = True, argv=None) -> pd.DataFrame:
     """Run (or resume) the experiment into ``out_dir``; return the metrics table."""
+    spec = validate(spec)
+    return run_cells([Cell(spec)], spec.as_dict(), out_dir, jobs=jobs, progress=progress, argv=argv)
+
+
+def run_cells(cells: list[Cell], options: dict, out_dir: str | Path, jobs: int = 2, progress: bool = True,
+              argv=None, label: str = "mc") -> pd.DataFrame:
+    """Run (or resume) validated ``cells`` into ``out_dir``; ``options`` identify the experiment."""
     from joblib import Parallel, delayed
 
-    spec = validate(spec)
     if jobs < 1:
         raise NespmError(f"--jobs must be at least 1, got {jobs}")
     out = Path(out_dir)
-    options = spec.as_dict()
     if out.exists() and not out.is_dir():
         raise NespmError(f"--out {out}: exists and is not a folder")
     old = _check_existing(out, options)
     (out / "chunks").mkdir(parents=True, exist_ok=True)
+    first = cells[0].spec
     started = datetime.now(timezone.utc).isoformat(timespec="seconds")
-    manifest = {"command": list(argv or sys.argv), "options": options, "seed": spec.seed,
-                "data_dir": spec.data_dir or "embedded", "versions": _versions(), "git_commit": _git_commit(),
+    manifest = {"command": list(argv or sys.argv), "options": options, "seed": first.seed,
+                "data_dir": first.data_dir or "embedded", "versions": _versions(), "git_commit": _git_commit(),
                 "started": (old or {}).get("started", started), "finished": None,
                 "chunk_seconds": (old or {}).get("chunk_seconds", {})}
     (out / "manifest.json").write_text(json.dumps(manifest, indent=2))
 
-    tasks = chunk_tasks(spec)
+    tasks = chunk_tasks(cells)
     chunks = out / "chunks"
-    todo = [t for t in tasks if any(not (chunks / _chunk_name("metrics", t[0], f, t[1])).exists() for f in spec.filters)]
+    todo = [(c, n, f0) for c, n, f0 in tasks
+            if any(not (chunks / _chunk_name("metrics", n, f, f0, c.tag)).exists() for f in c.spec.filters)]
     t0 = time.perf_counter()
     if todo:
-        calls = (delayed(run_chunk)(spec, n, first, str(out)) for n, first in todo)
+        calls = (delayed(run_chunk)(c, n, f0, str(out)) for c, n, f0 in todo)
         par = Parallel(n_jobs=min(jobs, len(todo)), backend="loky", return_as="generator_unordered")
         if progress:
             from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
-            cols = (TextColumn("[bold]mc[/] {task.description}"), BarColumn(), MofNCompleteColumn(),
+            cols = (TextColumn("[bold]" + label + "[/] {task.description}"), BarColumn(), MofNCompleteColumn(),
                     TimeElapsedColumn(), TimeRemainingColumn())
             with Progress(*cols, transient=False) as bar:
-                task = bar.add_task(f"{len(todo)} chunks x {len(spec.filters)} filters", total=len(todo))
+                task = bar.add_task(f"{len(todo)} chunks x {len(first.filters)} filters", total=len(todo))
                 for timings in par(calls):
                     manifest["chunk_seconds"].update(timings)
                     bar.advance(task)
         else:
             for timings in par(calls):
                 manifest["chunk_seconds"].update(timings)
-    metrics, epochs = assemble(out)
-    epochs = add_true_track(epochs, spec)
+    metrics, epochs = assemble(out, tuple(k for k, _ in cells[0].columns))
+    epochs = add_true_track(epochs, first)
     write_parquet_atomic(epochs, out / "epochs.parquet")
     manifest.update(finished=datetime.now(timezone.utc).isoformat(timespec="seconds"),
                     wall_seconds=round(time.perf_counter() - t0 + (old or {}).get("wall_seconds", 0.0), 3),
@@ -339,3 +363,15 @@ def run_mc(spec: Spec, out_dir: str | Path, jobs: int = 2, progress: bool = True
     tmp.write_text(json.dumps(manifest, indent=2))
     os.replace(tmp, out / "manifest.json")
     return metrics
+
+
+def couple_filter(fcfg: FilterConfig, corr: CorruptionConfig) -> FilterConfig:
+    """The filter told the truth about the corruption: P0 from the initial-error and bias
+    std, Q's white noise from the injected per-sample noise (docs/filters.md)."""
+    att = [corr.misalignment_deg] * 3
+    if corr.heading_deg is not None:
+        att[2] = corr.heading_deg
+    return dataclasses.replace(
+        fcfg, p0_vel=(corr.vel_h_std, corr.vel_h_std, corr.vel_v_std), p0_att_deg=tuple(att),
+        p0_acc_bias=corr.acc_bias, p0_gyro_bias=corr.gyro_bias, acc_noise=corr.acc_noise,
+        gyro_noise=corr.gyro_noise)
