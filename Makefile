@@ -8,7 +8,7 @@ RUNS   ?= 100
 JOBS   ?= 2
 DATA_OPT := $(if $(DATA),--data-dir $(DATA),)
 
-.PHONY: setup run test smoke table1 table2 bench clean
+.PHONY: setup run test smoke table1 table2 sweep-misalignment bench clean
 
 setup: $(VENV)/.installed
 
@@ -39,6 +39,10 @@ table1: setup
 table2: setup
 	$(NESPM) mc --config experiments/table2.toml --jobs $(JOBS) $(DATA_OPT) --out results/table2$(if $(DATA),-data,)
 	$(NESPM) report results/table2$(if $(DATA),-data,)
+
+sweep-misalignment: setup
+	$(NESPM) sweep --config experiments/sweep-misalignment.toml --jobs $(JOBS) $(DATA_OPT) --out results/sweep-misalignment$(if $(DATA),-data,)
+	$(NESPM) report results/sweep-misalignment$(if $(DATA),-data,)
 
 bench: setup
 	$(BIN)/python benchmarks/bench_foundation.py

@@ -716,9 +716,21 @@ def _write_atomic(path: Path, text: str) -> None:
 def write_report(out_dir: Path, reference: str | None = None, n_boot: int = 2000) -> Path:
     """Write ``out_dir/report.md`` and ``out_dir/figures/*.png``; return the report path.
 
-    Figures are skipped when ``epochs.parquet`` is absent. The bootstrap seed is 0.
+    Figures are skipped when ``epochs.parquet`` is absent. The bootstrap seed is 0. A sweep
+    folder (metrics with a ``param`` column) goes to :func:`sweep_report.write_sweep_report`
+    with ``reference`` as its baseline.
     """
     out_dir = Path(out_dir)
+    try:  # schema only; an unreadable file is reported by load_results below
+        import pyarrow.parquet as pq
+
+        is_sweep = "param" in pq.read_schema(out_dir / "metrics.parquet").names
+    except Exception:
+        is_sweep = False
+    if is_sweep:
+        from nespm_cli.sweep_report import write_sweep_report
+
+        return write_sweep_report(out_dir, reference, n_boot=n_boot)
     metrics, epochs, manifest = load_results(out_dir)
     seed = 0
     table = filter_table(metrics, reference, n_boot=n_boot, seed=seed)
