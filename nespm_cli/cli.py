@@ -94,6 +94,8 @@ _RUNNER = [  # options of the commands that run many realizations (mc, sweep)
     ("runs", int, 100, "--runs", "Monte Carlo runs per track."),
     ("filters_", str, "ekf,ukf,ukf-nespm", "--filters", "Comma list of ins, ekf, ukf, ukf-nespm."),
     ("jobs", int, 2, "--jobs", "joblib worker processes (results do not depend on it)."),
+    ("backend", str, "loky", "--backend", "Where chunks run: loky (local processes) or dask (a Dask cluster; pip install 'nespm[dask]')."),
+    ("scheduler", Optional[str], None, "--scheduler", "Dask scheduler address (tcp://host:8786); default $NESPM_DASK_SCHEDULER, else a local cluster."),
     ("chunk_size", int, 50, "--chunk-size", "Runs per batch, the resumable unit."),
     ("no_progress", bool, False, "--no-progress", "No progress bar."),
 ]
@@ -186,11 +188,12 @@ def run(
 
 
 def _run_many(tracks_: str, runs: int, filters_: str, jobs: int, chunk_size: int,
-              no_progress: bool, **kw):
+              no_progress: bool, backend: str, scheduler: Optional[str], **kw):
     """Shared body of mc and sweep: build the spec, run, print the summary line."""
     spec = _spec(tracks=_tracks(tracks_), runs=runs, filters=_filters(filters_), chunk_size=chunk_size, **kw)
     t0 = time.perf_counter()
-    return spec, t0, dict(jobs=jobs, progress=not no_progress, argv=["nespm", *_ARGV])
+    return spec, t0, dict(jobs=jobs, progress=not no_progress, argv=["nespm", *_ARGV],
+                          backend=backend, scheduler=scheduler)
 
 
 def _summary(m, t0: float, out: str) -> None:

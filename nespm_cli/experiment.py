@@ -306,16 +306,22 @@ def add_true_track(epochs: pd.DataFrame, spec: Spec) -> pd.DataFrame:
     return pd.concat(parts, ignore_index=True)
 
 
-def run_mc(spec: Spec, out_dir: str | Path, jobs: int = 2, progress: bool = True, argv=None) -> pd.DataFrame:
+def run_mc(spec: Spec, out_dir: str | Path, jobs: int = 2, progress: bool = True, argv=None,
+           backend: str = "loky", scheduler: str | None = None) -> pd.DataFrame:
     """Run (or resume) the experiment into ``out_dir``; return the metrics table."""
     spec = validate(spec)
-    return run_cells([Cell(spec)], spec.as_dict(), out_dir, jobs=jobs, progress=progress, argv=argv)
+    return run_cells([Cell(spec)], spec.as_dict(), out_dir, jobs=jobs, progress=progress, argv=argv,
+                     backend=backend, scheduler=scheduler)
 
 
 def run_cells(cells: list[Cell], options: dict, out_dir: str | Path, jobs: int = 2, progress: bool = True,
-              argv=None, label: str = "mc") -> pd.DataFrame:
-    """Run (or resume) validated ``cells`` into ``out_dir``; ``options`` identify the experiment."""
-    from joblib import Parallel, delayed
+              argv=None, label: str = "mc", backend: str = "loky", scheduler: str | None = None) -> pd.DataFrame:
+    """Run (or resume) validated ``cells`` into ``out_dir``; ``options`` identify the experiment.
+
+    ``backend``/``scheduler`` choose where chunks run (:mod:`nespm_cli.backend`); they do not
+    change the results.
+    """
+    from .backend import parallel_map
 
     if jobs < 1:
         raise NespmError(f"--jobs must be at least 1, got {jobs}")
@@ -338,8 +344,7 @@ def run_cells(cells: list[Cell], options: dict, out_dir: str | Path, jobs: int =
             if any(not (chunks / _chunk_name("metrics", n, f, f0, c.tag)).exists() for f in c.spec.filters)]
     t0 = time.perf_counter()
     if todo:
-        calls = (delayed(run_chunk)(c, n, f0, str(out)) for c, n, f0 in todo)
-        par = Parallel(n_jobs=min(jobs, len(todo)), backend="loky", return_as="generator_unordered")
+        results = parallel_map(run_chunk, [(c, n, f0, str(out)) for c, n, f0 in todo], jobs, backend, scheduler)
         if progress:
             from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
@@ -347,11 +352,11 @@ def run_cells(cells: list[Cell], options: dict, out_dir: str | Path, jobs: int =
                     TimeElapsedColumn(), TimeRemainingColumn())
             with Progress(*cols, transient=False) as bar:
                 task = bar.add_task(f"{len(todo)} chunks x {len(first.filters)} filters", total=len(todo))
-                for timings in par(calls):
+                for timings in results:
                     manifest["chunk_seconds"].update(timings)
                     bar.advance(task)
         else:
-            for timings in par(calls):
+            for timings in results:
                 manifest["chunk_seconds"].update(timings)
     metrics, epochs = assemble(out, tuple(k for k, _ in cells[0].columns))
     epochs = add_true_track(epochs, first)

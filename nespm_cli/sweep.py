@@ -88,8 +88,9 @@ def sweep_cells(spec: Spec, param: str, values: list[float]) -> list[Cell]:
 
 
 def run_sweep(spec: Spec, param: str, values: list[float], out_dir: str | Path, jobs: int = 2,
-              progress: bool = True, argv=None) -> pd.DataFrame:
+              progress: bool = True, argv=None, backend: str = "loky", scheduler: str | None = None) -> pd.DataFrame:
     """Run (or resume) the sweep into ``out_dir``; metrics gain the columns ``param``, ``value``."""
     cells = sweep_cells(spec, param, values)
     options = {**validate(spec).as_dict(), "sweep": {"param": param, "values": list(values)}}
-    return run_cells(cells, options, out_dir, jobs=jobs, progress=progress, argv=argv, label="sweep")
+    return run_cells(cells, options, out_dir, jobs=jobs, progress=progress, argv=argv, label="sweep",
+                     backend=backend, scheduler=scheduler)
