@@ -13,14 +13,11 @@ import numpy as np
 import pytest
 
 from nespm_cli.vehicles.remus100 import (
-    IDR,
-    IDS,
     IP,
     IPHI,
     IPSI,
     IQ,
     IR,
-    IRPM,
     ITHETA,
     IU,
     IV,
@@ -31,7 +28,6 @@ from nespm_cli.vehicles.remus100 import (
     added_mass,
     control_forces,
     coriolis_matrix,
-    damping_matrix,
     lift_coefficients,
     mass_matrix,
     saturate,
@@ -147,7 +143,8 @@ def test_actuators_and_propeller_calibration():
     np.testing.assert_allclose(c, [[1525.0, P.fin_max, -P.fin_max], [0.0, -0.1, 0.1]])
     # fin forces: Y = Yuudr u^2 dr etc. (Table C.10)
     tau = control_forces(P, nu, np.array([0.0, 0.1, 0.2]))
-    np.testing.assert_allclose(tau, [0, 9.64 * 2.25 * 0.2, -9.64 * 2.25 * 0.1, 0, -6.15 * 2.25 * 0.1, -6.15 * 2.25 * 0.2])
+    uu = 2.25
+    np.testing.assert_allclose(tau, [0, 9.64 * uu * 0.2, -9.64 * uu * 0.1, 0, -6.15 * uu * 0.1, -6.15 * uu * 0.2])
     assert MODEL.steady_speed(1500.0) == pytest.approx(np.sqrt(3.86 / 1.62))
 
 

@@ -9,8 +9,9 @@ Here (all batched over runs, arrays (R,)):
 * **Path** -- :class:`Helix`: a circle of radius R about ``center`` in the horizontal plane whose
   depth grows linearly with the travelled angle. ``varpi`` is the polar angle of the path point
   P seen from the centre (0 = north, pi/2 = east).
-* **Point P(t)** -- the path parameter is propagated (Breivik & Fossen 2004; Fossen 2011 sec
-  10.3) so that P runs ahead of / behind the vehicle's along-track error:
+* **Point P(t)** -- the path parameter is propagated (the Lyapunov-based along-track law of
+  Breivik & Fossen's path following; Fossen 2011 ch. 10) so that P runs ahead of / behind the
+  vehicle as the along-track error demands:
   ``ds/dt = U_h cos(chi_r) + k_along x_e``, ``dvarpi/dt = direction * (ds/dt) / R``.
 * **LOS** -- errors of the vehicle position in the path-tangential frame at P
   (``x_e`` along, ``y_e`` cross, positive to the right, ``z_e`` vertical, positive below);
@@ -222,7 +223,9 @@ def control_step(
     chi_r = np.arctan(-y_e / g.lookahead_h)
     chi_d = helix.course(state.varpi) + chi_r
     # vertical LOS with integral action (the depth loop's P and I)
-    state.int_z = np.clip(state.int_z + dt * z_e, -g.int_z_max / g.k_iz, g.int_z_max / g.k_iz) if g.k_iz > 0 else state.int_z
+    if g.k_iz > 0:
+        bound = g.int_z_max / g.k_iz
+        state.int_z = np.clip(state.int_z + dt * z_e, -bound, bound)
     theta_d = -helix.dive_angle + np.arctan((z_e + g.k_iz * state.int_z) / g.lookahead_v)
     # propagate P (along-track law)
     state.varpi = state.varpi + dt * helix.direction * (U_h * np.cos(chi_r) + g.k_along * x_e) / helix.radius

@@ -21,7 +21,7 @@ Path-Following, ``REMUS.m``, "based on Prestero 2001") and the coefficient file 
 (2011, DSTO-TR-2576). See docs/remus100.md for every value and discrepancy.
 
 Decomposition: ``M = M_RB + M_A`` (Prestero's mass matrix), ``C(nu) = C_RB(nu) + C_A(nu)`` from
-Fossen's (2011, eq 6.43) skew-symmetric formula applied to ``M``; this formula *generates*
+the skew-symmetric formula of Fossen (2011, Handbook of Marine Craft Hydrodynamics, ch. 3 and 6) applied to ``M``; this formula *generates*
 Prestero's added-mass cross terms (X_wq = Z_wdot, Y_ura = X_udot, M_uwa = -(Z_wdot - X_udot) the
 Munk moment, ...; exactly, except M_rp / N_pq: 4.81 vs the published 4.86). ``D(nu) nu`` carries
 the cross-flow drag, axial drag and rolling resistance and the body/fin *lift* terms, which are
@@ -139,7 +139,7 @@ def _skew6(a: np.ndarray) -> np.ndarray:
 
 
 def rigid_body_mass(p: Remus100Params) -> np.ndarray:
-    """M_RB (6, 6), Fossen (2011) eq 3.44 with the CG at ``r_g = [xg, yg, zg]`` from the CB."""
+    """M_RB (6, 6) (Fossen 2011, ch. 3) with the CG at ``r_g = [xg, yg, zg]`` from the CB."""
     m = p.m
     rg = np.array([p.xg, p.yg, p.zg])
     M = np.zeros((6, 6))
@@ -168,7 +168,7 @@ def mass_matrix(p: Remus100Params) -> np.ndarray:
 
 
 def coriolis_matrix(M: np.ndarray, nu: np.ndarray) -> np.ndarray:
-    """C(nu) (..., 6, 6) for a symmetric mass matrix ``M`` (6, 6), Fossen (2011) eq 6.43.
+    """C(nu) (..., 6, 6) for a symmetric mass matrix ``M`` (6, 6) (Fossen 2011, ch. 3 and 6).
 
     ``C = [[0, -S(a)], [-S(a), -S(b)]]`` with ``[a; b] = M nu``; skew-symmetric, so it does no
     work (``nu^T C nu = 0``). Linear in ``M``: ``C(M_RB + M_A) = C_RB + C_A``.
@@ -266,7 +266,7 @@ def damping_matrix(p: Remus100Params, nu: np.ndarray) -> np.ndarray:
 
 
 def restoring(p: Remus100Params, theta: np.ndarray, phi: np.ndarray) -> np.ndarray:
-    """g(eta) (..., 6): gravity and buoyancy, Fossen (2011) eq 4.6 with the CB at the origin."""
+    """g(eta) (..., 6): gravity and buoyancy (Fossen 2011, ch. 4) with the CB at the origin."""
     st, ct, sp, cp = np.sin(theta), np.cos(theta), np.sin(phi), np.cos(phi)
     WB = p.W - p.B
     xW, yW, zW = p.xg * p.W, p.yg * p.W, p.zg * p.W
@@ -311,18 +311,11 @@ def control_forces(p: Remus100Params, nu: np.ndarray, cmd: np.ndarray) -> np.nda
     )
 
 
-def body_to_ned(theta: np.ndarray, psi: np.ndarray, phi: np.ndarray) -> np.ndarray:
-    """C_bn (..., 3, 3) = Rz(psi) Ry(theta) Rx(phi) (docs/conventions.md)."""
-    from ..rotations import euler_to_dcm
-
-    return euler_to_dcm(np.stack([phi, theta, psi], axis=-1))
-
-
 def kinematics(x: np.ndarray) -> np.ndarray:
     """eta_dot of eq 2 in the state order: ``[X_dot, Y_dot, Z_dot, theta_dot, psi_dot, phi_dot]``.
 
-    Position rate ``C_bn [u, v, w]``; Euler-angle rates ``T(phi, theta) [p, q, r]`` (Fossen 2011
-    eq 2.29). Singular at theta = +-90 deg (never approached by the vehicle).
+    Position rate ``C_bn [u, v, w]``; Euler-angle rates ``T(phi, theta) [p, q, r]`` (ZYX Euler
+    angles, Fossen 2011 ch. 2). Singular at theta = +-90 deg (never approached by the vehicle).
     """
     u, v, w, p_, q, r = (x[..., i] for i in range(6))
     th, ps, ph = x[..., ITHETA], x[..., IPSI], x[..., IPHI]
