@@ -8,7 +8,7 @@ RUNS   ?= 100
 JOBS   ?= 2
 DATA_OPT := $(if $(DATA),--data-dir $(DATA),)
 
-.PHONY: setup run test smoke table1 table2 sweep-misalignment bench clean
+.PHONY: setup run test smoke table1 table2 anukf-table1 anukf-table2 nespm-table1 weights sweep-misalignment bench clean
 
 setup: $(VENV)/.installed
 
@@ -39,6 +39,21 @@ table1: setup
 table2: setup
 	$(NESPM) mc --config experiments/table2.toml --jobs $(JOBS) $(DATA_OPT) --out results/table2$(if $(DATA),-data,)
 	$(NESPM) report results/table2$(if $(DATA),-data,)
+
+# The adaptive filters' tables. With DATA, ProcessNet is first trained on that folder's
+# tracks 1-4 (as in anukf.md); without, the weights shipped with the package are used.
+SUFFIX := $(if $(DATA),-data,)
+WEIGHTS := $(if $(DATA),results/processnet-data.npz,)
+WEIGHTS_OPT := $(if $(WEIGHTS),--weights $(WEIGHTS),)
+
+weights: setup $(WEIGHTS)
+
+results/processnet-data.npz: | setup
+	$(NESPM) train --tracks 1 2 3 4 --test-tracks 5 6 $(DATA_OPT) --out $@
+
+anukf-table1 anukf-table2 nespm-table1: setup $(WEIGHTS)
+	$(NESPM) mc --config experiments/$@.toml --jobs $(JOBS) $(DATA_OPT) $(WEIGHTS_OPT) --out results/$@$(SUFFIX)
+	$(NESPM) report results/$@$(SUFFIX)
 
 sweep-misalignment: setup
 	$(NESPM) sweep --config experiments/sweep-misalignment.toml --jobs $(JOBS) $(DATA_OPT) --out results/sweep-misalignment$(if $(DATA),-data,)

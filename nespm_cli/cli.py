@@ -24,7 +24,8 @@ app = typer.Typer(
     no_args_is_help=True,
     pretty_exceptions_enable=False,
     rich_markup_mode=None,
-    help="Monte Carlo experiments for nonlinear INS/DVL navigation filters (EKF, UKF, UKF-NESPM).\n\n"
+    help="Monte Carlo experiments for nonlinear INS/DVL navigation filters (EKF, UKF, UKF-NESPM and their "
+    "adaptive ProcessNet versions ANEKF, ANUKF, ANUKF-NESPM).\n\n"
     "Tracks come from --data-dir (A-KIT layout: TrajectoryN/{GT,DVL}_trajectoryN.csv), else "
     "$NESPM_DATA_DIR, else six embedded Snapir-like tracks.",
 )
@@ -57,7 +58,9 @@ def _spec(**kw):
         heading_deg=kw.pop("heading_deg"),
     )
     fcfg = couple_filter(FilterConfig(alpha=kw.pop("alpha"), time_update=kw.pop("time_update"),
-                                      acc_bias_rw=kw.pop("acc_bias_rw"), gyro_bias_rw=kw.pop("gyro_bias_rw")), corr)
+                                      acc_bias_rw=kw.pop("acc_bias_rw"), gyro_bias_rw=kw.pop("gyro_bias_rw"),
+                                      tau=kw.pop("tau"), tau_a=kw.pop("tau_a"), tau_g=kw.pop("tau_g"),
+                                      adaptive_bias=kw.pop("adaptive_bias"), q_clip=tuple(kw.pop("q_clip"))), corr)
     return Spec(corruption=corr, filter_config=fcfg, **kw)
 
 
@@ -85,6 +88,12 @@ _COMMON = [  # (name, type, default, flag, help): the options that define an exp
     ("acc_bias_rw", float, 1e-3, "--acc-bias-rw", "Filter accelerometer bias random walk [m/s^2/sqrt(s)]."),
     ("gyro_bias_rw", float, 1e-6, "--gyro-bias-rw", "Filter gyro bias random walk [rad/s/sqrt(s)]."),
     ("alpha", float, 1e-3, "--alpha", "UKF sigma-point spread alpha (beta = 2, kappa = 0)."),
+    ("weights", Optional[str], None, "--weights", "ProcessNet weights (.npz from 'nespm train') for anekf/anukf/anukf-nespm; default: the packaged ones (embedded tracks 1-4)."),
+    ("tau", Optional[float], None, "--tau", "Adaptive Q, eqs 44/46: q = std^2 * tau [s]; default: the IMU step."),
+    ("tau_a", Optional[float], None, "--tau-a", "Adaptive Q, eq 45: q_v = q_a * tau_a [s]; default: the time-update span."),
+    ("tau_g", Optional[float], None, "--tau-g", "Adaptive Q, eq 47: q_psi = q_g * tau_g [s]; default: the time-update span."),
+    ("adaptive_bias", str, "scaled", "--adaptive-bias", "Adaptive Q bias blocks: scaled (nominal random walk x (std/nominal)^2) or paper (q_a, q_g of eq 43)."),
+    ("q_clip", Tuple[float, float], (0.25, 24.0), "--q-clip", "Validity bounds LOW HIGH on the network std, as multiples of the nominal std."),
     ("time_update", str, "dvl", "--time-update", "dvl: one time update per DVL interval (sigma points carried through all its IMU steps); imu: every IMU step."),
 ]
 
@@ -92,7 +101,7 @@ _COMMON = [  # (name, type, default, flag, help): the options that define an exp
 _RUNNER = [  # options of the commands that run many realizations (mc, sweep)
     ("tracks_", str, "5 6", "--tracks", "Track numbers: --tracks 5 6 or --tracks 5,6."),
     ("runs", int, 100, "--runs", "Monte Carlo runs per track."),
-    ("filters_", str, "ekf,ukf,ukf-nespm", "--filters", "Comma list of ins, ekf, ukf, ukf-nespm."),
+    ("filters_", str, "ekf,ukf,ukf-nespm", "--filters", "Comma list of ins, ekf, ukf, ukf-nespm, anekf, anukf, anukf-nespm."),
     ("jobs", int, 2, "--jobs", "joblib worker processes (results do not depend on it)."),
     ("backend", str, "loky", "--backend", "Where chunks run: loky (local processes) or dask (a Dask cluster; pip install 'nespm[dask]')."),
     ("scheduler", Optional[str], None, "--scheduler", "Dask scheduler address (tcp://host:8786); default $NESPM_DASK_SCHEDULER, else a local cluster."),
@@ -166,7 +175,7 @@ def corrupt(
 @_common
 def run(
     track: int = typer.Option(..., "--track", help="Track number."),
-    filt: str = typer.Option("ukf-nespm", "--filter", help="ins, ekf, ukf or ukf-nespm."),
+    filt: str = typer.Option("ukf-nespm", "--filter", help="ins, ekf, ukf, ukf-nespm, anekf, anukf or anukf-nespm."),
     run: int = typer.Option(0, "--run", help="Realization index (same index = same realization as in mc)."),
     clean: bool = typer.Option(False, "--clean", help="No corruption: exact initial state, clean IMU, noise-free synthetic DVL."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object with the run's metrics."),
@@ -244,6 +253,61 @@ def report(
     typer.echo(f"wrote {path}")
 
 
+@app.command()
+def train(
+    tracks_: str = typer.Option("1 2 3 4", "--tracks", help="Training tracks, e.g. '1 2 3 4'."),
+    test_tracks: str = typer.Option("5 6", "--test-tracks", help="Held-out tracks for the Spearman check."),
+    out: Path = typer.Option(..., "--out", help="Weights file (.npz); a loss-curve PNG is written beside it."),
+    runs: int = typer.Option(24, "--runs", help="Dynamic-schedule realizations per training track."),
+    epochs: int = typer.Option(12, "--epochs", help="Maximum epochs (early stopping on the validation loss)."),
+    seed: int = typer.Option(0, "--seed", help="Seed of the realizations, the split and the initial weights."),
+    data_dir: Optional[str] = DATA_DIR,
+    no_progress: bool = typer.Option(False, "--no-progress", help="No progress bar."),
+) -> None:
+    """Train the accelerometer and gyro ProcessNets (anukf.md eqs 34-42) on dynamic-schedule windows."""
+    from .training import train_processnet
+
+    train_t, test_t = _tracks(tracks_), _tracks(test_tracks)
+    if not str(out).endswith(".npz"):
+        raise NespmError(f"--out {out}: the weights file name must end in .npz")
+    if runs < 1 or epochs < 1:
+        raise NespmError("--runs and --epochs must be at least 1")
+    from .tracks import available_tracks, resolve_data_dir
+
+    d = resolve_data_dir(data_dir)
+    have = available_tracks(d)
+    for n in train_t + test_t:
+        if n not in have:
+            raise NespmError(f"--tracks: no track {n} in {d if d else 'the embedded default'}; available: "
+                             f"{', '.join(map(str, have))}")
+    progress = None
+    bar = None
+    if not no_progress:
+        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+        bar = Progress(TextColumn("[bold]train[/] {task.description}"), BarColumn(), MofNCompleteColumn(),
+                       TimeElapsedColumn())
+        tasks = {}
+
+        def progress(info: dict) -> None:
+            key = info.get("sensor", "?")
+            if key not in tasks:
+                tasks[key] = bar.add_task(key, total=info.get("epochs") or epochs)
+            desc = f"{key} epoch {info.get('epoch', 0)}"
+            if "val_loss" in info:
+                desc += f" val {info['val_loss']:.4g}"
+            bar.update(tasks[key], completed=info.get("epoch", 0), description=desc)
+        bar.start()
+    try:
+        s = train_processnet(train_t, test_t, data_dir, out, runs=runs, epochs=epochs, seed=seed, progress=progress)
+    finally:
+        if bar is not None:
+            bar.stop()
+    typer.echo(f"Spearman (predicted vs injected noise std, tracks {' '.join(map(str, test_t))}): "
+               f"acc {s['spearman']['acc']:.3f}, gyro {s['spearman']['gyro']:.3f}")
+    typer.echo(f"trained in {s['seconds']:.1f} s -> {s['path']} (loss curves {s['plot']})")
+
+
 def _expand_config(argv: list[str]) -> list[str]:
     """Replace ``--config FILE`` by the options in the TOML file, placed before the rest
     of the command line so that explicit options override the file."""
@@ -282,7 +346,7 @@ def _normalize_argv(argv: list[str]) -> list[str]:
     out, i = [], 0
     while i < len(argv):
         a = argv[i]
-        if a == "--tracks":
+        if a in ("--tracks", "--test-tracks"):
             vals = []
             i += 1
             while i < len(argv) and not argv[i].startswith("-"):

@@ -25,9 +25,10 @@ import pandas as pd
 
 from . import __version__
 from .corruption import SCHEDULES, CorruptionConfig, draw, dvl_noise, imu_errors
+from .adaptive import BIAS_MODES, WINDOW, load_weights, predict_interval_std
 from .errors import NespmError
 from .earth import ned_offset
-from .filters import FILTERS, FilterConfig, initial_nav, run_filter
+from .filters import ADAPTIVE, FILTERS, FilterConfig, initial_nav, run_filter
 from .metrics import epoch_errors, run_metrics
 from .rotations import log_so3
 from .synthesis import ImuTruth, from_recorded, synthesize
@@ -54,6 +55,7 @@ class Spec:
     dvl_r_std: float | None = None  # None: 0.02 synthetic, 0.1 recorded
     outage_start: float = 180.0
     outage_length: float = 20.0
+    weights: str | None = None  # ProcessNet file of the adaptive filters; None: the packaged default
     corruption: CorruptionConfig = field(default_factory=CorruptionConfig)
     filter_config: FilterConfig = field(default_factory=FilterConfig)
 
@@ -85,6 +87,18 @@ def validate(spec: Spec) -> Spec:
         raise NespmError(f"--dvl: choose synthetic or recorded, got {spec.dvl!r}")
     if spec.filter_config.time_update not in ("dvl", "imu"):
         raise NespmError(f"--time-update: choose dvl or imu, got {spec.filter_config.time_update!r}")
+    fc = spec.filter_config
+    if fc.adaptive_bias not in BIAS_MODES:
+        raise NespmError(f"--adaptive-bias: choose {' or '.join(BIAS_MODES)}, got {fc.adaptive_bias!r}")
+    for flag, v in (("--tau", fc.tau), ("--tau-a", fc.tau_a), ("--tau-g", fc.tau_g)):
+        if v is not None and not (np.isfinite(v) and v > 0):
+            raise NespmError(f"{flag} must be a positive number of seconds, got {v:g}")
+    lo, hi = fc.q_clip
+    if not (np.isfinite(lo) and np.isfinite(hi) and 0 < lo <= 1 <= hi):
+        raise NespmError(f"--q-clip must satisfy 0 < low <= 1 <= high, got {lo:g} {hi:g}")
+    adaptive = any(f in ADAPTIVE for f in spec.filters)
+    if adaptive:
+        load_weights(spec.weights)  # a missing or foreign file fails now, in one line
     d = resolve_data_dir(spec.data_dir)
     have = available_tracks(d)
     for n in spec.tracks:
@@ -92,6 +106,12 @@ def validate(spec: Spec) -> Spec:
             where = d if d is not None else "the embedded default"
             raise NespmError(f"--tracks: no track {n} in {where}; available: {', '.join(map(str, have))}")
     durations = {n: load_track(n, d).duration for n in spec.tracks}  # validates every file up front
+    if adaptive and spec.imu == "recorded":  # one network window per DVL interval
+        for n in spec.tracks:
+            steps = np.diff(prepared(n, str(d) if d is not None else None, spec.imu)[1].epoch_index)
+            if not np.all(steps == WINDOW):
+                raise NespmError(f"--imu recorded: track {n} has {int(steps.min())}-{int(steps.max())} IMU steps "
+                                 f"per DVL interval; the adaptive filters need exactly {WINDOW}")
     if spec.scenario == "outage":
         if spec.outage_length <= 0 or spec.outage_start <= 0:
             raise NespmError("--outage-start and --outage-length must be positive")
@@ -166,12 +186,37 @@ def simulate(spec: Spec, number: int, runs: np.ndarray, filters=None, clean: boo
     mask = dvl_mask(spec, t_rel)
     cfg = filter_config(spec)
     results = {}
-    for name in filters or spec.filters:
+    names = list(filters or spec.filters)
+    noise_std, net_seconds = None, 0.0
+    if any(n in ADAPTIVE for n in names):  # one network pass per chunk, shared by the adaptive filters
         t0 = time.perf_counter()
-        out = run_filter(name, cfg, f, w, truth.dt, e, dvl, mask, nav0)
+        noise_std = predict_interval_std(f, w, e, spec.weights)
+        net_seconds = time.perf_counter() - t0
+    for name in names:
+        t0 = time.perf_counter()
+        out = run_filter(name, cfg, f, w, truth.dt, e, dvl, mask, nav0,
+                         noise_std if name in ADAPTIVE else None)
+        if name in ADAPTIVE:
+            t0 -= net_seconds / sum(n in ADAPTIVE for n in names)  # the shared network pass, split
         err = epoch_errors(out, v_t, C_t, p_t)
         results[name] = (out, err, time.perf_counter() - t0)
     return results, truth, real
+
+
+def q_factors(noise_std, cfg: FilterConfig, R: int) -> dict:
+    """Per-run mean of the (validated) network std over nominal: ``q_factor_acc``, ``q_factor_gyro`` (R,).
+
+    NaN for the non-adaptive filters. With the ``dynamic`` schedule the injected factor is
+    U[1, 6] (mean 3.5); with ``constant`` it is 1.
+    """
+    if noise_std is None:
+        return {"q_factor_acc": np.full(R, np.nan), "q_factor_gyro": np.full(R, np.nan)}
+    from .adaptive import valid_std
+
+    out = {}
+    for key, s, nominal in (("acc", noise_std[0], cfg.acc_noise), ("gyro", noise_std[1], cfg.gyro_noise)):
+        out[f"q_factor_{key}"] = valid_std(s, nominal, tuple(cfg.q_clip)).mean(axis=(1, 2)) / nominal
+    return out
 
 
 # --- chunked, resumable runner ---------------------------------------------------------
@@ -212,6 +257,7 @@ def run_chunk(cell: Cell, number: int, first: int, out_dir: str) -> dict:
     t_rel = truth.t[e] - truth.t[e[0]]
     for name, (out, err, secs) in results.items():
         m = run_metrics(err, out.diverged)
+        m.update(q_factors(out.noise_std, filter_config(spec), len(runs)))
         df = pd.DataFrame({**extra, "track": number, "filter": name, "run": runs, "scenario": spec.scenario,
                            "schedule": spec.schedule, "seed": spec.seed, **m,
                            "seconds": secs / len(runs)})

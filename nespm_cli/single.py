@@ -56,6 +56,10 @@ def run_single(spec: Spec, track: int, filt: str, run: int, clean: bool = False,
         names = ["dvN", "dvE", "dvD", "dpsiN", "dpsiE", "dpsiD", "baX", "baY", "baZ", "bgX", "bgY", "bgZ"]
         for i, c in enumerate(names):
             ts[f"sigma_{c}"] = np.sqrt(o.P_diag[0, :, i])
+        if o.noise_std is not None:  # adaptive filters: the network std of the interval ending at the epoch
+            for key, arr in (("acc", o.noise_std[0]), ("gyro", o.noise_std[1])):
+                for i, c in enumerate("xyz"):
+                    ts[f"net_std_{key}_{c}"] = np.concatenate([[np.nan], arr[0, :, i]])
         p = Path(out)
         p.parent.mkdir(parents=True, exist_ok=True)
         if p.suffix == ".csv":

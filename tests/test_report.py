@@ -302,8 +302,11 @@ def test_published_dash_for_unpublished_filter(tmp_path: Path) -> None:
     text = write_report(tmp_path, n_boot=50).read_text()
     pub = text.split("## Comparison with the published tables")[1].split("## Figures")[0]
     assert "0.1172" in pub
-    ekf_row = next(line for line in pub.splitlines() if line.startswith("| ekf "))
-    assert ekf_row.count("—") == 2
+    assert not any(line.startswith("| ekf ") for line in pub.splitlines())  # not in a published table
+    anekf_row = next(line for line in pub.splitlines() if line.startswith("| anekf "))
+    assert anekf_row.count("—") == 4  # not run: our VRMSE, our Imprv., our MRMSE, our Imprv.
+    ukf_row = next(line for line in pub.splitlines() if line.startswith("| ukf "))
+    assert "21.3 %" in ukf_row and "5.4 %" in ukf_row  # published Imprv. of ANUKF over UKF
     assert "ukf-nespm Imprv." in text  # default reference
 
 
@@ -323,3 +326,23 @@ def test_load_results_optional_files(tmp_path: Path) -> None:
     noisy_metrics(3, {"ukf": 0.1}).to_parquet(tmp_path / "metrics.parquet")
     metrics, epochs, manifest = load_results(tmp_path)
     assert len(metrics) == 6 and epochs is None and manifest == {}
+
+
+def test_published_tables_show_our_paired_improvement_of_the_proposed_method(tmp_path: Path) -> None:
+    """anukf.md Table I beside ours: ANUKF's improvement over UKF and ANEKF, with intervals;
+    ukf-nespm.md Table I: ANUKF-NESPM over ANUKF."""
+    m = noisy_metrics(20, {"ukf": 0.12, "anekf": 0.11, "anukf": 0.10, "anukf-nespm": 0.09}, noise=0.002)
+    m.to_parquet(tmp_path / "metrics.parquet")
+    text = write_report(tmp_path, n_boot=200).read_text()
+    pub = text.split("## Comparison with the published tables")[1].split("## Figures")[0]
+    t1, t3 = pub.split("**anukf.md Table I**")[1], pub.split("**ukf-nespm.md Table I**")[1]
+    ukf_row = next(line for line in t1.splitlines() if line.startswith("| ukf "))
+    cells = [c.strip() for c in ukf_row.strip("|").split("|")]
+    ours = float(cells[3].split(" %")[0])
+    vr = {f: hand_vrmse(m, f) for f in ("ukf", "anukf")}
+    assert ours == pytest.approx(100 * (vr["ukf"] - vr["anukf"]) / vr["ukf"], abs=0.051)
+    assert "[" in cells[3] and cells[3].endswith("*")  # 0.12 vs 0.10 with 0.002 noise: excludes 0
+    assert cells[4] == "21.3 %"
+    anukf_row = next(line for line in t3.splitlines() if line.startswith("| anukf "))
+    assert "8.8 %" in anukf_row  # published: (0.08 - 0.073) / 0.08
+    assert "Imprv. of anukf-nespm" in pub

@@ -8,6 +8,8 @@ batched over the runs (and the sigma points). Filters:
   time-update span, ``P ← Φ P Φᵀ + Q``; linearised DVL update (H of eq 33), Joseph form.
 * ``ukf``: sigma points through the same Φ (anukf.md eqs 5-23) and the nonlinear DVL
   model of anukf.md eq 33. With a linear propagation its prediction equals the EKF's.
+* ``anekf``, ``anukf``, ``anukf-nespm``: the same three with Q from the ProcessNet noise
+  std of each DVL interval's IMU window (anukf.md eqs 43-49, :mod:`nespm_cli.adaptive`).
 * ``ukf-nespm``: every sigma point is added to the mean solution (eqs 35-37), carried
   through ``na_cycle`` with the IMU compensated by its own biases (eq 38), and read back
   with ⊖ against the propagated mean (eqs 39-40); then the same UT update as ``ukf``.
@@ -22,6 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..adaptive import adaptive_q
 from ..errors import NespmError
 from ..rotations import attitude_minus, exp_so3
 from ..strapdown import _rates, na_cycle
@@ -30,7 +33,9 @@ from .model import (BA, BG, DPSI, DV, N_STATES, FilterConfig, NavState, dvl_H, d
                     dvl_innovation, feedback, process_noise, system_matrix)
 from .unscented import UTWeights, moments, safe_cholesky, sigma_offsets
 
-FILTERS = ("ins", "ekf", "ukf", "ukf-nespm")
+FILTERS = ("ins", "ekf", "ukf", "ukf-nespm", "anekf", "anukf", "anukf-nespm")
+#: adaptive filter -> its non-adaptive twin (same propagation and update, Q from ProcessNet)
+ADAPTIVE = {"anekf": "ekf", "anukf": "ukf", "anukf-nespm": "ukf-nespm"}
 
 
 @dataclass
@@ -39,7 +44,8 @@ class FilterOutput:
 
     ``pos`` (R, N, 3), ``v_n`` (R, N, 3), ``C_bn`` (R, N, 3, 3); ``P6`` (R, N, 6, 6) the
     [dv, dpsi] block and ``P_diag`` (R, N, 12) of the covariance (NaN for ``ins``);
-    ``b_a``, ``b_g`` (R, N, 3) bias compensation; ``diverged`` (R,); ``dvl_used`` (N,).
+    ``b_a``, ``b_g`` (R, N, 3) bias compensation; ``diverged`` (R,); ``dvl_used`` (N,);
+    ``noise_std`` the adaptive filters' network std ``(std_a, std_g)`` (R, N-1, 3), else None.
     """
 
     pos: np.ndarray
@@ -51,6 +57,7 @@ class FilterOutput:
     b_g: np.ndarray
     diverged: np.ndarray
     dvl_used: np.ndarray
+    noise_std: tuple | None = None
 
 
 def _w_nb(nav: NavState, w_ib_comp: np.ndarray) -> np.ndarray:
@@ -61,9 +68,14 @@ def _w_nb(nav: NavState, w_ib_comp: np.ndarray) -> np.ndarray:
 
 
 class _Runner:
-    def __init__(self, kind: str, cfg: FilterConfig, f_meas, w_meas, dt, nav0: NavState):
+    def __init__(self, kind: str, cfg: FilterConfig, f_meas, w_meas, dt, nav0: NavState, noise_std=None):
         if kind not in FILTERS:
             raise NespmError(f"--filters: unknown filter {kind!r}; choose from {', '.join(FILTERS)}")
+        if kind in ADAPTIVE and noise_std is None:
+            raise NespmError(f"filter {kind} needs the network noise std (noise_std)")
+        self.name = kind
+        self.noise_std = noise_std if kind in ADAPTIVE else None
+        kind = ADAPTIVE.get(kind, kind)
         self.kind, self.cfg = kind, cfg
         self.f, self.w, self.dt = f_meas, w_meas, dt
         self.nav = nav0.copy()
@@ -81,7 +93,14 @@ class _Runner:
         nav = self.nav
         return self.f[:, j] - nav.b_a, self.w[:, j] - nav.b_g
 
-    def propagate(self, j0: int, j1: int) -> None:
+    def process_noise(self, span: float, k: int) -> np.ndarray:
+        """Q of the time update in DVL interval ``k``: fixed, or adaptive (eqs 43-48)."""
+        if self.noise_std is None:
+            return process_noise(self.cfg, self.dt_imu, span)
+        std_a, std_g = self.noise_std
+        return adaptive_q(std_a[:, k], std_g[:, k], self.nav.C_bn, self.cfg, self.dt_imu, span)
+
+    def propagate(self, j0: int, j1: int, k: int = 0) -> None:
         span = float(self.dt[j0:j1].sum())
         if self.kind == "ins":
             for j in range(j0, j1):
@@ -89,7 +108,7 @@ class _Runner:
                 n = self.nav
                 n.pos, n.v_n, n.C_bn = na_cycle(n.pos, n.v_n, n.C_bn, f, w, self.dt[j])
             return
-        Q = process_noise(self.cfg, self.dt_imu, span)
+        Q = self.process_noise(span, k)
         if self.kind == "ukf-nespm":
             self._propagate_nespm(j0, j1, Q)
             return
@@ -192,6 +211,7 @@ def run_filter(
     dvl: np.ndarray | None,
     dvl_mask: np.ndarray,
     nav0: NavState,
+    noise_std: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> FilterOutput:
     """Run one filter over a batch of runs.
 
@@ -203,8 +223,10 @@ def run_filter(
         dvl: (R, N, 3) body-frame DVL velocity at the epochs [m/s].
         dvl_mask: (N,) whether the DVL update is applied at each epoch (epoch 0 never).
         nav0: initial navigation solution of the R runs.
+        noise_std: for the adaptive filters, ``(std_a, std_g)`` each (R, N-1, 3): the
+            network's noise std per IMU sample in each DVL interval (``adaptive.predict_interval_std``).
     """
-    r = _Runner(kind, cfg, f_meas, w_meas, dt, nav0)
+    r = _Runner(kind, cfg, f_meas, w_meas, dt, nav0, noise_std)
     R, N = nav0.v_n.shape[0], len(epoch_index)
     out = FilterOutput(
         pos=np.empty((R, N, 3)), v_n=np.empty((R, N, 3)), C_bn=np.empty((R, N, 3, 3)),
@@ -230,13 +252,14 @@ def run_filter(
             j0, j1 = int(epoch_index[k]), int(epoch_index[k + 1])
             if imu_mode and kind != "ins":
                 for j in range(j0, j1):
-                    r.propagate(j, j + 1)
+                    r.propagate(j, j + 1, k)
             else:
-                r.propagate(j0, j1)
+                r.propagate(j0, j1, k)
             if kind != "ins" and dvl_mask[k + 1]:
                 r.update(dvl[:, k + 1], j1 - 1)
                 out.dvl_used[k + 1] = True
             r.check()
             record(k + 1)
     out.diverged = r.bad
+    out.noise_std = r.noise_std
     return out

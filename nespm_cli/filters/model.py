@@ -38,6 +38,8 @@ class FilterConfig:
     * R: DVL std 0.02 m/s (the synthetic DVL noise); ``mc`` raises it to 0.1 m/s for the
       recorded DVL (its residual std against GT is 0.02-0.2 m/s).
     * alpha = 1e-3, beta = 2, kappa = 0 as in both papers.
+    * adaptive filters: τ = the IMU step, τ_a = τ_g = the time-update span, network std
+      clipped to [0.25, 24] x nominal, bias noise scaled by (σ̂/σ)² (:mod:`nespm_cli.adaptive`).
     * time_update ``dvl``: the time update spans one DVL interval (the papers' "cycle(s)"):
       sigma points are drawn once per interval and carried through every IMU step; ``imu``
       redraws them at every IMU step.
@@ -58,6 +60,12 @@ class FilterConfig:
     time_update: str = "dvl"
     lever_arm: tuple = (0.0, 0.0, 0.0)  # m, body frame, DVL relative to the IMU
     vel_limit: float = 50.0  # m/s: |v_nav| beyond this marks the run diverged
+    # adaptive filters (anekf, anukf, anukf-nespm), anukf.md eqs 43-48; see adaptive.py
+    tau: float | None = None  # eq 44/46 factor [s]; None: the IMU step
+    tau_a: float | None = None  # eq 45 [s]; None: the time-update span
+    tau_g: float | None = None  # eq 47 [s]; None: the time-update span
+    adaptive_bias: str = "scaled"  # bias blocks of eq 43: scaled nominal random walk, or "paper"
+    q_clip: tuple = (0.25, 24.0)  # validity bounds on the network std, x nominal std
 
     def p0(self) -> np.ndarray:
         """Initial covariance (12, 12); an overflowing std gives inf (the run then diverges)."""

@@ -1,0 +1,141 @@
+"""Adaptive process noise from ProcessNet (anukf.md eqs 43-48).
+
+Once per DVL interval each run's IMU readings of that interval (exactly 100 steps: one
+ProcessNet window) go through the accelerometer and gyro networks, which return the
+per-axis noise std per 100 Hz sample, ``σ̂_a`` [m/s²] and ``σ̂_g`` [rad/s]. They become the
+diagonal blocks of Q_net (eq 43):
+
+* q_a = σ̂_a² · τ          (eq 44; τ = the IMU step, so σ̂² τ is the noise PSD)
+* q_v = q_a · τ_a         (eq 45; τ_a = the time-update span, one DVL interval)
+* q_g = σ̂_g² · τ          (eq 46)
+* q_Ψ = q_g · τ_g         (eq 47; τ_g = the span)
+* bias blocks: ``scaled`` (default) the nominal bias random-walk PSD times (σ̂/σ_nominal)²
+  times the span; ``paper`` q_a and q_g themselves, as eq 43 is written.
+
+and Q = G Q_net Gᵀ (eq 48) with G = blockdiag(C_bn, C_bn, I, I): per-axis body-frame
+noise rotated into NED. With σ̂ equal to the nominal std and the default τ's, Q is exactly
+the fixed Q of :func:`filters.model.process_noise`, so an adaptive filter fed the nominal
+std reproduces its non-adaptive twin (a test checks this to 1e-12).
+
+Validity (anukf.md III-D: positive, not too small, not too large): outputs are clipped to
+``[clip_lo, clip_hi] × σ_nominal`` and a non-finite output is replaced by σ_nominal, so Q
+is symmetric positive semi-definite for any network output.
+
+Why ``scaled`` bias noise by default: under the ``dynamic`` schedule the bias is scaled by
+the same factor as the noise, so a noisier window signals a regime whose bias is larger and
+moves; eq 43's literal q_a = σ̂_a² τ (0.03² · 0.01 = 9e-6 m²/s⁴ per interval) is 9 times
+our nominal accelerometer bias random walk and 0.5 times the gyro one. ``paper`` is there
+to compare.
+"""
+from __future__ import annotations
+
+from functools import lru_cache
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+
+from .errors import NespmError
+
+WINDOW = 100  # IMU steps per ProcessNet window (anukf.md: w = 100)
+BIAS_MODES = ("scaled", "paper")
+
+
+def default_weights() -> Path:
+    """The weights that ship with the package (trained on the embedded tracks 1-4)."""
+    return Path(str(resources.files("nespm_cli") / "data" / "processnet.npz"))
+
+
+@lru_cache(maxsize=4)
+def load_weights(path: str | None):
+    """``(acc_net, gyro_net, meta)`` from ``path`` (None: the packaged default); cached per process."""
+    from .training import load_processnet
+
+    p = Path(path) if path else default_weights()
+    if not p.is_file():
+        raise NespmError(f"--weights {p}: no such file (train one with `nespm train`)")
+    try:
+        return load_processnet(p)
+    except NespmError:
+        raise
+    except Exception as exc:  # a corrupt or foreign .npz
+        raise NespmError(f"--weights {p}: not a ProcessNet file ({type(exc).__name__}: {exc})") from None
+
+
+def interval_windows(x: np.ndarray, epoch_index: np.ndarray) -> np.ndarray:
+    """Cut IMU readings into one window per DVL interval.
+
+    Args:
+        x: (R, M, 3) readings; step j runs from sample j to j+1.
+        epoch_index: (N,) IMU sample index of each epoch.
+
+    Returns:
+        (R, N-1, 100, 3): window k holds steps ``epoch_index[k] .. epoch_index[k+1]-1``.
+    """
+    e = np.asarray(epoch_index)
+    steps = np.diff(e)
+    if len(e) < 2 or not np.all(steps == WINDOW):
+        bad = int(np.flatnonzero(steps != WINDOW)[0]) if len(e) >= 2 else 0
+        raise NespmError(
+            f"adaptive filters need exactly {WINDOW} IMU steps per DVL interval; interval {bad} has "
+            f"{int(steps[bad]) if len(steps) else 0} (use --imu synthetic)")
+    R = x.shape[0]
+    seg = x[:, e[0]:e[-1]]
+    return seg.reshape(R, len(e) - 1, WINDOW, 3)
+
+
+def predict_interval_std(f_meas: np.ndarray, w_meas: np.ndarray, epoch_index: np.ndarray,
+                         weights: str | None = None, clip: tuple[float, float] | None = None):
+    """Network noise std for every run and DVL interval.
+
+    Returns ``(std_a, std_g)``, each (R, N-1, 3) [m/s², rad/s per IMU sample], unclipped
+    (clipping happens in :func:`adaptive_q`, so the raw prediction can be recorded).
+    """
+    acc, gyro, _ = load_weights(weights)
+    from .training import predict_noise_std
+
+    return predict_noise_std(acc, gyro, interval_windows(f_meas, epoch_index),
+                             interval_windows(w_meas, epoch_index), clip=clip)
+
+
+def valid_std(std: np.ndarray, nominal: float, clip: tuple[float, float]) -> np.ndarray:
+    """Validity bounds: non-finite -> nominal, then clip to ``[lo, hi] × nominal`` (same shape)."""
+    s = np.where(np.isfinite(std), std, nominal)
+    return np.clip(s, clip[0] * nominal, clip[1] * nominal)
+
+
+def adaptive_q(std_a: np.ndarray, std_g: np.ndarray, C_bn: np.ndarray, cfg, dt_imu: float,
+               span: float) -> np.ndarray:
+    """Discrete process noise (B, 12, 12) of one time update, eqs 43-48.
+
+    Args:
+        std_a, std_g: (B, 3) network noise std per IMU sample [m/s², rad/s], any values.
+        C_bn: (B, 3, 3) body-to-NED DCM of the navigation solution (G of eq 48).
+        cfg: :class:`filters.model.FilterConfig` (nominal std, bias random walks, τ's,
+            ``adaptive_bias``, ``q_clip``).
+        dt_imu: IMU step [s] (default τ); span: time-update span [s] (default τ_a, τ_g).
+    """
+    clip = tuple(cfg.q_clip)
+    sa = valid_std(np.asarray(std_a, float), cfg.acc_noise, clip)
+    sg = valid_std(np.asarray(std_g, float), cfg.gyro_noise, clip)
+    tau = dt_imu if cfg.tau is None else cfg.tau
+    tau_a = span if cfg.tau_a is None else cfg.tau_a
+    tau_g = span if cfg.tau_g is None else cfg.tau_g
+    q_a = sa**2 * tau  # eq 44
+    q_g = sg**2 * tau  # eq 46
+    q_v = q_a * tau_a  # eq 45
+    q_psi = q_g * tau_g  # eq 47
+    if cfg.adaptive_bias == "paper":
+        q_ba, q_bg = q_a, q_g
+    else:
+        q_ba = cfg.acc_bias_rw**2 * span * (sa / cfg.acc_noise) ** 2
+        q_bg = cfg.gyro_bias_rw**2 * span * (sg / cfg.gyro_noise) ** 2
+    B = sa.shape[:-1]
+    Q = np.zeros(B + (12, 12))
+    Ct = np.swapaxes(C_bn, -1, -2)
+    Q[..., 0:3, 0:3] = (C_bn * q_v[..., None, :]) @ Ct  # eq 48: C diag(q_v) Cᵀ
+    Q[..., 3:6, 3:6] = (C_bn * q_psi[..., None, :]) @ Ct
+    idx = np.arange(3)
+    Q[..., 6 + idx, 6 + idx] = q_ba
+    Q[..., 9 + idx, 9 + idx] = q_bg
+    return 0.5 * (Q + np.swapaxes(Q, -1, -2))
