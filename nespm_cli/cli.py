@@ -12,6 +12,7 @@ import time
 from pathlib import Path
 from typing import Optional, Tuple
 
+import numpy as np
 import typer
 from typer.exceptions import Abort, Exit, TyperException
 
@@ -306,6 +307,35 @@ def train(
     typer.echo(f"Spearman (predicted vs injected noise std, tracks {' '.join(map(str, test_t))}): "
                f"acc {s['spearman']['acc']:.3f}, gyro {s['spearman']['gyro']:.3f}")
     typer.echo(f"trained in {s['seconds']:.1f} s -> {s['path']} (loss curves {s['plot']})")
+
+
+@app.command()
+def simulate(
+    out: Path = typer.Option(..., "--out", help="Data folder to write (A-KIT layout, usable as --data-dir)."),
+    runs: int = typer.Option(1, "--runs", help="Simulated runs; run i becomes track first-number + i."),
+    duration: float = typer.Option(800.0, "--duration", help="Seconds per run (the paper's helix: 800)."),
+    seed: int = typer.Option(0, "--seed", help="Seed of the sensor noise (run r: SeedSequence(seed, spawn_key=(r, 0)))."),
+    first_number: int = typer.Option(1, "--first-number", help="Track number of the first run."),
+    dvl: str = typer.Option("measured", "--dvl", help="DVL file: measured (the simulated sensor) or true."),
+) -> None:
+    """Simulate REMUS 100 helix runs (gp-ukf.md section 6: 6-DOF model, LOS guidance, PIDs on
+    noisy, 12-bit sensors) and write them as tracks: 1 Hz GT and DVL, 100 Hz IMU."""
+    from .vehicles import simulate_runs, write_tracks
+
+    if runs < 1 or first_number < 1:
+        raise NespmError("--runs and --first-number must be at least 1")
+    if not (duration >= 2.0 and duration <= 36000):
+        raise NespmError(f"--duration must be between 2 and 36000 s, got {duration:g}")
+    if dvl not in ("measured", "true"):
+        raise NespmError(f"--dvl: choose measured or true, got {dvl!r}")
+    if out.exists() and not out.is_dir():
+        raise NespmError(f"--out {out}: exists and is not a folder")
+    t0 = time.perf_counter()
+    res = simulate_runs(runs, duration_s=duration, seed=seed)
+    paths = write_tracks(res, out, first_number=first_number, dvl=dvl)
+    xt = np.abs(res.cross_track[:, res.t >= min(100.0, duration / 2)])
+    typer.echo(f"{len(paths)} tracks ({first_number}-{first_number + len(paths) - 1}) in {time.perf_counter() - t0:.1f} s "
+               f"-> {out}; max cross-track error after 100 s {xt.max():.2f} m; next: nespm tracks --data-dir {out}")
 
 
 def _expand_config(argv: list[str]) -> list[str]:
