@@ -274,6 +274,43 @@ class GPModel:
         var = var * self.y_scale**2
         return mean.reshape(lead + (self.d_out,)), var.reshape(lead + (self.d_out,))
 
+    def predict_offsets(self, X0: np.ndarray, dX: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Mean at ``X0`` (..., d_in) and its change at ``X0 + dX``, ``dX`` (..., S, d_in).
+
+        Returns ``mean0`` (..., d_out) and ``dmean`` (..., S, d_out) = mean(X0 + dX) − mean(X0),
+        the latter formed without subtracting two means: per training point,
+        ``k(x0 + d, x_i) − k(x0, x_i) = k(x0, x_i) · expm1(−d·(x0 − x_i)/ℓ² − |d/ℓ|²/2)``.
+        This matters for the unscented transform with α = 1e-3, whose sigma points are
+        ~1e-3 σ apart and whose weights (~1/α²) would amplify the O(1e-9) rounding of a
+        mean computed as k*ᵀα with an ill-conditioned K (α entries of 1e2-1e3 cancelling).
+        """
+        if not self._fitted:
+            raise NespmError("GPModel.predict_offsets: the model is not fitted")
+        X0 = np.asarray(X0, dtype=float)
+        dX = np.asarray(dX, dtype=float)
+        lead, S = X0.shape[:-1], dX.shape[-2]
+        if X0.shape[-1] != self.d_in or dX.shape != lead + (S, self.d_in):
+            raise NespmError(f"GPModel.predict_offsets: X0 {X0.shape} and dX {dX.shape} do not match "
+                             f"(..., {self.d_in}) and (..., S, {self.d_in})")
+        Z0 = (X0.reshape(-1, self.d_in) - self.x_mean) / self.x_scale  # (B, D)
+        dZ = dX.reshape(-1, S, self.d_in) / self.x_scale  # (B, S, D)
+        B_ = Z0.shape[0]
+        mean0 = np.empty((B_, self.d_out))
+        dmean = np.empty((B_, S, self.d_out))
+        for j in range(self.d_out):
+            k0 = _rbf(Z0, self._Xs, self.const[j], self.length[j])  # (B, N), as in predict
+            A = dZ / self.length[j] ** 2  # (B, S, D)
+            # exponent change −d·(z0 − z_i)/ℓ² − |d/ℓ|²/2; its first-order part is exactly odd in d
+            cross = (A.reshape(-1, self.d_in) @ self._Xs.T).reshape(B_, S, -1)  # d·z_i/ℓ² (B, S, N)
+            lin = np.einsum("bsd,bd->bs", A, Z0)  # d·z0/ℓ²
+            cross -= (lin + 0.5 * np.einsum("bsd,bsd->bs", A, dZ))[..., None]  # the exponent change
+            np.expm1(cross, out=cross)  # k(x0 + d, x_i)/k(x0, x_i) − 1
+            mean0[:, j] = k0 @ self._alpha[j]  # eq 5, summed as in predict
+            dmean[:, :, j] = (cross @ (k0 * self._alpha[j])[:, :, None])[..., 0]
+        mean0 = self.y_mean + self.y_scale * mean0
+        dmean = self.y_scale * dmean
+        return mean0.reshape(lead + (self.d_out,)), dmean.reshape(lead + (S, self.d_out))
+
     def noise_var(self) -> np.ndarray:
         """Learnt noise variance σ_n² per output (d_out,), in target units squared."""
         return self.noise * self.y_scale**2

@@ -121,6 +121,22 @@ def test_batched_predict_equals_single(sine_model):
     np.testing.assert_array_equal(sine_model.predict(X, return_var=False), mean)
 
 
+def test_offsets_are_accurate_mean_differences(sine_model):
+    """predict_offsets: the mean and its change, formed without cancellation, equal the
+    difference of two means where that is accurate (large offsets), and stay smooth (exactly
+    second order in the ± pair sums) at the UT's 1e-5-sized offsets."""
+    rng = np.random.default_rng(6)
+    X0 = rng.uniform(0.5, 5.5, (4, 3, 1))
+    D = rng.standard_normal((4, 3, 5, 1))
+    m0, dm = sine_model.predict_offsets(X0, 0.3 * D)
+    assert m0.shape == (4, 3, 1) and dm.shape == (4, 3, 5, 1)
+    np.testing.assert_allclose(m0, sine_model.predict(X0, return_var=False), rtol=0, atol=1e-12)
+    ref = sine_model.predict(X0[..., None, :] + 0.3 * D, return_var=False) - m0[..., None, :]
+    np.testing.assert_allclose(dm, ref, rtol=0, atol=1e-12)
+    pair = [sum(sine_model.predict_offsets(X0, s * D)[1] for s in (h, -h)) for h in (1e-3, 1e-5)]
+    np.testing.assert_allclose(pair[1], 1e-4 * pair[0], rtol=1e-5, atol=0)
+
+
 def test_save_load_round_trip(sine_model, tmp_path):
     path = tmp_path / "gp.npz"
     sine_model.save(path)
