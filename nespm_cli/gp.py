@@ -7,18 +7,19 @@
 on standardized inputs and standardized outputs. Hyperparameters (σ_f², ℓ_1..ℓ_D, σ_n²) are
 found by maximising the log marginal likelihood (eqs 8-9) with its analytic gradient
 (eq 10) by L-BFGS-B, started from a default point plus ``n_restarts`` seeded random points
-drawn log-uniformly inside the bounds. This is exactly what scikit-learn's
+drawn log-uniformly inside the bounds. This is the model and procedure of scikit-learn's
 ``GaussianProcessRegressor(ConstantKernel * RBF(ARD) + WhiteKernel, normalize_y=True,
-n_restarts_optimizer=n_restarts)`` does, with the same θ, bounds handling and jitter
-(tests/test_gp.py checks the likelihood and its gradient against scikit-learn's); it is
+n_restarts_optimizer=n_restarts)``, with the same θ = log hyperparameters and jitter
+(tests/test_gp.py checks the likelihood and its gradient against scikit-learn's). It is
 written out here because scikit-learn's gradient builds an (N, N, D) array and costs
-~1.3 s per evaluation at N = 1000, D = 15 against ~0.1 s here, and a 12-output REMUS
-model needs thousands of evaluations. The output standardization (``normalize_y``) is done
+~1.7 s per evaluation at N = 1000, D = 15 against ~0.15 s here (single-threaded), and a
+12-output REMUS model needs thousands of evaluations. The output standardization (``normalize_y``) is done
 here too, so that its mean and scale are saved with the model.
 
 Prediction (eqs 5-6) is our own numpy code from the fitted hyperparameters, so that a model
-loaded from disk predicts bit-for-bit like the one that was fitted, and so that it is batched
-over any leading axes with one kernel evaluation per output:
+loaded from disk predicts like the one that was fitted (identically at the same BLAS thread
+count, to ~1e-9 otherwise: K can be ill-conditioned), and so that it is batched over any
+leading axes with one kernel evaluation per output:
 
     mean(x*) = y_mean + y_scale · k*ᵀ α,             α = (K + σ_n² I)⁻¹ y          (eq 5)
     var(x*)  = y_scale² · (σ_f² − k*ᵀ (K + σ_n² I)⁻¹ k* [+ σ_n²])                  (eq 6)
@@ -29,8 +30,8 @@ which is what the filter uses as its process / observation noise (docs/gp-ukf.md
 Subset of data: GP training is O(N³) in time and O(N²) in memory per output and per
 likelihood evaluation, so at most ``max_points`` (default 1000) training pairs are kept, a
 seeded uniform random subsample of the rows given to :meth:`GPModel.fit`. With 1000 points
-one likelihood evaluation is a 1000×1000 Cholesky (~0.05 s) and the fitted model holds one
-such factor per output (8 MB each).
+one likelihood evaluation (a 1000×1000 Cholesky and inverse) takes ~0.15 s and the fitted
+model holds one such factor per output (8 MB each).
 
 Files: :meth:`GPModel.save` / :meth:`GPModel.load` use one ``.npz`` (no pickles): the kept
 training inputs and targets, the standardization and the hyperparameters; the Cholesky
@@ -39,7 +40,6 @@ factors are recomputed on load (cheap next to fitting).
 from __future__ import annotations
 
 import json
-import warnings
 from pathlib import Path
 
 import numpy as np
