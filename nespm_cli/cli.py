@@ -254,6 +254,21 @@ def report(
     typer.echo(f"wrote {path}")
 
 
+def _epoch_bar(bar, epochs: int):
+    """A ``train_processnet`` progress callback that advances one rich bar per sensor."""
+    tasks: dict = {}
+
+    def progress(info: dict) -> None:
+        key = info.get("sensor", "?")
+        if key not in tasks:
+            tasks[key] = bar.add_task(key, total=info.get("epochs") or epochs)
+        desc = f"{key} epoch {info.get('epoch', 0)}"
+        if "val_loss" in info:
+            desc += f" val {info['val_loss']:.4g}"
+        bar.update(tasks[key], completed=info.get("epoch", 0), description=desc)
+    return progress
+
+
 @app.command()
 def train(
     tracks_: str = typer.Option("1 2 3 4", "--tracks", help="Training tracks, e.g. '1 2 3 4'."),
@@ -281,24 +296,14 @@ def train(
         if n not in have:
             raise NespmError(f"--tracks: no track {n} in {d if d else 'the embedded default'}; available: "
                              f"{', '.join(map(str, have))}")
-    progress = None
     bar = None
     if not no_progress:
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
         bar = Progress(TextColumn("[bold]train[/] {task.description}"), BarColumn(), MofNCompleteColumn(),
                        TimeElapsedColumn())
-        tasks = {}
-
-        def progress(info: dict) -> None:
-            key = info.get("sensor", "?")
-            if key not in tasks:
-                tasks[key] = bar.add_task(key, total=info.get("epochs") or epochs)
-            desc = f"{key} epoch {info.get('epoch', 0)}"
-            if "val_loss" in info:
-                desc += f" val {info['val_loss']:.4g}"
-            bar.update(tasks[key], completed=info.get("epoch", 0), description=desc)
         bar.start()
+    progress = _epoch_bar(bar, epochs) if bar is not None else None
     try:
         s = train_processnet(train_t, test_t, data_dir, out, runs=runs, epochs=epochs, seed=seed, progress=progress)
     finally:

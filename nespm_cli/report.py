@@ -93,26 +93,16 @@ _METRICS: dict[str, tuple[str, str, str]] = {
 # ----------------------------------------------------------------------------- loading
 
 
-def load_results(out_dir: Path) -> tuple[pd.DataFrame, pd.DataFrame | None, dict]:
-    """Read ``metrics.parquet`` (required), ``epochs.parquet`` and ``manifest.json``.
-
-    Returns ``(metrics, epochs or None, manifest or {})``. Raises :class:`NespmError`
-    for a missing folder, a missing/unreadable metrics file or missing columns.
-    """
+def read_results_folder(out_dir: Path, command: str = "mc") -> tuple[pd.DataFrame, dict]:
+    """Read ``metrics.parquet`` (required, unvalidated) and ``manifest.json`` (optional) of a
+    results folder written by ``nespm <command>``; one-line :class:`NespmError` otherwise."""
     out_dir = Path(out_dir)
     if not out_dir.is_dir():
         raise NespmError(f"results folder not found: {out_dir}")
     metrics_path = out_dir / "metrics.parquet"
     if not metrics_path.is_file():
-        raise NespmError(f"{metrics_path} not found: run `nespm mc ... --out {out_dir}` first")
+        raise NespmError(f"{metrics_path} not found: run `nespm {command} ... --out {out_dir}` first")
     metrics = _read_parquet(metrics_path)
-    _check_metrics(metrics, metrics_path)
-
-    epochs_path = out_dir / "epochs.parquet"
-    epochs = _read_parquet(epochs_path) if epochs_path.is_file() else None
-    if epochs is not None:
-        _require_columns(epochs, EPOCHS_COLUMNS, epochs_path)
-
     manifest_path = out_dir / "manifest.json"
     manifest: dict = {}
     if manifest_path.is_file():
@@ -122,6 +112,22 @@ def load_results(out_dir: Path) -> tuple[pd.DataFrame, pd.DataFrame | None, dict
             raise NespmError(f"{manifest_path}: not valid JSON ({_one_line(exc)})") from exc
         if not isinstance(manifest, dict):
             raise NespmError(f"{manifest_path}: expected a JSON object")
+    return metrics, manifest
+
+
+def load_results(out_dir: Path) -> tuple[pd.DataFrame, pd.DataFrame | None, dict]:
+    """Read ``metrics.parquet`` (required), ``epochs.parquet`` and ``manifest.json``.
+
+    Returns ``(metrics, epochs or None, manifest or {})``. Raises :class:`NespmError`
+    for a missing folder, a missing/unreadable metrics file or missing columns.
+    """
+    out_dir = Path(out_dir)
+    metrics, manifest = read_results_folder(out_dir, "mc")
+    _check_metrics(metrics, out_dir / "metrics.parquet")
+    epochs_path = out_dir / "epochs.parquet"
+    epochs = _read_parquet(epochs_path) if epochs_path.is_file() else None
+    if epochs is not None:
+        _require_columns(epochs, EPOCHS_COLUMNS, epochs_path)
     return metrics, epochs, manifest
 
 

@@ -12,7 +12,6 @@ sums, the paired bootstrap, the formatting and the markdown helpers are those of
 """
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 from typing import Any, Sequence
@@ -35,7 +34,6 @@ from nespm_cli.report import (
     _header_line,
     _md_table,
     _METRICS,
-    _read_parquet,
     _require_columns,
     _runs_per_track,
     _scenario,
@@ -99,23 +97,8 @@ def check_sweep_metrics(metrics: pd.DataFrame, where: object = "metrics") -> Non
 
 def load_sweep(out_dir: Path) -> tuple[pd.DataFrame, dict]:
     """Read and validate ``metrics.parquet`` and ``manifest.json`` (optional) of a sweep folder."""
-    out_dir = Path(out_dir)
-    if not out_dir.is_dir():
-        raise NespmError(f"results folder not found: {out_dir}")
-    metrics_path = out_dir / "metrics.parquet"
-    if not metrics_path.is_file():
-        raise NespmError(f"{metrics_path} not found: run `nespm sweep ... --out {out_dir}` first")
-    metrics = _read_parquet(metrics_path)
-    check_sweep_metrics(metrics, metrics_path)
-    manifest: dict = {}
-    manifest_path = out_dir / "manifest.json"
-    if manifest_path.is_file():
-        try:
-            manifest = json.loads(manifest_path.read_text())
-        except (OSError, ValueError) as exc:
-            raise NespmError(f"{manifest_path}: not valid JSON ({_rep._one_line(exc)})") from exc
-        if not isinstance(manifest, dict):
-            raise NespmError(f"{manifest_path}: expected a JSON object")
+    metrics, manifest = _rep.read_results_folder(Path(out_dir), "sweep")
+    check_sweep_metrics(metrics, Path(out_dir) / "metrics.parquet")
     return metrics, manifest
 
 
