@@ -52,7 +52,7 @@ def _spec(**kw):
     from .experiment import Spec, couple_filter
 
     corr = CorruptionConfig(
-        schedule=kw.pop("schedule"), segment_s=kw.pop("segment_length"),
+        schedule=kw.pop("schedule"), segment_s=kw.pop("segment_length"), dynamic_bias=kw.pop("dynamic_bias"),
         misalignment_deg=kw.pop("misalignment_deg"), vel_h_std=kw.pop("vel_h_std"),
         vel_v_std=kw.pop("vel_v_std"), acc_noise=kw.pop("acc_noise"), gyro_noise=kw.pop("gyro_noise"),
         acc_bias=kw.pop("acc_bias"), gyro_bias=kw.pop("gyro_bias"), dvl_noise=kw.pop("dvl_noise"),
@@ -69,6 +69,7 @@ _COMMON = [  # (name, type, default, flag, help): the options that define an exp
     ("scenario", str, "nominal", "--scenario", "nominal, or outage: no DVL for --outage-length s from --outage-start s."),
     ("schedule", str, "constant", "--schedule", "IMU error schedule: constant (UKF-NESPM paper) or dynamic (ANUKF paper: noise and bias x U[1,6] per segment)."),
     ("segment_length", float, 20.0, "--segment-length", "Dynamic schedule segment [s]."),
+    ("dynamic_bias", str, "run", "--dynamic-bias", "Dynamic schedule biases: run (x the run's first-segment factor, held) or segment (x every segment's factor: 20 s bias steps)."),
     ("seed", int, 0, "--seed", "Master seed; run r of track N draws from SeedSequence(seed, spawn_key=(N, r, stream))."),
     ("data_dir", Optional[str], None, "--data-dir", "Folder in the A-KIT layout (default: $NESPM_DATA_DIR, else the embedded tracks)."),
     ("imu", str, "synthetic", "--imu", "synthetic (inverse strapdown of GT: exact truth) or recorded (IMU_trajectoryN.csv)."),
@@ -160,6 +161,7 @@ def corrupt(
     seed: int = typer.Option(0, "--seed", help="Master seed."),
     schedule: str = typer.Option("constant", "--schedule", help="constant or dynamic."),
     segment_length: float = typer.Option(20.0, "--segment-length", help="Dynamic schedule segment [s]."),
+    dynamic_bias: str = typer.Option("run", "--dynamic-bias", help="Dynamic schedule biases: run or segment (see mc --help)."),
     out: Path = typer.Option(..., "--out", help="Output folder (realizations.parquet)."),
     materialize: bool = typer.Option(False, "--materialize", help="Also write the 100 Hz IMU error streams (large)."),
     data_dir: Optional[str] = DATA_DIR,
@@ -167,7 +169,8 @@ def corrupt(
     """Draw the realizations (initial errors, biases, schedule factors) into DIR/realizations.parquet."""
     from .realizations import write_realizations
 
-    path = write_realizations(_tracks(tracks_), runs, seed, CorruptionConfig(schedule=schedule, segment_s=segment_length),
+    path = write_realizations(_tracks(tracks_), runs, seed, CorruptionConfig(schedule=schedule, segment_s=segment_length,
+                                                                            dynamic_bias=dynamic_bias),
                               out, data_dir=data_dir, materialize=materialize)
     typer.echo(f"wrote {path}")
 

@@ -40,8 +40,8 @@ from nespm_cli.report import (
     _write_atomic,
     filter_table,
     filters_in_order,
-    improvement,
     paired_bootstrap,
+    paired_improvement,
 )
 
 __all__ = [
@@ -259,21 +259,17 @@ def improvement_table(
     baseline: str | None = None,
     n_boot: int = 2000,
     seed: int = 0,
-    table: pd.DataFrame | None = None,
 ) -> pd.DataFrame:
     """Improvement of each non-baseline filter over the baseline, per value, percent.
 
     ``100 · (metric_baseline − metric_filter) / metric_baseline`` (positive = the filter is
-    better) for VRMSE and MRMSE, from the point estimates of :func:`sweep_table` (pass it as
-    ``table`` to avoid recomputing); ``<key>_ci_lo`` / ``<key>_ci_hi`` is the 95 % paired
+    better) for VRMSE and MRMSE over the runs that diverged in neither filter (so a filter
+    is not credited for the runs its baseline lost); ``<key>_ci_lo`` / ``<key>_ci_hi`` is the 95 % paired
     bootstrap interval of :func:`report.paired_bootstrap` (runs diverged in neither filter,
     the same resample for both) and ``<key>_ci_excludes_0`` flags an interval without 0.
     ``attrs["baseline"]`` names the baseline.
     """
     base = default_baseline(metrics, baseline)
-    if table is None:
-        table = sweep_table(metrics, n_boot=0, seed=seed)
-    pt = table.set_index(["value", "filter"])
     rows = []
     for v in sweep_values(metrics):
         sub = metrics[metrics["value"] == v]
@@ -282,9 +278,9 @@ def improvement_table(
                 continue
             row: dict[str, Any] = {"value": v, "filter": f}
             boot = paired_bootstrap(sub, base, f, n_boot=n_boot, seed=seed)
+            paired = paired_improvement(sub, base, f)  # on the runs diverged in neither, as the interval
             for key in _METRICS:
-                with np.errstate(all="ignore"):
-                    row[f"{key}_imprv"] = float(improvement(pt.loc[(v, base), key], pt.loc[(v, f), key]))
+                row[f"{key}_imprv"] = paired[key]
                 lo, hi = _ci(boot[key])
                 row[f"{key}_ci_lo"], row[f"{key}_ci_hi"] = lo, hi
                 row[f"{key}_ci_excludes_0"] = bool(lo > 0 or hi < 0)
@@ -630,7 +626,7 @@ def write_sweep_report(out_dir: Path, baseline: str | None = None, n_boot: int =
     seed = 0
     base = default_baseline(metrics, baseline)
     table = sweep_table(metrics, n_boot=n_boot, seed=seed)
-    imp = improvement_table(metrics, base, n_boot=n_boot, seed=seed, table=table)
+    imp = improvement_table(metrics, base, n_boot=n_boot, seed=seed)
     figures = plot_sweep_figures(metrics, manifest, table, imp, out_dir / "figures")
     text = render_sweep_report(metrics, manifest, table, imp, figures, out_dir, n_boot, seed)
     path = out_dir / "report.md"

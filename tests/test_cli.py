@@ -32,7 +32,7 @@ needs_data = pytest.mark.skipif(not (DATA / "Trajectory5").is_dir(), reason=f"re
 
 SUMMARY_KEYS = {"track", "filter", "vrmse", "mrmse", "max_vel_err", "max_att_err", "seconds"}
 REALIZATION_COLUMNS = [
-    "track", "run", "seed", "schedule", "segment_s",
+    "track", "run", "seed", "schedule", "segment_s", "dynamic_bias",
     "dv0_n", "dv0_e", "dv0_d", "dpsi0_x", "dpsi0_y", "dpsi0_z",
     "ba_x", "ba_y", "ba_z", "bg_x", "bg_y", "bg_z", "acc_factors", "gyro_factors",
 ]

@@ -346,3 +346,24 @@ def test_published_tables_show_our_paired_improvement_of_the_proposed_method(tmp
     anukf_row = next(line for line in t3.splitlines() if line.startswith("| anukf "))
     assert "8.8 %" in anukf_row  # published: (0.08 - 0.073) / 0.08
     assert "Imprv. of anukf-nespm" in pub
+
+
+def test_improvement_point_lies_in_its_paired_interval_when_runs_diverge() -> None:
+    """The baseline loses its worst runs (diverged): the improvement and its interval are both
+    over the runs diverged in neither filter, so the point lies inside the interval."""
+    rng = np.random.default_rng(3)
+    vel = {}
+    for tr in TRACKS:
+        hard = np.r_[np.full(5, 2.0), np.full(25, 0.2)] + 0.01 * rng.standard_normal(30)  # 5 hard runs
+        vel[(tr, "ekf")] = hard * 1.5
+        vel[(tr, "ukf")] = hard
+    m = make_metrics(vel)
+    lost = (m["filter"] == "ekf") & (m["run"] < 5)  # ekf diverges on exactly the hard runs
+    m.loc[lost, "diverged"] = True
+    m.loc[lost, ["sse_vel", "sse_att", "vrmse", "mrmse"]] = np.nan
+    t = filter_table(m, "ukf", n_boot=300).set_index("filter")
+    r = t.loc["ekf"]
+    assert r["vrmse_ci_lo"] <= r["vrmse_imprv"] <= r["vrmse_ci_hi"]
+    assert r["vrmse_imprv"] == pytest.approx(100 / 3, abs=1.0)  # ukf errors are 1/1.5 of ekf's on shared runs
+    # the unpaired track averages would compare ekf's easy runs with ukf's hard ones
+    assert 100 * (r["vrmse"] - t.loc["ukf", "vrmse"]) / r["vrmse"] < -100

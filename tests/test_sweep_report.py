@@ -243,7 +243,7 @@ def test_all_diverged_value_gives_nan_and_rate_one(tmp_path: Path) -> None:
         assert r["div_rate"] == 1.0 and r["div_rate_hi"] == 1.0 and r["runs"] == 40
     assert math.isnan(row(t, 1.0, "ukf")["vrmse"]) and row(t, 1.0, "ukf")["div_rate"] == 1.0
     assert np.isfinite(row(t, 1.0, "ekf")["vrmse"])
-    imp = improvement_table(m, n_boot=100, table=t)
+    imp = improvement_table(m, n_boot=100)
     assert imp.loc[imp["value"] == 30.0, "vrmse_imprv"].isna().all()
     assert not imp.loc[imp["value"] == 30.0, "vrmse_ci_excludes_0"].any()
     write_folder(tmp_path, m)
