@@ -94,7 +94,7 @@ _COMMON = [  # (name, type, default, flag, help): the options that define an exp
     ("tau", Optional[float], None, "--tau", "Adaptive Q, eqs 44/46: q = std^2 * tau [s]; default: the IMU step."),
     ("tau_a", Optional[float], None, "--tau-a", "Adaptive Q, eq 45: q_v = q_a * tau_a [s]; default: the time-update span."),
     ("tau_g", Optional[float], None, "--tau-g", "Adaptive Q, eq 47: q_psi = q_g * tau_g [s]; default: the time-update span."),
-    ("adaptive_bias", str, "scaled", "--adaptive-bias", "Adaptive Q bias blocks: scaled (nominal random walk x (std/nominal)^2) or paper (q_a, q_g of eq 43)."),
+    ("adaptive_bias", str, "nominal", "--adaptive-bias", "Adaptive Q bias blocks: nominal (the fixed random walk), scaled (x (std/nominal)^2, matches --dynamic-bias segment) or paper (q_a, q_g of eq 43)."),
     ("q_clip", Tuple[float, float], (0.25, 24.0), "--q-clip", "Validity bounds LOW HIGH on the network std, as multiples of the nominal std."),
     ("time_update", str, "dvl", "--time-update", "dvl: one time update per DVL interval (sigma points carried through all its IMU steps); imu: every IMU step."),
 ]

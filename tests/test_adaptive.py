@@ -40,7 +40,7 @@ finite_or_not = st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.flo
 
 @settings(max_examples=200, deadline=None)
 @given(a=arrays(np.float64, (4, 3), elements=finite_or_not), g=arrays(np.float64, (4, 3), elements=finite_or_not),
-       seed=st.integers(0, 2**32 - 1), mode=st.sampled_from(["scaled", "paper"]))
+       seed=st.integers(0, 2**32 - 1), mode=st.sampled_from(["nominal", "scaled", "paper"]))
 def test_q_is_symmetric_psd_for_any_network_output(a, g, seed, mode):
     cfg = dataclasses.replace(CFG, adaptive_bias=mode)
     C = _rotations(np.random.default_rng(seed), 4)
@@ -75,10 +75,14 @@ def test_nominal_std_gives_the_fixed_q():
 def test_taus_scale_the_blocks_as_eqs_44_to_47():
     C = np.broadcast_to(np.eye(3), (1, 3, 3))
     sa, sg = np.array([[0.05, 0.06, 0.07]]), np.array([[1e-5, 2e-5, 3e-5]])
-    Q = np.diag(adaptive_q(sa, sg, C, dataclasses.replace(CFG, tau=0.02, tau_a=3.0, tau_g=5.0), DT, SPAN)[0])
+    Q = np.diag(adaptive_q(sa, sg, C, dataclasses.replace(CFG, tau=0.02, tau_a=3.0, tau_g=5.0,
+                                                         adaptive_bias="scaled"), DT, SPAN)[0])
     np.testing.assert_allclose(Q[0:3], sa[0] ** 2 * 0.02 * 3.0, rtol=1e-14)  # q_v = σ² τ τ_a
     np.testing.assert_allclose(Q[3:6], sg[0] ** 2 * 0.02 * 5.0, rtol=1e-14)  # q_Ψ = σ² τ τ_g
     np.testing.assert_allclose(Q[6:9], CFG.acc_bias_rw**2 * SPAN * (sa[0] / CFG.acc_noise) ** 2, rtol=1e-14)
+    Qn = np.diag(adaptive_q(sa, sg, C, CFG, DT, SPAN)[0])  # default: nominal bias random walk
+    np.testing.assert_allclose(Qn[6:9], CFG.acc_bias_rw**2 * SPAN, rtol=1e-14)
+    np.testing.assert_allclose(Qn[9:12], CFG.gyro_bias_rw**2 * SPAN, rtol=1e-14)
     Qp = np.diag(adaptive_q(sa, sg, C, dataclasses.replace(CFG, adaptive_bias="paper"), DT, SPAN)[0])
     np.testing.assert_allclose(Qp[6:9], sa[0] ** 2 * DT, rtol=1e-14)  # eq 43 as written: q_a
     np.testing.assert_allclose(Qp[9:12], sg[0] ** 2 * DT, rtol=1e-14)  # q_g

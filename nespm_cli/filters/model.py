@@ -39,7 +39,7 @@ class FilterConfig:
       recorded DVL (its residual std against GT is 0.02-0.2 m/s).
     * alpha = 1e-3, beta = 2, kappa = 0 as in both papers.
     * adaptive filters: τ = the IMU step, τ_a = τ_g = the time-update span, network std
-      clipped to [0.25, 24] x nominal, bias noise scaled by (σ̂/σ)² (:mod:`nespm_cli.adaptive`).
+      clipped to [0.25, 24] x nominal, bias noise nominal (:mod:`nespm_cli.adaptive`).
     * time_update ``dvl``: the time update spans one DVL interval (the papers' "cycle(s)"):
       sigma points are drawn once per interval and carried through every IMU step; ``imu``
       redraws them at every IMU step.
@@ -64,7 +64,7 @@ class FilterConfig:
     tau: float | None = None  # eq 44/46 factor [s]; None: the IMU step
     tau_a: float | None = None  # eq 45 [s]; None: the time-update span
     tau_g: float | None = None  # eq 47 [s]; None: the time-update span
-    adaptive_bias: str = "scaled"  # bias blocks of eq 43: scaled nominal random walk, or "paper"
+    adaptive_bias: str = "nominal"  # bias blocks of eq 43: nominal, scaled (x (σ̂/σ)²) or paper
     q_clip: tuple = (0.25, 24.0)  # validity bounds on the network std, x nominal std
 
     def p0(self) -> np.ndarray:
