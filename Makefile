@@ -8,7 +8,7 @@ RUNS   ?= 100
 JOBS   ?= 2
 DATA_OPT := $(if $(DATA),--data-dir $(DATA),)
 
-.PHONY: setup run test smoke table1 table2 anukf-table1 anukf-table2 nespm-table1 weights sweep-misalignment bench clean
+.PHONY: setup run test smoke table1 table2 anukf-table1 anukf-table2 nespm-table1 weights sweep-misalignment gp-ukf bench clean
 
 setup: $(VENV)/.installed
 
@@ -58,6 +58,11 @@ anukf-table1 anukf-table2 nespm-table1: setup $(WEIGHTS)
 sweep-misalignment: setup
 	$(NESPM) sweep --config experiments/sweep-misalignment.toml --jobs $(JOBS) $(DATA_OPT) --out results/sweep-misalignment$(if $(DATA),-data,)
 	$(NESPM) report results/sweep-misalignment$(if $(DATA),-data,)
+
+# gp-ukf.md Tables 3 and 4: GP-UKF vs ideal UKF, 20 simulated REMUS 100 helix runs of 800 s.
+gp-ukf: setup
+	$(NESPM) gp-ukf --runs 20 --jobs $(JOBS) --out results/gp-ukf
+	$(NESPM) report results/gp-ukf
 
 bench: setup
 	$(BIN)/python benchmarks/bench_foundation.py

@@ -245,7 +245,7 @@ def sweep(
 
 @app.command()
 def report(
-    out_dir: Path = typer.Argument(..., help="Folder written by 'nespm mc'."),
+    out_dir: Path = typer.Argument(..., help="Folder written by 'nespm mc', 'nespm sweep' or 'nespm gp-ukf'."),
     baseline: Optional[str] = typer.Option(None, "--baseline", help="Filter whose improvement over each other row is shown (the papers' 'Imprv.' column)."),
     n_boot: int = typer.Option(2000, "--n-boot", help="Paired bootstrap resamples for the 95 % intervals."),
 ) -> None:
@@ -344,6 +344,37 @@ def simulate(
     xt = np.abs(res.cross_track[:, res.t >= min(100.0, duration / 2)])
     typer.echo(f"{len(paths)} tracks ({first_number}-{first_number + len(paths) - 1}) in {time.perf_counter() - t0:.1f} s "
                f"-> {out}; max cross-track error after 100 s {xt.max():.2f} m; next: nespm tracks --data-dir {out}")
+
+
+@app.command("gp-ukf")
+def gp_ukf_cmd(
+    out: str = typer.Option("results/gp-ukf", "--out", help="Output folder."),
+    runs: int = typer.Option(20, "--runs", help="Helix runs; run 0 trains the GPs and is evaluated too (as the paper)."),
+    duration: float = typer.Option(800.0, "--duration", help="Seconds per run (a multiple of 0.2 s, >= 10)."),
+    seed: int = typer.Option(0, "--seed", help="Master seed: run r's sensor noise SeedSequence(seed, spawn_key=(r, 0)), its initial estimate (r, 1)."),
+    max_points: int = typer.Option(500, "--max-points", help="Training points per GP model (from the 40 % sample of the training run)."),
+    restarts: int = typer.Option(0, "--restarts", help="Extra random optimizer starts per GP output."),
+    h_inputs: str = typer.Option("own", "--h-inputs", help="GP-h inputs: own (each measurement from the state it measures) or state (all 12 states, the paper's)."),
+    fraction: float = typer.Option(0.4, "--fraction", help="Random fraction of the training run's samples (paper: 0.4)."),
+    train_run: int = typer.Option(0, "--train-run", help="Run the GPs are trained on."),
+    rk4_substeps: int = typer.Option(4, "--rk4-substeps", help="RK4 steps of the ideal UKF's model per 0.2 s sample."),
+    chunk_size: int = typer.Option(10, "--chunk-size", help="Runs per batch, the resumable unit."),
+    jobs: int = typer.Option(2, "--jobs", help="joblib worker processes (results do not depend on it)."),
+    backend: str = typer.Option("loky", "--backend", help="loky (local processes) or dask."),
+    scheduler: Optional[str] = typer.Option(None, "--scheduler", help="Dask scheduler address; default $NESPM_DASK_SCHEDULER, else a local cluster."),
+    no_progress: bool = typer.Option(False, "--no-progress", help="No progress bar."),
+) -> None:
+    """GP-UKF vs ideal UKF on simulated REMUS 100 helix runs (gp-ukf.md section 6, Tables 3-4); resumable."""
+    from .gp_experiment import run_gp_experiment
+
+    t0 = time.perf_counter()
+    m = run_gp_experiment(out, runs=runs, seed=seed, duration_s=duration, jobs=jobs, max_points=max_points,
+                          n_restarts=restarts, chunk_size=chunk_size, progress=not no_progress,
+                          argv=["nespm", *_ARGV], backend=backend, scheduler=scheduler, h_inputs=h_inputs,
+                          fraction=fraction, train_run=train_run, rk4_substeps=rk4_substeps)
+    div = int(m.drop_duplicates(["filter", "run"])["diverged"].sum())
+    typer.echo(f"{len(m)} rows in {time.perf_counter() - t0:.1f} s, {div} diverged "
+               f"-> {out}/metrics.parquet; next: nespm report {out}")
 
 
 def _expand_config(argv: list[str]) -> list[str]:

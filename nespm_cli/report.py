@@ -779,6 +779,14 @@ def write_report(out_dir: Path, reference: str | None = None, n_boot: int = 2000
     with ``reference`` as its baseline.
     """
     out_dir = Path(out_dir)
+    try:
+        experiment = json.loads((out_dir / "manifest.json").read_text()).get("experiment")
+    except (OSError, ValueError, AttributeError):
+        experiment = None  # load_results reports a missing or unreadable manifest
+    if experiment == "gp-ukf":
+        from nespm_cli.gp_report import write_gp_report
+
+        return write_gp_report(out_dir, n_boot=n_boot)  # --baseline does not apply
     try:  # schema only; an unreadable file is reported by load_results below
         import pyarrow.parquet as pq
 

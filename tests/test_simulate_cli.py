@@ -30,3 +30,17 @@ def test_simulated_tracks_load_and_their_imu_round_trips(capsys, tmp_path):
                                        (["--dvl", "fake"], "--dvl")])
 def test_simulate_bad_input_is_one_line(capsys, tmp_path, args, flag):
     assert_one_error_line(*cli(capsys, "simulate", "--out", tmp_path / "s", *args), flag)
+
+
+def test_gp_ukf_command_and_report_dispatch(capsys, tmp_path):
+    """`nespm gp-ukf` end to end on 2 short runs; `nespm report` recognises its folder."""
+    out = tmp_path / "gp"
+    rc, so, err = cli(capsys, "gp-ukf", "--runs", "2", "--duration", "20", "--max-points", "60", "--out", out,
+                      "--no-progress")
+    assert rc == 0, err
+    assert "0 diverged" in so
+    rc, so, err = cli(capsys, "report", out, "--n-boot", "50")
+    assert rc == 0, err
+    text = (out / "report.md").read_text()
+    assert "Table 3" in text and "Table 4" in text and "0.0158" in text  # published GP-UKF u RMSE
+    assert_one_error_line(*cli(capsys, "gp-ukf", "--runs", "0", "--out", tmp_path / "bad"), "--runs")
