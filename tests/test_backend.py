@@ -36,6 +36,8 @@ from nespm_cli.errors import NespmError
 from nespm_cli.experiment import Cell, Spec, run_chunk
 from nespm_cli.tracks import Track, write_akit
 
+from test_cli import assert_one_error_line
+
 KEY = ["track", "filter", "run"]
 EPOCHS = 40
 RUNS = 8
@@ -55,17 +57,6 @@ def nespm(*argv) -> tuple[int, str, str]:
     with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
         rc = main([str(a) for a in argv])
     return rc, out.getvalue(), err.getvalue()
-
-
-def assert_one_error_line(rc: int, out: str, err: str, *must_contain: str) -> str:
-    assert rc == 2, (rc, out, err)
-    assert "Traceback" not in out + err
-    lines = err.splitlines()
-    assert len(lines) == 1, f"expected exactly one stderr line, got {lines!r}"
-    assert lines[0].startswith("nespm: error: "), lines[0]
-    for s in must_contain:
-        assert s in lines[0], f"{s!r} not in {lines[0]!r}"
-    return lines[0]
 
 
 def metrics(d: Path) -> pd.DataFrame:
