@@ -36,12 +36,18 @@ ENV_SCHEDULER = "NESPM_DASK_SCHEDULER"
 ENV_TIMEOUT = "NESPM_DASK_TIMEOUT"  # seconds to reach the scheduler (default 10)
 ENV_WAIT = "NESPM_DASK_WAIT"  # seconds to wait for a first worker on an empty cluster (default 60)
 INSTALL_HINT = "pip install 'nespm[dask]'"
-# Dask's nanny starts workers with MALLOC_TRIM_THRESHOLD_=65536, which turns off glibc's
-# dynamic mmap threshold: every large NumPy temporary is then mmap'ed and page-faulted anew.
-# Measured on a 50-run ukf-nespm chunk: 1.95 M minor faults instead of 6 k and +26 % CPU time.
-# The local cluster also hands a worker its next chunk only when it is free (worker-saturation
-# 1.0): chunks are few and long, and one queued behind a busy worker would wait for stealing.
+# Settings of the local cluster nespm starts (docs/cluster.md explains how to give them to
+# workers you start yourself), measured on 50-run chunks on the 2-core VM:
+# * Dask's nanny starts workers with MALLOC_TRIM_THRESHOLD_=65536, which turns off glibc's
+#   adaptive mmap threshold: every large NumPy temporary is mmap'ed and page-faulted anew
+#   (ukf-nespm chunk: 1.95 M minor faults instead of 6 k, +26 % CPU time);
+# * the worker's statistical profiler samples the task thread every 10 ms, which costs
+#   ~15-20 % CPU on the filters' many small NumPy calls (ekf chunk: 17.1-19.6 s instead of
+#   ~15.5 s), and only feeds a dashboard;
+# * worker-saturation 1.0: a worker gets its next chunk only when it is free; chunks are few
+#   and long, and one queued behind a busy worker would wait for work stealing.
 LOCAL_CONFIG = {"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None,
+                "distributed.worker.profile.enabled": False,
                 "distributed.scheduler.worker-saturation": 1.0}
 
 
