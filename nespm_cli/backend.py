@@ -18,6 +18,9 @@ Dask backend), so that
   reaches the client as that exception, with the worker's host name appended, and the
   remaining chunks are cancelled;
 * results arrive in completion order, one per chunk, with no joblib batching.
+
+The scheduler is ``--scheduler``, else ``$NESPM_DASK_SCHEDULER`` (an address or a scheduler
+file), else a local cluster of ``jobs`` single-threaded worker processes (``LOCAL_CONFIG``).
 """
 from __future__ import annotations
 
