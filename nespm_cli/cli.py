@@ -100,15 +100,19 @@ _COMMON = [  # (name, type, default, flag, help): the options that define an exp
 ]
 
 
+_PARALLEL = [  # where the chunks of a resumable experiment run (mc, sweep, gp-ukf)
+    ("jobs", int, 2, "--jobs", "Local worker processes: loky, or the local Dask cluster (results do not depend on it)."),
+    ("backend", str, "loky", "--backend", "Where chunks run: loky (local processes) or dask (a Dask cluster; pip install 'nespm[dask]')."),
+    ("scheduler", Optional[str], None, "--scheduler", "Dask scheduler address (tcp://host:8786) or scheduler file; default $NESPM_DASK_SCHEDULER, else a local cluster of --jobs workers (docs/cluster.md)."),
+    ("no_progress", bool, False, "--no-progress", "No progress bar."),
+]
+
 _RUNNER = [  # options of the commands that run many realizations (mc, sweep)
     ("tracks_", str, "5 6", "--tracks", "Track numbers: --tracks 5 6 or --tracks 5,6."),
     ("runs", int, 100, "--runs", "Monte Carlo runs per track."),
     ("filters_", str, "ekf,ukf,ukf-nespm", "--filters", "Comma list of ins, ekf, ukf, ukf-nespm, anekf, anukf, anukf-nespm."),
-    ("jobs", int, 2, "--jobs", "joblib worker processes (results do not depend on it)."),
-    ("backend", str, "loky", "--backend", "Where chunks run: loky (local processes) or dask (a Dask cluster; pip install 'nespm[dask]')."),
-    ("scheduler", Optional[str], None, "--scheduler", "Dask scheduler address (tcp://host:8786); default $NESPM_DASK_SCHEDULER, else a local cluster."),
     ("chunk_size", int, 50, "--chunk-size", "Runs per batch, the resumable unit."),
-    ("no_progress", bool, False, "--no-progress", "No progress bar."),
+    *_PARALLEL,
 ]
 
 
@@ -347,6 +351,7 @@ def simulate(
 
 
 @app.command("gp-ukf")
+@_options(_PARALLEL)
 def gp_ukf_cmd(
     out: str = typer.Option("results/gp-ukf", "--out", help="Output folder."),
     runs: int = typer.Option(20, "--runs", help="Helix runs; run 0 trains the GPs and is evaluated too (as the paper)."),
@@ -359,18 +364,15 @@ def gp_ukf_cmd(
     train_run: int = typer.Option(0, "--train-run", help="Run the GPs are trained on."),
     rk4_substeps: int = typer.Option(4, "--rk4-substeps", help="RK4 steps of the ideal UKF's model per 0.2 s sample."),
     chunk_size: int = typer.Option(10, "--chunk-size", help="Runs per batch, the resumable unit."),
-    jobs: int = typer.Option(2, "--jobs", help="joblib worker processes (results do not depend on it)."),
-    backend: str = typer.Option("loky", "--backend", help="loky (local processes) or dask."),
-    scheduler: Optional[str] = typer.Option(None, "--scheduler", help="Dask scheduler address; default $NESPM_DASK_SCHEDULER, else a local cluster."),
-    no_progress: bool = typer.Option(False, "--no-progress", help="No progress bar."),
+    **kw,
 ) -> None:
     """GP-UKF vs ideal UKF on simulated REMUS 100 helix runs (gp-ukf.md section 6, Tables 3-4); resumable."""
     from .gp_experiment import run_gp_experiment
 
     t0 = time.perf_counter()
-    m = run_gp_experiment(out, runs=runs, seed=seed, duration_s=duration, jobs=jobs, max_points=max_points,
-                          n_restarts=restarts, chunk_size=chunk_size, progress=not no_progress,
-                          argv=["nespm", *_ARGV], backend=backend, scheduler=scheduler, h_inputs=h_inputs,
+    m = run_gp_experiment(out, runs=runs, seed=seed, duration_s=duration, jobs=kw["jobs"], max_points=max_points,
+                          n_restarts=restarts, chunk_size=chunk_size, progress=not kw["no_progress"],
+                          argv=["nespm", *_ARGV], backend=kw["backend"], scheduler=kw["scheduler"], h_inputs=h_inputs,
                           fraction=fraction, train_run=train_run, rk4_substeps=rk4_substeps)
     div = int(m.drop_duplicates(["filter", "run"])["diverged"].sum())
     typer.echo(f"{len(m)} rows in {time.perf_counter() - t0:.1f} s, {div} diverged "
@@ -428,6 +430,7 @@ def _normalize_argv(argv: list[str]) -> list[str]:
     return out
 
 
+_INTERRUPTED = "nespm: interrupted; finished chunks are kept, re-run the same command to resume"
 _ARGV: list[str] = []  # the command line main() received, for the manifest
 
 
@@ -440,6 +443,8 @@ def main(argv: list[str] | None = None) -> int:
             argv = ["--help"]
         argv = _normalize_argv(_expand_config(argv))
         rv = typer.main.get_command(app).main(args=argv, prog_name="nespm", standalone_mode=False)
+        if rv == 130:  # typer turns Ctrl-C into a returned exit code 130
+            typer.echo(_INTERRUPTED, err=True)
         return rv if isinstance(rv, int) else 0
     except NespmError as exc:
         typer.echo(f"nespm: error: {str(exc).splitlines()[0]}", err=True)
@@ -454,7 +459,7 @@ def main(argv: list[str] | None = None) -> int:
         typer.echo(f"nespm: error: {msg[0] if msg else exc}", err=True)
         return 2
     except KeyboardInterrupt:
-        typer.echo("nespm: interrupted; finished chunks are kept, re-run the same command to resume", err=True)
+        typer.echo(_INTERRUPTED, err=True)
         return 130
 
 

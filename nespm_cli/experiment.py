@@ -12,9 +12,11 @@ import dataclasses
 import json
 import os
 import platform
+import socket
 import subprocess
 import sys
 import time
+import uuid
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from functools import lru_cache
@@ -28,6 +30,7 @@ from .corruption import SCHEDULES, CorruptionConfig, draw, dvl_noise, imu_errors
 from .adaptive import BIAS_MODES, WINDOW, load_weights, predict_interval_std
 from .errors import NespmError
 from .earth import ned_offset
+from .embedded import embedded_track
 from .filters import ADAPTIVE, FILTERS, FilterConfig, initial_nav, run_filter
 from .metrics import epoch_errors, run_metrics
 from .rotations import log_so3
@@ -128,7 +131,9 @@ def validate(spec: Spec) -> Spec:
 @lru_cache(maxsize=16)
 def prepared(number: int, data_dir: str | None, imu: str) -> tuple[Track, ImuTruth]:
     """Track and its 100 Hz truth/IMU, computed once per worker process."""
-    track = load_track(number, data_dir)
+    # None is the embedded default here (validate resolved $NESPM_DATA_DIR on the client), never
+    # the worker's own $NESPM_DATA_DIR
+    track = load_track(number, data_dir) if data_dir is not None else embedded_track(number)
     return track, (synthesize(track) if imu == "synthetic" else from_recorded(track))
 
 
@@ -237,10 +242,27 @@ class Cell:
     columns: tuple = ()
 
 
+def write_atomic(path: Path, write) -> None:
+    """Call ``write(tmp)`` on a temporary file beside ``path``, then rename it onto ``path``.
+
+    The temporary name holds host, process and a random part, so workers of several hosts
+    writing into one shared folder never collide; a failed write leaves no temporary behind.
+    """
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.{socket.gethostname()}.{os.getpid()}.{uuid.uuid4().hex[:8]}.tmp")
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
 def write_parquet_atomic(df: pd.DataFrame, path: Path) -> None:
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    df.to_parquet(tmp, index=False)
-    os.replace(tmp, path)
+    write_atomic(path, lambda tmp: df.to_parquet(tmp, index=False))
+
+
+def write_json_atomic(obj, path: Path) -> None:
+    write_atomic(path, lambda tmp: tmp.write_text(json.dumps(obj, indent=2)))
 
 
 def run_chunk(cell: Cell, number: int, first: int, out_dir: str) -> dict:
@@ -367,10 +389,11 @@ def run_cells(cells: list[Cell], options: dict, out_dir: str | Path, jobs: int =
     ``backend``/``scheduler`` choose where chunks run (:mod:`nespm_cli.backend`); they do not
     change the results.
     """
-    from .backend import parallel_map
+    from .backend import check_backend, parallel_map
 
     if jobs < 1:
         raise NespmError(f"--jobs must be at least 1, got {jobs}")
+    check_backend(backend)  # before --out is created
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
         raise NespmError(f"--out {out}: exists and is not a folder")
@@ -382,7 +405,7 @@ def run_cells(cells: list[Cell], options: dict, out_dir: str | Path, jobs: int =
                 "data_dir": first.data_dir or "embedded", "versions": _versions(), "git_commit": _git_commit(),
                 "started": (old or {}).get("started", started), "finished": None,
                 "chunk_seconds": (old or {}).get("chunk_seconds", {})}
-    (out / "manifest.json").write_text(json.dumps(manifest, indent=2))
+    write_json_atomic(manifest, out / "manifest.json")
 
     tasks = chunk_tasks(cells)
     chunks = out / "chunks"
@@ -390,7 +413,8 @@ def run_cells(cells: list[Cell], options: dict, out_dir: str | Path, jobs: int =
             if any(not (chunks / _chunk_name("metrics", n, f, f0, c.tag)).exists() for f in c.spec.filters)]
     t0 = time.perf_counter()
     if todo:
-        results = parallel_map(run_chunk, [(c, n, f0, str(out)) for c, n, f0 in todo], jobs, backend, scheduler)
+        results = parallel_map(run_chunk, [(_absolute(c), n, f0, str(out.resolve())) for c, n, f0 in todo],
+                               jobs, backend, scheduler)
         if progress:
             from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
@@ -410,10 +434,15 @@ def run_cells(cells: list[Cell], options: dict, out_dir: str | Path, jobs: int =
     manifest.update(finished=datetime.now(timezone.utc).isoformat(timespec="seconds"),
                     wall_seconds=round(time.perf_counter() - t0 + (old or {}).get("wall_seconds", 0.0), 3),
                     chunks=len(tasks))
-    tmp = out / ".manifest.json.tmp"
-    tmp.write_text(json.dumps(manifest, indent=2))
-    os.replace(tmp, out / "manifest.json")
+    write_json_atomic(manifest, out / "manifest.json")
     return metrics
+
+
+def _absolute(cell: Cell) -> Cell:
+    """The cell as sent to a worker: data folder and weights as absolute paths (same numbers)."""
+    s = cell.spec
+    kw = {k: str(Path(v).resolve()) for k, v in (("data_dir", s.data_dir), ("weights", s.weights)) if v}
+    return dataclasses.replace(cell, spec=dataclasses.replace(s, **kw)) if kw else cell
 
 
 def couple_filter(fcfg: FilterConfig, corr: CorruptionConfig) -> FilterConfig:

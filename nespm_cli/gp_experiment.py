@@ -30,7 +30,6 @@ from __future__ import annotations
 import dataclasses
 import io
 import json
-import os
 import sys
 import time
 from dataclasses import dataclass
@@ -314,11 +313,11 @@ def ideal_Q(x: np.ndarray, u: np.ndarray, f: TrueModel) -> np.ndarray:
 
 
 def _save_npz_atomic(path: Path, arrays: dict) -> None:
+    from .experiment import write_atomic
+
     buf = io.BytesIO()
     np.savez(buf, **arrays)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    tmp.write_bytes(buf.getvalue())
-    os.replace(tmp, path)
+    write_atomic(path, lambda tmp: tmp.write_bytes(buf.getvalue()))
 
 
 def train_models(spec: GPSpec, out: Path, jobs: int, backend: str, scheduler: str | None,
@@ -447,22 +446,22 @@ def run_chunk(spec: GPSpec, first: int, out_dir: str) -> dict:
             secs = time.perf_counter() - t0
             e_post = state_errors(res.x_post, x)
             e_pred = state_errors(res.x_pred, x)
-            rows = []
             with np.errstate(invalid="ignore"):
                 rmse_c = np.sqrt(np.mean(e_post[:, 1:] ** 2, axis=1))  # k >= 1 (R, 12)
                 rmse_p = np.sqrt(np.mean(e_pred[:, 1:] ** 2, axis=1))
                 sd_c = np.sqrt(np.mean(res.var_post[:, 1:], axis=1))
-            for i, r in enumerate(runs):
-                for s, (sname, unit) in enumerate(zip(STATE_NAMES, STATE_UNITS)):
-                    rows.append((name, int(r), sname, unit, int(r) == spec.train_run, rmse_c[i, s], rmse_p[i, s],
-                                 sd_c[i, s], bool(res.diverged[i]), int(res.diverged_at[i]), secs / len(runs)))
-            metrics = pd.DataFrame(rows, columns=["filter", "run", "state", "unit", "training_run",
-                                                  "rmse_correction", "rmse_prediction", "sd_correction",
-                                                  "diverged", "diverged_at", "seconds"])
+            Rn, S = len(runs), len(STATE_NAMES)  # rows: run-major, state-minor
+            metrics = pd.DataFrame({
+                "filter": name, "run": np.repeat(runs, S), "state": np.tile(STATE_NAMES, Rn),
+                "unit": np.tile(STATE_UNITS, Rn), "training_run": np.repeat(runs == spec.train_run, S),
+                "rmse_correction": rmse_c.ravel(), "rmse_prediction": rmse_p.ravel(), "sd_correction": sd_c.ravel(),
+                "diverged": np.repeat(res.diverged.astype(bool), S),
+                "diverged_at": np.repeat(res.diverged_at.astype(np.int64), S), "seconds": secs / Rn,
+            })
             metrics["seed"] = spec.seed
             metrics["n_samples"] = T - 1
             k = np.arange(0, T, EPOCH_STRIDE)
-            Rn, K = len(runs), len(k)
+            K = len(k)
             series = {"filter": name, "run": np.repeat(runs, K), "epoch": np.tile(k, Rn),
                       "t": np.tile(sim.t[k], Rn)}
             for s, sname in enumerate(STATE_NAMES):
@@ -567,7 +566,7 @@ def run_gp_experiment(out_dir: str | Path, runs: int = 20, seed: int = 0, durati
         _write_manifest(out, manifest)
         if todo:
             task = bar.add_task(f"{len(todo)} chunks x {len(FILTERS)} filters", total=len(todo)) if bar else None
-            results = parallel_map(run_chunk, [(spec, f0, str(out)) for f0 in todo], jobs, backend, scheduler)
+            results = parallel_map(run_chunk, [(spec, f0, str(out.resolve())) for f0 in todo], jobs, backend, scheduler)
             for timings in results:
                 manifest["chunk_seconds"].update(timings)
                 if bar is not None:
@@ -584,6 +583,6 @@ def run_gp_experiment(out_dir: str | Path, runs: int = 20, seed: int = 0, durati
 
 
 def _write_manifest(out: Path, manifest: dict) -> None:
-    tmp = out / f".manifest.json.{os.getpid()}.tmp"
-    tmp.write_text(json.dumps(manifest, indent=2))
-    os.replace(tmp, out / "manifest.json")
+    from .experiment import write_json_atomic
+
+    write_json_atomic(manifest, out / "manifest.json")

@@ -15,13 +15,13 @@ report and in docs/gp-ukf.md):
 """
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 from .errors import NespmError
+from .report import _md_table, _read_parquet, _require_columns, _write_atomic, read_results_folder, save_figure
 from .gp_experiment import EXPERIMENT, FILTERS, STATE_UNITS
 from .vehicles import STATE_NAMES, SensorSuite
 from .vehicles.sensors import MEASUREMENT_NAMES
@@ -59,29 +59,12 @@ DASH = "—"
 def load_gp_results(out_dir: Path) -> tuple[pd.DataFrame, pd.DataFrame | None, dict]:
     """``(metrics, epochs or None, manifest)`` of a GP-UKF experiment folder."""
     out_dir = Path(out_dir)
-    mf = out_dir / "manifest.json"
-    try:
-        manifest = json.loads(mf.read_text())
-    except FileNotFoundError:
-        raise NespmError(f"{mf}: not found; run 'nespm gp-ukf --out {out_dir}' first") from None
-    except (OSError, json.JSONDecodeError) as exc:
-        raise NespmError(f"{mf}: unreadable ({exc.__class__.__name__})") from None
-    if manifest.get("experiment") != EXPERIMENT:
-        raise NespmError(f"{mf}: not a GP-UKF experiment (experiment = {manifest.get('experiment')!r})")
-    try:
-        metrics = pd.read_parquet(out_dir / "metrics.parquet")
-    except FileNotFoundError:
-        raise NespmError(f"{out_dir / 'metrics.parquet'}: not found; the experiment has not finished "
-                         "(re-run the same command to resume)") from None
-    except Exception as exc:  # pyarrow raises several types for a damaged file
-        raise NespmError(f"{out_dir / 'metrics.parquet'}: unreadable ({exc.__class__.__name__})") from None
-    need = {"filter", "run", "state", "training_run", "rmse_correction", "rmse_prediction", "diverged"}
-    missing = need - set(metrics.columns)
-    if missing:
-        raise NespmError(f"{out_dir / 'metrics.parquet'}: missing column(s) {', '.join(sorted(missing))}")
+    metrics, manifest = read_results_folder(out_dir, "gp-ukf", experiment=EXPERIMENT)
+    _require_columns(metrics, ("filter", "run", "state", "training_run", "rmse_correction", "rmse_prediction",
+                               "diverged"), out_dir / "metrics.parquet")
     epochs = None
     if (out_dir / "epochs.parquet").exists():
-        epochs = pd.read_parquet(out_dir / "epochs.parquet")
+        epochs = _read_parquet(out_dir / "epochs.parquet")
     return metrics, epochs, manifest
 
 
@@ -163,12 +146,6 @@ def _f(x, spec: str = ".3g") -> str:
     return format(float(x), spec)
 
 
-def _md(headers, rows) -> str:
-    lines = ["| " + " | ".join(headers) + " |", "|" + "|".join(" --- " for _ in headers) + "|"]
-    lines += ["| " + " | ".join(r) + " |" for r in rows]
-    return "\n".join(lines)
-
-
 def _table3_md(t3: pd.DataFrame) -> str:
     cols = list(TABLE3_ORDER)
     head = [""] + [f"{SYMBOL[s]} ({STATE_UNITS[STATE_NAMES.index(s)]})" for s in cols]
@@ -178,7 +155,7 @@ def _table3_md(t3: pd.DataFrame) -> str:
         rows.append([f"σ-{pub} — ours"] + [_f(t3.loc[(f, "std"), s]) for s in cols])
         rows.append([f"{pub} — paper"] + [_f(PUBLISHED_TABLE3[pub][s]) for s in cols])
         rows.append([f"σ-{pub} — paper"] + [_f(PUBLISHED_TABLE3["σ-" + pub][s]) for s in cols])
-    return _md(head, rows)
+    return _md_table(head, rows)
 
 
 def _table4_md(t4: pd.DataFrame, t4h: pd.DataFrame) -> str:
@@ -188,7 +165,7 @@ def _table4_md(t4: pd.DataFrame, t4h: pd.DataFrame) -> str:
             unit = "mixed" if kind == "correction" else "m"
             rows.append([f"RMSE-{pub} {kind}", unit, _f(t4.loc[f, kind]), _f(t4.loc[f, f"{kind}_std"]),
                          _f(t4h.loc[f, kind]), PUBLISHED_TABLE4[(f, kind)]])
-    return _md(["RMSE", "unit", "ours, mean", "ours, σ across runs", "ours, held-out runs", "paper (Table 4)"],
+    return _md_table(["RMSE", "unit", "ours, mean", "ours, σ across runs", "ours, held-out runs", "paper (Table 4)"],
                rows)
 
 
@@ -200,7 +177,7 @@ def _ratio_md(rc: pd.DataFrame, rp: pd.DataFrame, t3: pd.DataFrame, mp: dict) ->
                      f"{_f(rc.loc[s, 'ratio'], '.3g')} [{_f(rc.loc[s, 'lo'], '.3g')}, {_f(rc.loc[s, 'hi'], '.3g')}]",
                      _f(mp["ukf-ideal"][s]), _f(mp["gp-ukf"][s]),
                      f"{_f(rp.loc[s, 'ratio'], '.3g')} [{_f(rp.loc[s, 'lo'], '.3g')}, {_f(rp.loc[s, 'hi'], '.3g')}]"])
-    return _md(["state", "UKF corr.", "GP-UKF corr.", "ratio [95 % CI]", "UKF pred.", "GP-UKF pred.",
+    return _md_table(["state", "UKF corr.", "GP-UKF corr.", "ratio [95 % CI]", "UKF pred.", "GP-UKF pred.",
                 "ratio [95 % CI]"], rows)
 
 
@@ -218,7 +195,7 @@ def _noise_md(manifest: dict) -> str:
         rows.append([f"{SYMBOL[s]} ({u})", _f(q[i], ".3g"), _f(nf[i], ".3g"),
                      _f(float(np.sqrt(sigma[j] ** 2 + lsb[j] ** 2 / 12)), ".3g") if j is not None else DASH,
                      _f(nh[j], ".3g") if j is not None else DASH])
-    return _md(["state", "ideal UKF √Q", "GP-f noise σ_n", "ideal UKF √R", "GP-h noise σ_n"], rows)
+    return _md_table(["state", "ideal UKF √Q", "GP-f noise σ_n", "ideal UKF √R", "GP-h noise σ_n"], rows)
 
 
 # --- figures ----------------------------------------------------------------------------------
@@ -257,10 +234,7 @@ def plot_helix(epochs: pd.DataFrame, run: int, path: Path) -> Path:
     ax2.grid(True, alpha=0.3)
     ax2.set_title(f"Plan view, run {run} (errors < 1 m: see gp_cross_track.png)")
     ax2.legend(loc="center", fontsize="small")
-    fig.tight_layout()
-    fig.savefig(path, dpi=FIG_DPI)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, dpi=FIG_DPI)
 
 
 def plot_cross_track(epochs: pd.DataFrame, path: Path) -> Path:
@@ -294,10 +268,7 @@ def plot_cross_track(epochs: pd.DataFrame, path: Path) -> Path:
     a2.set_title("Estimation: |(X̂ − X, Ŷ − Y)| of the posterior, mean ± 1 std across runs")
     a2.grid(True, alpha=0.3)
     a2.legend(loc="upper left", fontsize="small")
-    fig.tight_layout()
-    fig.savefig(path, dpi=FIG_DPI)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, dpi=FIG_DPI)
 
 
 def plot_state_errors(epochs: pd.DataFrame, path: Path) -> Path:
@@ -320,10 +291,7 @@ def plot_state_errors(epochs: pd.DataFrame, path: Path) -> Path:
         ax.set_xlabel("time [s]")
     axes[0, 0].legend(loc="upper right", fontsize="small")
     fig.suptitle("Posterior (correction) error per state: RMS across runs at each second")
-    fig.tight_layout()
-    fig.savefig(path, dpi=FIG_DPI)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, dpi=FIG_DPI)
 
 
 def plot_figures(epochs: pd.DataFrame, metrics: pd.DataFrame, fig_dir: Path) -> list[Path]:
@@ -435,8 +403,6 @@ def render_gp_report(metrics: pd.DataFrame, manifest: dict, figures: list[Path],
 
 def write_gp_report(out_dir: str | Path, n_boot: int = 2000) -> Path:
     """Write ``OUT/report.md`` and ``OUT/figures/gp_*.png`` for a GP-UKF folder; return the report path."""
-    from .report import _write_atomic
-
     out_dir = Path(out_dir)
     if n_boot < 0:
         raise NespmError(f"--n-boot must be >= 0, got {n_boot}")

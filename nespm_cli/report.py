@@ -93,16 +93,16 @@ _METRICS: dict[str, tuple[str, str, str]] = {
 # ----------------------------------------------------------------------------- loading
 
 
-def read_results_folder(out_dir: Path, command: str = "mc") -> tuple[pd.DataFrame, dict]:
-    """Read ``metrics.parquet`` (required, unvalidated) and ``manifest.json`` (optional) of a
-    results folder written by ``nespm <command>``; one-line :class:`NespmError` otherwise."""
+def read_results_folder(out_dir: Path, command: str = "mc",
+                        experiment: str | None = None) -> tuple[pd.DataFrame, dict]:
+    """Read ``manifest.json`` (optional) and ``metrics.parquet`` (required, unvalidated) of a
+    results folder written by ``nespm <command>``; one-line :class:`NespmError` otherwise.
+
+    With ``experiment``, the manifest must exist and name it (checked before the metrics).
+    """
     out_dir = Path(out_dir)
     if not out_dir.is_dir():
         raise NespmError(f"results folder not found: {out_dir}")
-    metrics_path = out_dir / "metrics.parquet"
-    if not metrics_path.is_file():
-        raise NespmError(f"{metrics_path} not found: run `nespm {command} ... --out {out_dir}` first")
-    metrics = _read_parquet(metrics_path)
     manifest_path = out_dir / "manifest.json"
     manifest: dict = {}
     if manifest_path.is_file():
@@ -112,7 +112,13 @@ def read_results_folder(out_dir: Path, command: str = "mc") -> tuple[pd.DataFram
             raise NespmError(f"{manifest_path}: not valid JSON ({_one_line(exc)})") from exc
         if not isinstance(manifest, dict):
             raise NespmError(f"{manifest_path}: expected a JSON object")
-    return metrics, manifest
+    if experiment is not None and manifest.get("experiment") != experiment:
+        raise NespmError(f"{manifest_path}: not a {experiment.upper()} experiment folder "
+                         f"(experiment = {manifest.get('experiment')!r}); run `nespm {command} --out {out_dir}`")
+    metrics_path = out_dir / "metrics.parquet"
+    if not metrics_path.is_file():
+        raise NespmError(f"{metrics_path} not found: run `nespm {command} ... --out {out_dir}` first")
+    return _read_parquet(metrics_path), manifest
 
 
 def load_results(out_dir: Path) -> tuple[pd.DataFrame, pd.DataFrame | None, dict]:
@@ -364,19 +370,15 @@ def filter_table(
             }
         )
     table = pd.DataFrame(rows)
-    ref_row = table.loc[table["filter"] == ref].iloc[0]
     for key in _METRICS:
-        table[f"{key}_imprv"] = np.where(
-            table["is_reference"], np.nan, improvement(table[key].to_numpy(), ref_row[key])
-        )
+        table[f"{key}_imprv"] = np.nan
         table[f"{key}_ci_lo"] = np.nan
         table[f"{key}_ci_hi"] = np.nan
     for i, name in enumerate(table["filter"]):
         if name == ref:
             continue
-        if table.loc[i, "diverged"] or ref_row["diverged"]:  # the paired point, as its interval
-            for key, v in paired_improvement(metrics, name, ref).items():
-                table.loc[i, f"{key}_imprv"] = v
+        for key, v in paired_improvement(metrics, name, ref).items():  # the point of its paired interval
+            table.loc[i, f"{key}_imprv"] = v
         boot = paired_bootstrap(metrics, name, ref, n_boot=n_boot, seed=seed)
         for key, reps in boot.items():
             if np.all(np.isfinite(reps)) and reps.size:
@@ -633,6 +635,16 @@ def render_report(
 # ----------------------------------------------------------------------------- figures
 
 
+def save_figure(fig, path: Path, dpi: int = FIG_DPI) -> Path:
+    """Lay out, write ``path`` (PNG) and close ``fig``; return ``path``. Every report figure ends here."""
+    import matplotlib.pyplot as plt
+
+    fig.tight_layout()
+    fig.savefig(path, dpi=dpi)
+    plt.close(fig)
+    return Path(path)
+
+
 def _outage_spans(t: np.ndarray, dvl_used: np.ndarray) -> list[tuple[float, float]]:
     """Time spans of consecutive epochs with t > 0 and no DVL update (half-epoch padded)."""
     mask = (~dvl_used) & (t > 0)
@@ -686,10 +698,7 @@ def _error_figure(
     ax.set_title(title)
     ax.grid(True, alpha=0.3)
     ax.legend(loc="upper left", fontsize="small")
-    fig.tight_layout()
-    fig.savefig(path, dpi=FIG_DPI)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)
 
 
 def _track_figure(
@@ -713,10 +722,7 @@ def _track_figure(
     ax.set_title(title)
     ax.grid(True, alpha=0.3)
     ax.legend(loc="best", fontsize="small")
-    fig.tight_layout()
-    fig.savefig(path, dpi=FIG_DPI)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)
 
 
 def plot_track_figures(

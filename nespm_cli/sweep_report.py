@@ -23,8 +23,8 @@ from nespm_cli import report as _rep
 from nespm_cli.errors import NespmError
 from nespm_cli.metrics import nees_band
 from nespm_cli.report import (
+    save_figure,
     DASH,
-    FIG_DPI,
     METRICS_COLUMNS,
     _bootstrap_counts,
     _check_metrics,
@@ -403,10 +403,7 @@ def _metric_figure(
                             ha="center", va="bottom", fontsize="small", color="firebrick")
     if ax.get_legend_handles_labels()[0]:
         ax.legend(loc="best", fontsize="small")
-    fig.tight_layout()
-    fig.savefig(path, dpi=FIG_DPI)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)
 
 
 def _improvement_figure(
@@ -445,10 +442,7 @@ def _improvement_figure(
         if ax.get_legend_handles_labels()[0]:
             ax.legend(loc="best", fontsize="small")
     fig.suptitle(title, fontsize="medium")
-    fig.tight_layout()
-    fig.savefig(path, dpi=FIG_DPI)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)
 
 
 def plot_sweep_figures(

@@ -305,10 +305,9 @@ def plot_history(hists: dict, path, tests: dict | None = None) -> Path:
         ax.set_title(title, fontsize=10)
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    from .report import save_figure
+
+    return save_figure(fig, path, dpi=110)
 
 
 # ----------------------------------------------------------------------------- inference

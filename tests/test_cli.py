@@ -355,3 +355,22 @@ def test_console_script(tmp_path):
     assert bad.returncode == 2
     assert bad.stdout == ""
     assert_one_error_line(bad.returncode, bad.stdout, bad.stderr, "--tracks", "9")
+
+
+def test_ctrl_c_during_mc_prints_the_resume_hint(tmp_path):
+    """SIGINT while chunks run: exit 130 and one stderr line saying how to resume."""
+    import signal
+    import time
+
+    out = tmp_path / "mc"
+    p = subprocess.Popen([sys.executable, "-m", "nespm_cli.cli", "mc", "--tracks", "5", "--runs", "2",
+                          "--filters", "ekf", "--no-progress", "--out", str(out)],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                         env={k: v for k, v in os.environ.items() if k != "NESPM_DATA_DIR"})
+    deadline = time.time() + 60
+    while not (out / "manifest.json").exists() and time.time() < deadline and p.poll() is None:
+        time.sleep(0.05)  # the manifest is written before the first chunk starts
+    p.send_signal(signal.SIGINT)
+    _, err = p.communicate(timeout=120)
+    assert p.returncode == 130
+    assert err.splitlines() == ["nespm: interrupted; finished chunks are kept, re-run the same command to resume"]
