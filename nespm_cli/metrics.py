@@ -3,7 +3,10 @@
 * velocity error: ``v_nav − v_GT``, norm in m/s;
 * misalignment: the Euler angles of ``C_b^n (C_b^n,GT)ᵀ`` (eq 53), norm in rad;
 * NEES: ``eᵀ P6⁻¹ e`` of the 6 states [δv, δψ] with ``e = truth ⊖ nav`` and ``P6`` the
-  filter's posterior covariance block; 6 on average for a consistent filter.
+  filter's posterior covariance block; 6 on average for a consistent filter;
+* horizontal position error (HPE): ``hypot(north, east)`` of ``nav − truth`` in m, also as a
+  percentage of the horizontal distance the truth travelled (the field's usual "% of distance
+  travelled" figure).
 """
 from __future__ import annotations
 
@@ -17,12 +20,33 @@ from .rotations import attitude_minus, dcm_to_euler
 
 @dataclass
 class EpochErrors:
-    """Per-run, per-epoch errors (R, N) plus horizontal position errors (R, N, 2) [m]."""
+    """Per-run, per-epoch errors (R, N) plus horizontal position errors (R, N, 2) [m].
+
+    ``hpe`` (R, N) [m] is the horizontal error norm ``hypot(ne[..., 0], ne[..., 1])`` (computed
+    from ``ne`` when not given); ``dist`` (N,) [m] the truth's cumulative horizontal distance
+    travelled since the first epoch (0 at the first epoch; NaN when the truth was not given).
+    """
 
     vel: np.ndarray
     att: np.ndarray
     nees: np.ndarray
     ne: np.ndarray
+    hpe: np.ndarray | None = None
+    dist: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.hpe is None:
+            self.hpe = np.hypot(self.ne[..., 0], self.ne[..., 1])
+        if self.dist is None:
+            self.dist = np.full(self.vel.shape[-1], np.nan)
+
+
+def distance_travelled(pos_true: np.ndarray) -> np.ndarray:
+    """Cumulative horizontal distance [m] (N,) along ``pos_true`` (N, 3): the sum of the
+    horizontal norms of the :func:`earth.ned_offset` increments between consecutive epochs."""
+    pos_true = np.asarray(pos_true, dtype=float)
+    step = ned_offset(pos_true[1:], pos_true[:-1])[..., :2]
+    return np.concatenate([[0.0], np.cumsum(np.hypot(step[..., 0], step[..., 1]))])
 
 
 def epoch_errors(out, v_true: np.ndarray, C_true: np.ndarray, pos_true: np.ndarray) -> EpochErrors:
@@ -46,16 +70,38 @@ def epoch_errors(out, v_true: np.ndarray, C_true: np.ndarray, pos_true: np.ndarr
                 sol = (np.linalg.pinv(out.P6) @ e[..., None])[..., 0]
         nees = (e * sol).sum(axis=-1)
     ne = ned_offset(out.pos, pos_true)[..., :2]
-    return EpochErrors(vel, att, nees, ne)
+    hpe = np.hypot(ne[..., 0], ne[..., 1])
+    return EpochErrors(vel, att, nees, ne, hpe, distance_travelled(pos_true))
 
 
 def run_metrics(err: EpochErrors, diverged: np.ndarray) -> dict[str, np.ndarray]:
-    """Per-run summary (R,) arrays; every error sum of a diverged run is NaN."""
+    """Per-run summary (R,) arrays; every error sum of a diverged run is NaN.
+
+    Horizontal position (``docs/results-schema.md``): ``sse_hpe`` [m²] the sum over epochs of the
+    squared HPE, ``hpe_final`` [m] at the last epoch, ``hpe_rms`` [m] = sqrt(sse_hpe / n_samples),
+    ``hpe_max`` [m], ``distance`` [m] the truth's horizontal distance travelled over the track
+    (a property of the truth: finite for diverged runs too) and ``hpe_final_pct`` =
+    100 · hpe_final / distance (NaN when the truth did not move).
+    """
     n = err.vel.shape[1]
     bad = np.asarray(diverged, dtype=bool)
     nan_if_bad = lambda x: np.where(bad, np.nan, x)  # noqa: E731
     sse_vel = nan_if_bad((err.vel**2).sum(axis=1))
     sse_att = nan_if_bad((err.att**2).sum(axis=1))
+    with np.errstate(all="ignore"):  # a diverged run's position may be non-finite
+        hpe = np.asarray(err.hpe, dtype=float)
+        sse_hpe = nan_if_bad((hpe**2).sum(axis=1))
+        hpe_final = nan_if_bad(hpe[:, -1])
+        distance = np.full(len(bad), float(np.asarray(err.dist, dtype=float)[-1]))
+        hpe_final_pct = np.where(distance > 0, 100.0 * hpe_final / np.where(distance > 0, distance, 1.0), np.nan)
+        hpe_cols = {
+            "sse_hpe": sse_hpe,
+            "hpe_final": hpe_final,
+            "hpe_rms": np.sqrt(sse_hpe / n),
+            "hpe_max": nan_if_bad(hpe.max(axis=1)),
+            "distance": distance,
+            "hpe_final_pct": hpe_final_pct,
+        }
     return {
         "vrmse": np.sqrt(sse_vel / n),
         "mrmse": np.sqrt(sse_att / n),
@@ -66,6 +112,7 @@ def run_metrics(err: EpochErrors, diverged: np.ndarray) -> dict[str, np.ndarray]
         "max_att_err": nan_if_bad(err.att.max(axis=1)),
         "nees": nan_if_bad(err.nees.mean(axis=1)),
         "diverged": bad,
+        **hpe_cols,
     }
 
 

@@ -1,4 +1,4 @@
-"""Summary report of a Monte Carlo results folder: tables, paired bootstrap, figures.
+"""Summary report of a Monte Carlo results folder: summary in words, tables, paired bootstrap, figures.
 
 Reads the files described in ``docs/results-schema.md`` (``metrics.parquet``, optionally
 ``epochs.parquet`` and ``manifest.json``) and writes ``report.md`` plus PNG figures.
@@ -6,11 +6,18 @@ Reads the files described in ``docs/results-schema.md`` (``metrics.parquet``, op
 Metric definitions (anukf.md eqs 50-53), repeated in the report text:
 
 * per track and filter, ``VRMSE = sqrt(sum(sse_vel) / sum(n_samples))`` over the
-  non-diverged runs (eq 50); ``MRMSE`` likewise with ``sse_att`` (eq 52);
+  non-diverged runs (eq 50); ``MRMSE`` likewise with ``sse_att`` (eq 52); the RMS horizontal
+  position error (HPE) likewise with ``sse_hpe``;
 * track average: ``sqrt(mean over tracks of VRMSE_track**2)`` (eq 51);
 * improvement of a row over the reference filter F: ``100 * (m_row - m_F) / m_row``
-  (the papers' "ANUKF Imprv." column);
-* 95 % interval of the improvement: paired bootstrap over run indices, resampled per track.
+  (the papers' "ANUKF Imprv." column), point and interval over the runs that diverged in
+  neither filter (pairs);
+* 95 % interval of the improvement: paired bootstrap over run indices, resampled per track;
+  an interval from fewer than :data:`MIN_PAIRED_RUNS` paired runs on some track is marked
+  ``†`` and never called significant;
+* an improvement is *practically* meaningful when ``|improvement| >= practical_pct``
+  (default :data:`PRACTICAL_PCT` percent) and *statistically* when its interval excludes 0;
+* mean NEES against its two-sided 95 % chi-square band (:func:`metrics.nees_band`).
 """
 from __future__ import annotations
 
@@ -25,12 +32,19 @@ import numpy as np
 import pandas as pd
 
 from nespm_cli.errors import NespmError
+from nespm_cli.metrics import nees_band
 
 __all__ = [
     "PUBLISHED",
+    "PRACTICAL_PCT",
+    "MIN_PAIRED_RUNS",
     "load_results",
     "filter_table",
     "track_table",
+    "horizontal_table",
+    "compare_filters",
+    "nees_consistency",
+    "summary_md",
     "published_tables",
     "default_reference",
     "plot_track_figures",
@@ -79,14 +93,30 @@ EPOCHS_COLUMNS: tuple[str, ...] = (
     "track", "filter", "t", "vel_err_mean", "vel_err_std", "att_err_mean", "att_err_std",
     "north_err_mean", "east_err_mean", "north_true", "east_true", "dvl_used",
 )
+#: metrics.parquet columns of the horizontal position error (absent in folders written before them).
+HPE_COLUMNS: tuple[str, ...] = ("sse_hpe", "hpe_final", "hpe_rms", "hpe_final_pct", "distance")
 DEFAULT_REFERENCE = "ukf-nespm"
 FIG_DPI = 150
 DASH = "—"
+#: Default practical threshold [%]: an improvement smaller than this in magnitude is "no practical
+#: difference" even when its interval excludes 0 (``write_report(..., practical_pct=...)``).
+PRACTICAL_PCT = 1.0
+#: Fewest paired runs per track for which a percentile-bootstrap interval is trusted; below it the
+#: interval is marked ``†`` and no significance is claimed.
+MIN_PAIRED_RUNS = 10
+NEES_DOF = 6
+SIG_MARK = "*"
+SMALL_MARK = "†"
 
-# metric key -> (sse column, display name, unit)
+# metric key -> (sse column, display name, unit): the columns of the papers' tables
 _METRICS: dict[str, tuple[str, str, str]] = {
     "vrmse": ("sse_vel", "VRMSE", "m/s"),
     "mrmse": ("sse_att", "MRMSE", "rad"),
+}
+# every RMS metric pooled as eq 50 (sum of squares over sum of epochs); "hpe" needs HPE_COLUMNS
+_RMS_METRICS: dict[str, tuple[str, str, str]] = {
+    **_METRICS,
+    "hpe": ("sse_hpe", "RMS horizontal position error", "m"),
 }
 
 
@@ -198,6 +228,11 @@ def default_reference(metrics: pd.DataFrame, reference: str | None = None) -> st
     return aided[-1] if aided else names[-1]
 
 
+def has_hpe(metrics: pd.DataFrame) -> bool:
+    """Whether ``metrics`` holds the horizontal-position columns (:data:`HPE_COLUMNS`)."""
+    return all(c in metrics.columns for c in HPE_COLUMNS)
+
+
 def _sums(metrics: pd.DataFrame) -> pd.DataFrame:
     """Per (track, filter): error sums over non-diverged runs, NEES mean and run counts."""
     df = metrics.assign(
@@ -208,11 +243,19 @@ def _sums(metrics: pd.DataFrame) -> pd.DataFrame:
     grouped = ok.groupby(["track", "filter"], sort=False)
     sums = grouped[["sse_vel", "sse_att", "n_samples"]].sum()
     sums["nees"] = grouped["nees"].mean()
+    sums["nees_n"] = grouped["nees"].count()
+    if has_hpe(metrics):
+        sums["sse_hpe"] = grouped["sse_hpe"].sum()
+        sums["hpe_final"] = grouped["hpe_final"].mean()
+        sums["hpe_final_pct"] = grouped["hpe_final_pct"].mean()
     counts = df.groupby(["track", "filter"], sort=False).agg(
         runs=("run", "size"), diverged=("diverged", "sum")
     )
+    if has_hpe(metrics):
+        counts["distance"] = df.groupby(["track", "filter"], sort=False)["distance"].mean()
     out = counts.join(sums, how="left")
     out["n_samples"] = out["n_samples"].fillna(0.0)
+    out["nees_n"] = out["nees_n"].fillna(0).astype(int)
     return out
 
 
@@ -224,17 +267,33 @@ def _rmse(sse: pd.Series | np.ndarray, n: pd.Series | np.ndarray) -> np.ndarray:
         return np.where(n > 0, np.sqrt(sse / np.where(n > 0, n, 1.0)), np.nan)
 
 
+def _band(mean: float, n: int) -> tuple[float, float, str]:
+    """``(lo, hi, word)``: the 95 % band of a mean NEES over ``n`` runs and the consistency word
+    (``consistent``, ``overconfident``, ``conservative``; ``—`` without a finite NEES)."""
+    if not (n > 0 and np.isfinite(mean)):
+        return math.nan, math.nan, DASH
+    lo, hi = nees_band(NEES_DOF, int(n))
+    word = "overconfident" if mean > hi else "conservative" if mean < lo else "consistent"
+    return lo, hi, word
+
+
 def track_table(metrics: pd.DataFrame) -> pd.DataFrame:
     """Per (track, filter): VRMSE, MRMSE (eqs 50, 52), mean NEES, diverged count and runs.
 
     Rows are sorted by track, filters in order of appearance; the NEES is the mean of the
-    per-run ``nees`` over the non-diverged runs.
+    per-run ``nees`` over the non-diverged runs, ``nees_n`` the number of those runs with a
+    finite NEES, ``nees_lo`` / ``nees_hi`` its 95 % band (:func:`metrics.nees_band`) and
+    ``consistency`` the word for where the mean lies. With the horizontal-position columns
+    (:data:`HPE_COLUMNS`): ``hpe_rms`` (eq 50 with ``sse_hpe``), ``hpe_final`` and
+    ``hpe_final_pct`` (means over the non-diverged runs) and ``distance``; NaN otherwise.
     """
     _check_metrics(metrics)
     s = _sums(metrics).reset_index()
     order = {f: i for i, f in enumerate(filters_in_order(metrics))}
     s = s.assign(_o=s["filter"].map(order)).sort_values(["track", "_o"]).drop(columns="_o")
-    return pd.DataFrame(
+    nan = np.full(len(s), np.nan)
+    hpe = has_hpe(metrics)
+    out = pd.DataFrame(
         {
             "track": s["track"].to_numpy(),
             "filter": s["filter"].astype(str).to_numpy(),
@@ -243,8 +302,18 @@ def track_table(metrics: pd.DataFrame) -> pd.DataFrame:
             "nees": s["nees"].to_numpy(dtype=float),
             "diverged": s["diverged"].to_numpy(dtype=int),
             "runs": s["runs"].to_numpy(dtype=int),
+            "nees_n": s["nees_n"].to_numpy(dtype=int),
+            "hpe_rms": _rmse(s["sse_hpe"], s["n_samples"]) if hpe else nan,
+            "hpe_final": s["hpe_final"].to_numpy(dtype=float) if hpe else nan,
+            "hpe_final_pct": s["hpe_final_pct"].to_numpy(dtype=float) if hpe else nan,
+            "distance": s["distance"].to_numpy(dtype=float) if hpe else nan,
         }
     )
+    bands = [_band(m, n) for m, n in zip(out["nees"], out["nees_n"])]
+    out["nees_lo"] = [b[0] for b in bands]
+    out["nees_hi"] = [b[1] for b in bands]
+    out["consistency"] = [b[2] for b in bands]
+    return out.reset_index(drop=True)
 
 
 def _track_average(per_track: np.ndarray | pd.Series) -> float:
@@ -277,8 +346,28 @@ def _paired_runs(metrics: pd.DataFrame, track: Any, a: str, b: str) -> tuple[pd.
     return A.loc[runs], B.loc[runs]
 
 
+def _keys(metrics: pd.DataFrame, keys: Sequence[str] | None) -> list[str]:
+    """The RMS metric keys asked for (default VRMSE, MRMSE), checked against :data:`_RMS_METRICS`."""
+    keys = list(_METRICS) if keys is None else list(keys)
+    unknown = [k for k in keys if k not in _RMS_METRICS]
+    if unknown:
+        raise ValueError(f"unknown metric key(s) {unknown}; known: {list(_RMS_METRICS)}")
+    return keys
+
+
+def _shared_tracks(metrics: pd.DataFrame, a: str, b: str) -> list:
+    return sorted(set(metrics.loc[metrics["filter"] == a, "track"])
+                  & set(metrics.loc[metrics["filter"] == b, "track"]))
+
+
+def paired_run_counts(metrics: pd.DataFrame, a: str, b: str) -> dict[Any, int]:
+    """Per shared track: the number of runs that diverged in neither ``a`` nor ``b`` (the pairs)."""
+    return {track: len(_paired_runs(metrics, track, a, b)[0]) for track in _shared_tracks(metrics, a, b)}
+
+
 def paired_bootstrap(
-    metrics: pd.DataFrame, row: str, ref: str, n_boot: int = 2000, seed: int = 0
+    metrics: pd.DataFrame, row: str, ref: str, n_boot: int = 2000, seed: int = 0,
+    keys: Sequence[str] | None = None,
 ) -> dict[str, np.ndarray]:
     """Bootstrap replicates of the improvement of ``ref`` over ``row`` for VRMSE and MRMSE.
 
@@ -286,67 +375,98 @@ def paired_bootstrap(
     replacement; both filters use the same resample (paired). Each replicate recomputes
     eq 50/52 per track from the resampled error sums and the track average (eq 51) of
     both filters, then the improvement. The resamples of a track depend only on
-    ``(seed, track)`` and the number of paired runs. Returns ``{"vrmse": (n_boot,),
-    "mrmse": (n_boot,)}``; all NaN if some shared track has no paired run.
+    ``(seed, track)`` and the number of paired runs (not on ``keys``). Returns ``{"vrmse":
+    (n_boot,), "mrmse": (n_boot,)}`` (or the ``keys`` asked for, e.g. ``"hpe"`` for the RMS
+    horizontal position error); all NaN if some shared track has no paired run.
     """
-    tracks = sorted(
-        set(metrics.loc[metrics["filter"] == row, "track"])
-        & set(metrics.loc[metrics["filter"] == ref, "track"])
-    )
-    nan = {k: np.full(n_boot, np.nan) for k in _METRICS}
+    keys = _keys(metrics, keys)
+    tracks = _shared_tracks(metrics, row, ref)
+    nan = {k: np.full(n_boot, np.nan) for k in keys}
     if not tracks or n_boot < 1:
         return nan
-    ms: dict[str, dict[str, list[np.ndarray]]] = {k: {"row": [], "ref": []} for k in _METRICS}
+    ms: dict[str, dict[str, list[np.ndarray]]] = {k: {"row": [], "ref": []} for k in keys}
     for track in tracks:
         A, B = _paired_runs(metrics, track, row, ref)
         if len(A) == 0:
             return nan
         rng = np.random.default_rng([int(seed), int(track)])
         counts = _bootstrap_counts(len(A), n_boot, rng)
-        for key, (sse_col, _, _) in _METRICS.items():
+        for key in keys:
+            sse_col = _RMS_METRICS[key][0]
             for side, T in (("row", A), ("ref", B)):
                 num = counts @ T[sse_col].to_numpy(float)
                 den = counts @ T["n_samples"].to_numpy(float)
                 ms[key][side].append(num / den)
     out = {}
-    for key in _METRICS:
+    for key in keys:
         avg_row = np.sqrt(np.mean(ms[key]["row"], axis=0))
         avg_ref = np.sqrt(np.mean(ms[key]["ref"], axis=0))
         out[key] = improvement(avg_row, avg_ref)
     return out
 
 
-def paired_improvement(metrics: pd.DataFrame, row: str, ref: str) -> dict[str, float]:
-    """Improvement of ``ref`` over ``row`` (percent) for VRMSE and MRMSE, on the runs that
-    diverged in neither filter: the point estimate that :func:`paired_bootstrap`'s interval
-    belongs to (with no divergence it equals the improvement of the two track averages)."""
-    tracks = sorted(set(metrics.loc[metrics["filter"] == row, "track"])
-                    & set(metrics.loc[metrics["filter"] == ref, "track"]))
+def paired_averages(
+    metrics: pd.DataFrame, a: str, b: str, keys: Sequence[str] | None = None
+) -> dict[str, tuple[float, float]]:
+    """Track averages (eq 51) of ``a`` and ``b`` over the runs diverged in neither: ``{key: (m_a, m_b)}``
+    (NaN when some shared track has no such run, or no track is shared)."""
+    keys = _keys(metrics, keys)
+    tracks = _shared_tracks(metrics, a, b)
+    pairs = [_paired_runs(metrics, track, a, b) for track in tracks]
     out = {}
-    for key, (sse_col, _, _) in _METRICS.items():
-        ms = {"row": [], "ref": []}
-        for track in tracks:
-            A, B = _paired_runs(metrics, track, row, ref)
-            for side, T in (("row", A), ("ref", B)):
+    for key in keys:
+        sse_col = _RMS_METRICS[key][0]
+        ms: dict[str, list[float]] = {"a": [], "b": []}
+        for A, B in pairs:
+            for side, T in (("a", A), ("b", B)):
                 n = T["n_samples"].to_numpy(float).sum()
                 ms[side].append(T[sse_col].to_numpy(float).sum() / n if n else np.nan)
         with np.errstate(all="ignore"):
-            out[key] = float(improvement(np.sqrt(np.mean(ms["row"])), np.sqrt(np.mean(ms["ref"])))) if tracks \
-                else math.nan
+            out[key] = ((float(np.sqrt(np.mean(ms["a"]))), float(np.sqrt(np.mean(ms["b"]))))
+                        if tracks else (math.nan, math.nan))
     return out
 
 
+def paired_improvement(
+    metrics: pd.DataFrame, row: str, ref: str, keys: Sequence[str] | None = None
+) -> dict[str, float]:
+    """Improvement of ``ref`` over ``row`` (percent) for VRMSE and MRMSE (or ``keys``), on the
+    runs that diverged in neither filter: the point estimate that :func:`paired_bootstrap`'s
+    interval belongs to (with no divergence it equals the improvement of the two track averages)."""
+    out = {}
+    for key, (m_row, m_ref) in paired_averages(metrics, row, ref, keys).items():
+        with np.errstate(all="ignore"):
+            out[key] = float(improvement(m_row, m_ref))
+    return out
+
+
+def ci_marks(lo: float, hi: float, pairs_min: int, min_pairs: int = MIN_PAIRED_RUNS) -> tuple[bool, bool, str]:
+    """``(excludes_0, significant, mark)`` of an improvement interval: significant when the interval
+    excludes 0 and every track has at least ``min_pairs`` paired runs; mark ``*`` if significant,
+    ``†`` if the sample is too small for the percentile bootstrap, else ``""``."""
+    excludes = bool(np.isfinite(lo) and np.isfinite(hi) and (lo > 0 or hi < 0))
+    small = pairs_min < min_pairs
+    significant = excludes and not small
+    return excludes, significant, SMALL_MARK if small else SIG_MARK if significant else ""
+
+
 def filter_table(
-    metrics: pd.DataFrame, reference: str | None, n_boot: int = 2000, seed: int = 0
+    metrics: pd.DataFrame, reference: str | None, n_boot: int = 2000, seed: int = 0,
+    min_pairs: int = MIN_PAIRED_RUNS,
 ) -> pd.DataFrame:
     """One row per filter (order of appearance): track-averaged metrics and improvements.
 
     Columns: ``filter``, ``vrmse``, ``vrmse_imprv``, ``vrmse_ci_lo``, ``vrmse_ci_hi``,
-    ``vrmse_ci_excludes_0`` and the same for ``mrmse``; ``nees`` (mean per-run NEES over
-    the non-diverged runs of all tracks), ``diverged``, ``runs``, ``tracks``,
-    ``is_reference``. Improvements are percent, NaN on the reference row; the interval is
-    the 2.5/97.5 percentile of :func:`paired_bootstrap`. ``attrs["reference"]`` names
-    the reference filter.
+    ``vrmse_ci_excludes_0``, ``vrmse_significant`` and the same for ``mrmse``; ``nees`` (mean
+    per-run NEES over the non-diverged runs of all tracks) with ``nees_n`` (those runs with a
+    finite NEES), its 95 % band ``nees_lo`` / ``nees_hi`` and ``consistency``; ``hpe_rms``
+    (eq 51 over the per-track RMS HPE), ``hpe_final`` and ``hpe_final_pct`` (mean over tracks of
+    the per-track means; NaN without the HPE columns); ``diverged``, ``runs``, ``tracks``,
+    ``pairs_min`` (fewest paired runs with the reference on any track), ``is_reference``.
+    Improvements are percent, point and interval over the runs that diverged in neither the
+    row nor the reference, NaN on the reference row; the interval is the 2.5/97.5 percentile
+    of :func:`paired_bootstrap`; ``_significant`` = excludes 0 and ``pairs_min >= min_pairs``.
+    ``attrs["reference"]`` names the reference filter.
     """
     _check_metrics(metrics)
     if n_boot < 0:
@@ -357,15 +477,25 @@ def filter_table(
     rows = []
     for name in filters_in_order(metrics):
         t = tt[tt["filter"] == name]
+        nees = ok.loc[ok["filter"] == name, "nees"]
+        lo, hi, word = _band(float(nees.mean()), int(nees.count()))
         rows.append(
             {
                 "filter": name,
                 "vrmse": _track_average(t["vrmse"]),
                 "mrmse": _track_average(t["mrmse"]),
-                "nees": float(ok.loc[ok["filter"] == name, "nees"].mean()),
+                "nees": float(nees.mean()),
+                "nees_n": int(nees.count()),
+                "nees_lo": lo,
+                "nees_hi": hi,
+                "consistency": word,
+                "hpe_rms": _track_average(t["hpe_rms"]),
+                "hpe_final": float(np.mean(t["hpe_final"].to_numpy(float))) if len(t) else math.nan,
+                "hpe_final_pct": float(np.mean(t["hpe_final_pct"].to_numpy(float))) if len(t) else math.nan,
                 "diverged": int(t["diverged"].sum()),
                 "runs": int(t["runs"].sum()),
                 "tracks": int(len(t)),
+                "pairs_min": 0,
                 "is_reference": name == ref,
             }
         )
@@ -377,6 +507,8 @@ def filter_table(
     for i, name in enumerate(table["filter"]):
         if name == ref:
             continue
+        counts = paired_run_counts(metrics, name, ref)
+        table.loc[i, "pairs_min"] = min(counts.values()) if counts else 0
         for key, v in paired_improvement(metrics, name, ref).items():  # the point of its paired interval
             table.loc[i, f"{key}_imprv"] = v
         boot = paired_bootstrap(metrics, name, ref, n_boot=n_boot, seed=seed)
@@ -387,22 +519,291 @@ def filter_table(
     for key in _METRICS:
         lo, hi = table[f"{key}_ci_lo"], table[f"{key}_ci_hi"]
         table[f"{key}_ci_excludes_0"] = ((lo > 0) | (hi < 0)).to_numpy(bool)
+        table[f"{key}_significant"] = (table[f"{key}_ci_excludes_0"]
+                                       & (table["pairs_min"] >= min_pairs)).to_numpy(bool)
     columns = ["filter"]
     for key in _METRICS:
-        columns += [key, f"{key}_imprv", f"{key}_ci_lo", f"{key}_ci_hi", f"{key}_ci_excludes_0"]
-    columns += ["nees", "diverged", "runs", "tracks", "is_reference"]
+        columns += [key, f"{key}_imprv", f"{key}_ci_lo", f"{key}_ci_hi", f"{key}_ci_excludes_0",
+                    f"{key}_significant"]
+    columns += ["nees", "nees_n", "nees_lo", "nees_hi", "consistency", "hpe_rms", "hpe_final",
+                "hpe_final_pct", "diverged", "runs", "tracks", "pairs_min", "is_reference"]
     table = table[columns]
     table.attrs["reference"] = ref
+    table.attrs["min_pairs"] = int(min_pairs)
     return table
 
 
-def published_tables(filters: Sequence[str], scenario: str | None) -> list[dict[str, Any]]:
-    """The entries of :data:`PUBLISHED` for ``scenario`` that share at least one filter."""
+def horizontal_table(metrics: pd.DataFrame) -> pd.DataFrame | None:
+    """Per filter, track averages of the horizontal position error, then per (track, filter):
+    columns ``track`` (``None`` on the track-average rows), ``filter``, ``distance`` [m],
+    ``hpe_final`` [m], ``hpe_rms`` [m], ``hpe_final_pct`` [%], ``diverged``, ``runs``.
+    ``None`` when the metrics lack the HPE columns (a folder written before them)."""
+    if not has_hpe(metrics):
+        return None
+    tt = track_table(metrics)
+    cols = ["distance", "hpe_final", "hpe_rms", "hpe_final_pct", "diverged", "runs"]
+    rows = []
+    for name in filters_in_order(metrics):
+        t = tt[tt["filter"] == name]
+        rows.append({"track": None, "filter": name, "distance": float(t["distance"].mean()),
+                     "hpe_final": float(t["hpe_final"].mean(skipna=False)),
+                     "hpe_rms": _track_average(t["hpe_rms"]),
+                     "hpe_final_pct": float(t["hpe_final_pct"].mean(skipna=False)),
+                     "diverged": int(t["diverged"].sum()), "runs": int(t["runs"].sum())})
+    per_track = tt[["track", "filter"] + cols].to_dict("records")
+    out = pd.DataFrame(rows + per_track, columns=["track", "filter"] + cols)
+    out["track"] = pd.Series([r["track"] for r in rows + per_track], dtype=object)  # None = average
+    return out
+
+
+def published_tables(filters: Sequence[str], scenario: str | None, min_filters: int = 1) -> list[dict[str, Any]]:
+    """The entries of :data:`PUBLISHED` for ``scenario`` that have rows for at least
+    ``min_filters`` of ``filters`` (the report shows those with at least two)."""
     return [
         entry
         for entry in PUBLISHED.values()
-        if entry["scenario"] == scenario and set(entry["values"]) & set(filters)
+        if entry["scenario"] == scenario and len(set(entry["values"]) & set(filters)) >= min_filters
     ]
+
+
+# ----------------------------------------------------------------------------- summary
+
+_SUMMARY_NAMES: dict[str, str] = {
+    "vrmse": "VRMSE",
+    "mrmse": "MRMSE",
+    "hpe": "Horizontal position error (RMS over the epochs)",
+}
+_OWN_COLUMN: dict[str, str] = {"vrmse": "vrmse", "mrmse": "mrmse", "hpe": "hpe_rms"}
+
+
+def _ci(reps: np.ndarray) -> tuple[float, float]:
+    """2.5 / 97.5 % percentiles, NaN unless every replicate is finite."""
+    if reps.size and np.all(np.isfinite(reps)):
+        lo, hi = np.percentile(reps, [2.5, 97.5])
+        return float(lo), float(hi)
+    return math.nan, math.nan
+
+
+def compare_filters(
+    metrics: pd.DataFrame,
+    n_boot: int = 2000,
+    seed: int = 0,
+    practical_pct: float = PRACTICAL_PCT,
+    min_pairs: int = MIN_PAIRED_RUNS,
+    keys: Sequence[str] | None = None,
+) -> pd.DataFrame:
+    """Per metric, the best filter and its paired improvement over every other filter.
+
+    ``keys`` default to VRMSE, MRMSE and, when the HPE columns are present, ``hpe`` (RMS
+    horizontal position error). The best filter is the one with the smaller paired track
+    average (eq 51 over the runs both kept) against the most other filters, ties broken by
+    the smaller track average over its own non-diverged runs; without divergences this is the
+    filter with the smallest track average.
+
+    One row per (metric, other filter): ``metric``, ``best``, ``other``, ``best_value`` (the
+    best filter's own track average), ``imprv`` (improvement of ``best`` over ``other``,
+    :func:`paired_improvement`: positive = ``best`` has the smaller error), ``ci_lo``,
+    ``ci_hi`` (:func:`paired_bootstrap`), ``pairs_min`` (fewest paired runs on a track),
+    ``excludes_0``, ``significant`` (excludes 0 and ``pairs_min >= min_pairs``), ``practical``
+    (``|imprv| >= practical_pct``), ``ci_within`` (the interval lies inside ±``practical_pct``)
+    and ``verdict``: ``better`` (significant and practical, positive), ``worse`` (the same,
+    negative), ``no practical difference`` (``|imprv| < practical_pct``, significant or not),
+    ``not significant`` (practical point, interval includes 0), ``too few runs``
+    (``pairs_min < min_pairs``) or ``undefined`` (no paired point). A metric with a single
+    usable filter gets one row with ``other`` None and verdict ``only filter``.
+    """
+    _check_metrics(metrics)
+    if keys is None:
+        keys = list(_METRICS) + (["hpe"] if has_hpe(metrics) else [])
+    keys = _keys(metrics, keys)
+    filters = filters_in_order(metrics)
+    own_table = filter_table(metrics, None, n_boot=0, min_pairs=min_pairs).set_index("filter")
+    pair_avg = {(a, b): paired_averages(metrics, a, b, keys)
+                for i, a in enumerate(filters) for b in filters[i + 1:]}
+    boot_cache: dict[tuple[str, str], dict[str, np.ndarray]] = {}
+    cols = ["metric", "best", "other", "best_value", "imprv", "ci_lo", "ci_hi", "pairs_min",
+            "excludes_0", "significant", "practical", "ci_within", "verdict"]
+    rows = []
+    for key in keys:
+        own = {f: float(own_table.loc[f, _OWN_COLUMN[key]]) for f in filters}
+        cands = [f for f in filters if np.isfinite(own[f])]
+        if not cands:
+            rows.append(dict(zip(cols, [key, None, None, math.nan, math.nan, math.nan, math.nan, 0,
+                                        False, False, False, False, "undefined"])))
+            continue
+        wins = {f: 0.0 for f in cands}
+        for (a, b), av in pair_avg.items():
+            if a in wins and b in wins and all(np.isfinite(av[key])):
+                ma, mb = av[key]
+                if ma < mb:
+                    wins[a] += 1
+                elif mb < ma:
+                    wins[b] += 1
+                else:
+                    wins[a] += 0.5
+                    wins[b] += 0.5
+        best = max(cands, key=lambda f: (wins[f], -own[f]))
+        others = [f for f in filters if f != best]
+        if not others:
+            rows.append(dict(zip(cols, [key, best, None, own[best], math.nan, math.nan, math.nan, 0,
+                                        False, False, False, False, "only filter"])))
+            continue
+        for other in others:
+            if (other, best) not in boot_cache:
+                boot_cache[(other, best)] = paired_bootstrap(metrics, other, best, n_boot=n_boot,
+                                                             seed=seed, keys=keys)
+            imp = paired_improvement(metrics, other, best, [key])[key]
+            lo, hi = _ci(boot_cache[(other, best)][key])
+            counts = paired_run_counts(metrics, other, best)
+            pairs_min = min(counts.values()) if counts else 0
+            excludes, significant, _ = ci_marks(lo, hi, pairs_min, min_pairs)
+            practical = bool(np.isfinite(imp) and abs(imp) >= practical_pct)
+            within = bool(np.isfinite(lo) and np.isfinite(hi) and lo > -practical_pct and hi < practical_pct)
+            if not np.isfinite(imp):
+                verdict = "undefined"
+            elif pairs_min < min_pairs:
+                verdict = "too few runs"
+            elif not practical:
+                verdict = "no practical difference"
+            elif significant:
+                verdict = "better" if imp > 0 else "worse"
+            else:
+                verdict = "not significant"
+            rows.append(dict(zip(cols, [key, best, other, own[best], imp, lo, hi, pairs_min, excludes,
+                                        significant, practical, within, verdict])))
+    out = pd.DataFrame(rows, columns=cols)
+    out.attrs.update(practical_pct=float(practical_pct), min_pairs=int(min_pairs))
+    return out
+
+
+def nees_consistency(metrics: pd.DataFrame) -> pd.DataFrame:
+    """Per filter: ``filter``, mean NEES ``nees`` over the non-diverged runs of all tracks, ``nees_n``,
+    its two-sided 95 % band ``nees_lo`` / ``nees_hi`` (``metrics.nees_band(6, nees_n)``) and
+    ``consistency``: ``consistent`` (inside), ``overconfident`` (above: covariance too small),
+    ``conservative`` (below), ``—`` without a covariance (``ins``)."""
+    t = filter_table(metrics, None, n_boot=0)
+    return t[["filter", "nees", "nees_n", "nees_lo", "nees_hi", "consistency"]].reset_index(drop=True)
+
+
+_CONSISTENCY_WORDS = {
+    "consistent": "consistent (inside the band)",
+    "overconfident": "overconfident (NEES above band: its covariance is too small)",
+    "conservative": "conservative (NEES below band: its covariance is too large)",
+}
+
+
+def _comparison_words(r: Any, practical_pct: float, min_pairs: int) -> str:
+    """One comparison of :func:`compare_filters` in words."""
+    head = f"`{r.best}` vs `{r.other}`"
+    if r.verdict == "undefined":
+        return f"{head}: undefined (on some track no run was kept by both)"
+    mark = SMALL_MARK if r.pairs_min < min_pairs else SIG_MARK if r.significant else ""
+    num = _fmt_imprv(r.imprv, r.ci_lo, r.ci_hi, mark)
+    side = "lower error" if r.imprv > 0 else "higher error" if r.imprv < 0 else "equal error"
+    p = f"{practical_pct:g} %"
+    if r.verdict == "too few runs":
+        size = "below" if abs(r.imprv) < practical_pct else "above"
+        why = (f"only {r.pairs_min} paired runs on some track (fewer than {min_pairs}): the percentile "
+               f"bootstrap is unreliable, no significance claimed (the point is {size} the {p} threshold)")
+    elif r.verdict in ("better", "worse"):
+        why = f"statistically (interval excludes 0) and practically (≥ {p}) meaningful"
+    elif r.verdict == "no practical difference":
+        why = (f"statistically significant, but below the {p} practical threshold: **no practical difference**"
+               if r.significant else
+               f"interval includes 0 and below the {p} threshold: **no practical difference**")
+        if not r.ci_within:
+            why += f" (the interval reaches beyond ±{p}, so a practical difference is not ruled out)"
+    else:  # not significant
+        why = f"above the {p} threshold, but the interval includes 0: not statistically significant"
+    return f"{head}: {num} {side}; {why}"
+
+
+def _headline(comps: pd.DataFrame) -> str:
+    """The verdict of one metric's comparisons in a few words."""
+    best = comps["best"].iloc[0]
+    v = set(comps["verdict"])
+    if "better" in v:
+        tied = [o for o, w in zip(comps["other"], comps["verdict"]) if w == "no practical difference"]
+        if tied:
+            return (f"best: `{best}` and {', '.join(f'`{o}`' for o in tied)} "
+                    "(no practical difference between them)")
+        return f"`{best}` is best" + (" (meaningfully better than every other filter)" if v == {"better"} else "")
+    if v == {"no practical difference"}:
+        return "no practical difference between the filters"
+    if "too few runs" in v and v <= {"too few runs", "no practical difference"}:
+        return "not assessed (too few paired runs)"
+    return "no clear winner"
+
+
+def _small_sample_tracks(metrics: pd.DataFrame, min_pairs: int) -> dict[Any, int]:
+    """Tracks where some pair of filters shares fewer than ``min_pairs`` kept runs: track -> fewest."""
+    filters = filters_in_order(metrics)
+    fewest: dict[Any, int] = {}
+    for i, a in enumerate(filters):
+        for b in filters[i + 1:]:
+            for track, n in paired_run_counts(metrics, a, b).items():
+                fewest[track] = min(n, fewest.get(track, n))
+    return {t: n for t, n in sorted(fewest.items()) if 0 < n < min_pairs}  # 0: comparison undefined
+
+
+def summary_md(
+    metrics: pd.DataFrame,
+    table: pd.DataFrame,
+    comps: pd.DataFrame,
+    practical_pct: float = PRACTICAL_PCT,
+    min_pairs: int = MIN_PAIRED_RUNS,
+) -> str:
+    """The report's "Summary" section body: per metric the best filter and, over every other
+    filter, its paired improvement [95 % CI] with whether it is statistically and practically
+    meaningful; NEES consistency per filter; a small-sample warning."""
+    p = f"{practical_pct:g} %"
+    lines = [
+        f"Meaningful = the paired 95 % interval excludes 0 (statistically, with at least {min_pairs} "
+        f"paired runs per track) **and** |improvement| ≥ {p} (practically; `practical_pct` = "
+        f"{practical_pct:g}). Improvements are 100 · (other − best) / other over the runs that "
+        "diverged in neither filter.",
+        "",
+    ]
+    units = {"vrmse": "m/s", "mrmse": "rad", "hpe": "m"}
+    for key in pd.unique(comps["metric"]):
+        c = comps[comps["metric"] == key]
+        name = _SUMMARY_NAMES[key]
+        first = c.iloc[0]
+        if first["best"] is None:
+            lines.append(f"- **{name}**: undefined (every run diverged on some track).")
+            continue
+        value = f"`{first['best']}` {_fmt(first['best_value'])} {units[key]}"
+        if first["verdict"] == "only filter":
+            lines.append(f"- **{name}**: only {value}; nothing to compare.")
+            continue
+        words = "; ".join(_comparison_words(r, practical_pct, min_pairs) for r in c.itertuples(index=False))
+        lines.append(f"- **{name}** — {_headline(c)}. Lowest: {value}. {words}.")
+        if key == "hpe":
+            finals = ", ".join(
+                f"`{r.filter}` {_fmt(r.hpe_final, '.3g')} m ({_fmt(r.hpe_final_pct, '.3g')} % of distance)"
+                if np.isfinite(r.hpe_final) else f"`{r.filter}` {DASH}"
+                for r in table.itertuples(index=False))
+            lines.append(f"  Final horizontal error (mean over runs, then tracks): {finals}.")
+    cons = []
+    for r in table.itertuples(index=False):
+        if r.consistency == DASH:
+            cons.append(f"`{r.filter}` no covariance ({DASH})")
+        else:
+            cons.append(f"`{r.filter}` {r.nees:.2f} vs [{r.nees_lo:.2f}, {r.nees_hi:.2f}] ({r.nees_n} runs): "
+                        f"{_CONSISTENCY_WORDS[r.consistency]}")
+    lines.append(f"- **Consistency** (mean NEES against its 95 % band for a consistent 6-DOF filter): "
+                 + "; ".join(cons) + ".")
+    small = _small_sample_tracks(metrics, min_pairs)
+    if small:
+        which = ", ".join(f"track {t}: {n}" for t, n in small.items())
+        n = min(small.values())
+        lines.append(
+            f"- **Warning — small sample**: fewer than {min_pairs} runs kept by both filters of a pair "
+            f"({which}). With n = {n} runs the bootstrap has only {math.comb(2 * n - 1, n)} distinct "
+            f"resamples and its percentile interval is too narrow, so those intervals are marked "
+            f"`{SMALL_MARK}` and no difference is called significant. Use more `--runs`."
+        )
+    return "\n".join(lines)
 
 
 # ----------------------------------------------------------------------------- formatting
@@ -427,11 +828,58 @@ def _fmt_pct(x: Any) -> str:
     return DASH if x is None or not np.isfinite(x) else f"{_pct(x)} %"
 
 
-def _fmt_ci(lo: float, hi: float, excludes_0: bool) -> str:
-    """``[lo, hi] %`` with a trailing ``*`` when the interval excludes zero."""
+_MAX_DECIMALS = 10
+
+
+def _decimals(point: float, lo: float, hi: float) -> int:
+    """Decimals for an interval and its point: two significant digits of the interval width
+    (at least one decimal, as the papers), more until distinct values print distinctly."""
+    vals = [v for v in (point, lo, hi) if v is not None and np.isfinite(v)]
+    width = abs(hi - lo) if np.isfinite(lo) and np.isfinite(hi) else 0.0
+    d = max(1, math.ceil(-math.log10(width)) + 1) if width > 0 else 1
+    while d < _MAX_DECIMALS:
+        text = {v: _fixed(v, d) for v in vals}
+        if len(set(text.values())) == len(set(vals)):
+            break
+        d += 1
+    return min(d, _MAX_DECIMALS)
+
+
+def _fixed(x: float, d: int) -> str:
+    """``x`` with ``d`` decimals, without a minus sign on a value that prints as zero."""
+    t = f"{x:.{d}f}"
+    return t[1:] if t.startswith("-") and float(t) == 0.0 else t
+
+
+def _fmt_imprv(point: float, lo: float, hi: float, mark: str = "") -> str:
+    """``point % [lo, hi]`` (+ `` mark``) with the decimals of :func:`_decimals`, e.g.
+    ``-0.0076 % [-0.0091, -0.0061] *``; just the point without a finite interval."""
+    if point is None or not np.isfinite(point):
+        return DASH
+    if not (np.isfinite(lo) and np.isfinite(hi)):
+        return _fmt_pct(point)
+    d = _decimals(point, lo, hi)
+    return f"{_fixed(point, d)} % [{_fixed(lo, d)}, {_fixed(hi, d)}]" + (f" {mark}" if mark else "")
+
+
+def _imprv_cells(point: float, lo: float, hi: float, mark: str = "") -> tuple[str, str]:
+    """The main table's two cells ``point %`` and ``[lo, hi] mark`` with shared decimals."""
+    if point is None or not np.isfinite(point):
+        return DASH, DASH
+    if not (np.isfinite(lo) and np.isfinite(hi)):
+        return _fmt_pct(point), DASH
+    d = _decimals(point, lo, hi)
+    return f"{_fixed(point, d)} %", f"[{_fixed(lo, d)}, {_fixed(hi, d)}]" + (f" {mark}" if mark else "")
+
+
+def _fmt_ci(lo: float, hi: float, excludes_0: bool | str) -> str:
+    """``[lo, hi] %`` with the decimals of :func:`_decimals` and a trailing mark: ``*`` when
+    ``excludes_0`` is True, or the given mark string (``*``, ``†`` or ``""``)."""
     if not (np.isfinite(lo) and np.isfinite(hi)):
         return DASH
-    return f"[{_pct(lo)}, {_pct(hi)}] %" + (" *" if excludes_0 else "")
+    mark = excludes_0 if isinstance(excludes_0, str) else (SIG_MARK if excludes_0 else "")
+    d = _decimals(math.nan, lo, hi)
+    return f"[{_fixed(lo, d)}, {_fixed(hi, d)}] %" + (f" {mark}" if mark else "")
 
 
 def _md_table(headers: Sequence[str], rows: Iterable[Sequence[str]]) -> str:
@@ -486,8 +934,10 @@ def _header_line(metrics: pd.DataFrame, manifest: dict) -> str:
     return "**Run:** " + "; ".join(parts) + "."
 
 
-def _definitions(ref: str, n_boot: int, seed: int) -> str:
+def _definitions(ref: str, n_boot: int, seed: int, practical_pct: float = PRACTICAL_PCT,
+                 min_pairs: int = MIN_PAIRED_RUNS) -> str:
     """The report's definitions section (every number in the tables)."""
+    p = f"{practical_pct:g} %"
     return f"""## Definitions
 
 - **VRMSE** (anukf.md eq 50), per track and filter: `sqrt(sum(sse_vel) / sum(n_samples))` over
@@ -495,72 +945,143 @@ def _definitions(ref: str, n_boot: int, seed: int) -> str:
   the squared velocity-error norm. **MRMSE** (eq 52) likewise with `sse_att`, the squared norm of
   the misalignment Euler angles of `C_b^n C_n^b,GT` (eq 53).
 - **Track average** (eq 51), used in the main table: `sqrt(mean over tracks of VRMSE_track²)`,
-  and the same for MRMSE.
+  and the same for MRMSE and the RMS horizontal position error.
+- **Horizontal position error (HPE)**: `hypot(north, east)` of estimate − truth [m] at each epoch.
+  *RMS HPE*: eq 50 with `sse_hpe` (sum over the epochs of HPE²); *final HPE*: at the last epoch;
+  *% of distance*: final HPE / horizontal distance the truth travelled over the track · 100. Final
+  HPE and its % are means over the non-diverged runs per track, then over tracks.
 - **{ref} Imprv.**: improvement of the reference filter `{ref}` over each other row, as in the
   papers' "ANUKF Imprv." column: `100 · (metric_row − metric_{ref}) / metric_row`. Positive
-  means `{ref}` has the smaller error; the reference row shows "{DASH}".
+  means `{ref}` has the smaller error; the reference row shows "{DASH}". **Every improvement, its
+  point and its interval, in every table and in the Summary, is computed over the runs that
+  diverged in neither filter of the pair** (the pairs), per track with eqs 50–51; the VRMSE and
+  MRMSE columns use each filter's own non-diverged runs, so with divergences an improvement need
+  not equal the one computed from the two printed columns.
 - **95 % CI**: paired bootstrap percentile interval (2.5 %, 97.5 %) of that improvement. The same
-  run index is the same realization for every filter, so per track the run indices that diverged in
-  neither filter of the pair are resampled with replacement (the same resample for both filters),
-  eqs 50–51 are recomputed for both and the improvement taken; {n_boot} resamples, seed {seed}.
-  `*` marks an interval that excludes 0. The point estimate uses every non-diverged run of each
-  filter, the interval only the pairs.
+  run index is the same realization for every filter, so per track the pairs are resampled with
+  replacement (the same resample for both filters), eqs 50–51 are recomputed for both and the
+  improvement taken; {n_boot} resamples, seed {seed}. Intervals and their points are printed with
+  two significant digits of the interval width. `{SIG_MARK}` marks an interval that excludes 0
+  (statistically significant). `{SMALL_MARK}` marks an interval from fewer than {min_pairs} paired runs
+  on some track: the percentile bootstrap is unreliable there (with n runs it has only
+  C(2n−1, n) distinct resamples, 3 for n = 2, and its interval is too narrow, about
+  sqrt((n−1)/n) · 1.96 / t₀.₉₇₅,ₙ₋₁ of a t interval's width: 63 % at n = 5, 82 % at n = 10), so
+  such an interval is never starred or called significant, whether or not it excludes 0.
+- **Practically meaningful**: |improvement| ≥ {p} (`practical_pct`). The Summary calls a
+  difference meaningful only when it is both statistically significant and practically
+  meaningful, and says "no practical difference" below the threshold even when significant.
+  The **best** filter of a metric is the one with the smaller paired track average against the
+  most other filters (ties: the smaller track average over its own runs).
 - **mean NEES**: mean over the non-diverged runs of each run's epoch-averaged 6-DOF NEES of
-  `[δv, δψ]` (6 for a consistent filter; {DASH} for `ins`).
+  `[δv, δψ]` (6 for a consistent filter; {DASH} for `ins`). **95 % NEES band**: the two-sided
+  95 % band of the mean of n chi-square(6) values, `chi2.ppf([0.025, 0.975], 6 n) / n`
+  (`metrics.nees_band(6, n)`), n = the runs averaged. Above the band the filter is
+  *overconfident* (its covariance is too small), below *conservative*. The band is for one
+  epoch's NEES averaged over n runs; each run's epoch average fluctuates less, so the band is a
+  lenient test: a mean outside it is a clear inconsistency.
 - **diverged**: runs whose covariance became non-finite or not positive definite or whose
   velocity error exceeded the divergence limit, out of all runs; they are left out of every
   error number.
 """
 
 
+def _mark(excludes_0: bool, pairs_min: int, min_pairs: int) -> str:
+    return SMALL_MARK if pairs_min < min_pairs else SIG_MARK if excludes_0 else ""
+
+
+def _nees_cells(nees: float, lo: float, hi: float, word: str) -> list[str]:
+    band = DASH if not np.isfinite(lo) else f"[{lo:.2f}, {hi:.2f}]"
+    return [_fmt(nees, ".2f"), band, word]
+
+
 def _main_table(table: pd.DataFrame) -> str:
     """Markdown of :func:`filter_table`."""
     ref = table.attrs["reference"]
+    min_pairs = table.attrs.get("min_pairs", MIN_PAIRED_RUNS)
     headers = [
-        "Method", "VRMSE [m/s]", f"{ref} Imprv.", "95 % CI",
-        "MRMSE [rad]", f"{ref} Imprv.", "95 % CI", "mean NEES", "diverged",
+        "Method", "VRMSE [m/s]", f"{ref} Imprv.", "95 % CI [%]",
+        "MRMSE [rad]", f"{ref} Imprv.", "95 % CI [%]", "mean NEES", "95 % NEES band", "consistency",
+        "diverged",
     ]
     rows = []
     for r in table.itertuples(index=False):
-        rows.append(
-            [
-                r.filter + (" (reference)" if r.is_reference else ""),
-                _fmt(r.vrmse), _fmt_pct(r.vrmse_imprv),
-                _fmt_ci(r.vrmse_ci_lo, r.vrmse_ci_hi, r.vrmse_ci_excludes_0),
-                _fmt(r.mrmse), _fmt_pct(r.mrmse_imprv),
-                _fmt_ci(r.mrmse_ci_lo, r.mrmse_ci_hi, r.mrmse_ci_excludes_0),
-                _fmt(r.nees, ".2f"), f"{r.diverged} / {r.runs}",
-            ]
-        )
+        cells = [r.filter + (" (reference)" if r.is_reference else "")]
+        for key in _METRICS:
+            mark = _mark(getattr(r, f"{key}_ci_excludes_0"), r.pairs_min, min_pairs)
+            cells += [_fmt(getattr(r, key)),
+                      *_imprv_cells(getattr(r, f"{key}_imprv"), getattr(r, f"{key}_ci_lo"),
+                                    getattr(r, f"{key}_ci_hi"), mark)]
+        cells += _nees_cells(r.nees, r.nees_lo, r.nees_hi, r.consistency)
+        cells.append(f"{r.diverged} / {r.runs}")
+        rows.append(cells)
     return _md_table(headers, rows)
 
 
 def _track_md(tt: pd.DataFrame) -> str:
     """Markdown of :func:`track_table`."""
-    headers = ["Track", "Method", "VRMSE [m/s]", "MRMSE [rad]", "mean NEES", "diverged"]
+    headers = ["Track", "Method", "VRMSE [m/s]", "MRMSE [rad]", "mean NEES", "95 % NEES band",
+               "consistency", "diverged"]
     rows = [
-        [str(r.track), r.filter, _fmt(r.vrmse), _fmt(r.mrmse), _fmt(r.nees, ".2f"),
-         f"{r.diverged} / {r.runs}"]
+        [str(r.track), r.filter, _fmt(r.vrmse), _fmt(r.mrmse),
+         *_nees_cells(r.nees, r.nees_lo, r.nees_hi, r.consistency), f"{r.diverged} / {r.runs}"]
         for r in tt.itertuples(index=False)
     ]
     return _md_table(headers, rows)
 
 
+def _horizontal_md(metrics: pd.DataFrame) -> str:
+    """Markdown of :func:`horizontal_table`, or a note for a folder without the HPE columns."""
+    ht = horizontal_table(metrics)
+    if ht is None:
+        return ("No horizontal-position columns (`hpe_final`, `hpe_rms`, `hpe_final_pct`, ...) in "
+                "`metrics.parquet`: the folder was written by an older nespm; re-run `nespm mc` into a "
+                "new folder to get them.")
+    headers = ["Track", "Method", "distance [m]", "final HPE [m]", "RMS HPE [m]",
+               "final HPE [% of distance]", "diverged"]
+    rows = [
+        ["average" if r.track is None else str(r.track),
+         r.filter, _fmt(r.distance, ".1f"), _fmt(r.hpe_final, ".4g"), _fmt(r.hpe_rms, ".4g"),
+         _fmt(r.hpe_final_pct, ".3g"), f"{r.diverged} / {r.runs}"]
+        for r in ht.itertuples(index=False)
+    ]
+    return ("Final HPE and its % of distance: mean over the non-diverged runs (per track), then over "
+            "tracks; RMS HPE: eq 50 with `sse_hpe` per track and eq 51 over tracks; distance: the "
+            "truth's horizontal distance travelled (mean over tracks on the average rows).\n\n"
+            + _md_table(headers, rows))
+
+
+def _published_note(filters: Sequence[str], scenario: str | None, shown: Sequence[dict]) -> str:
+    """One line naming the published tables not shown and the filters each needs."""
+    missing = [e for e in PUBLISHED.values() if e not in shown]
+    if not missing:
+        return ""
+    needs = "; ".join(f"{e['source']} [scenario `{e['scenario']}`] needs {', '.join(e['values'])}"
+                      for e in missing)
+    lead = ("No published table has rows for at least two of the filters run "
+            if not shown else "Not shown (fewer than two of their filters run, or another scenario) ")
+    return f"{lead}({', '.join(filters)}; scenario `{scenario}`): {needs}."
+
+
 def _published_md(metrics: pd.DataFrame, table: pd.DataFrame, scenario: str | None, n_boot: int,
                   seed: int) -> str:
-    """Each matching published table beside ours: the table's methods in its order, our
-    track-averaged VRMSE/MRMSE, the improvement of the table's proposed method over each row
-    (ours with its paired 95 % interval, and the published one)."""
-    entries = published_tables(list(table["filter"]), scenario)
+    """Each published table of the scenario with rows for at least two of the filters run,
+    beside ours: the table's methods in its order, our track-averaged VRMSE/MRMSE, the
+    improvement of the table's proposed method over each row (ours with its paired 95 %
+    interval, and the published one); then one line on the tables not shown."""
+    filters = list(table["filter"])
+    min_pairs = table.attrs.get("min_pairs", MIN_PAIRED_RUNS)
+    entries = published_tables(filters, scenario, min_filters=2)
+    note = _published_note(filters, scenario, entries)
+    if not entries:
+        return note
     intro = (
         "The published numbers come from the real Snapir AUV data (test tracks 5 and 6) with the "
         "authors' recorded IMU and their trained networks; our values on other tracks or data, "
         "or with a synthesized IMU, are not expected to match them closely. Methods we did not "
         f"run show \"{DASH}\". Imprv. is the improvement of the table's proposed method over the "
-        "row, 100 (row - proposed) / row, with our paired bootstrap 95 % interval (* = excludes 0)."
+        "row, 100 (row - proposed) / row, with our paired bootstrap 95 % interval "
+        f"({SIG_MARK} = excludes 0, {SMALL_MARK} = too few paired runs to judge)."
     )
-    if not entries:
-        return intro + f"\n\nNo published table covers these filters in scenario `{scenario}`."
     parts = [intro]
     ours = {r.filter: r for r in table.itertuples(index=False)}
     for entry in entries:
@@ -570,8 +1091,11 @@ def _published_md(metrics: pd.DataFrame, table: pd.DataFrame, scenario: str | No
         for name, pub in entry["values"].items():
             r = ours.get(name)
             cells = [name]
-            boot = (paired_bootstrap(metrics, name, ref, n_boot=n_boot, seed=seed)
-                    if r is not None and ref in ours and name != ref else None)
+            paired = r is not None and ref in ours and name != ref
+            boot = paired_bootstrap(metrics, name, ref, n_boot=n_boot, seed=seed) if paired else None
+            imp = paired_improvement(metrics, name, ref) if paired else None
+            counts = paired_run_counts(metrics, name, ref) if paired else {}
+            pairs_min = min(counts.values()) if counts else 0
             for key in _METRICS:
                 mine = getattr(r, key) if r is not None else None
                 cells += [_fmt(mine), _fmt(pub[key])]
@@ -579,11 +1103,9 @@ def _published_md(metrics: pd.DataFrame, table: pd.DataFrame, scenario: str | No
                     cells += [DASH, DASH]
                     continue
                 if boot is not None:
-                    imp = paired_improvement(metrics, name, ref)[key]
-                    reps = boot[key]
-                    ci = (np.percentile(reps, [2.5, 97.5]) if reps.size and np.all(np.isfinite(reps))
-                          else (np.nan, np.nan))
-                    cells.append(f"{_fmt_pct(float(imp))} {_fmt_ci(ci[0], ci[1], bool(ci[0] > 0 or ci[1] < 0))}")
+                    lo, hi = _ci(boot[key])
+                    _, _, mark = ci_marks(lo, hi, pairs_min, min_pairs)
+                    cells.append(_fmt_imprv(imp[key], lo, hi, mark))
                 else:
                     cells.append(DASH)
                 cells.append(_fmt_pct(float(improvement(pub[key], pub_ref[key]))))
@@ -594,6 +1116,8 @@ def _published_md(metrics: pd.DataFrame, table: pd.DataFrame, scenario: str | No
                          "Imprv. published", "MRMSE ours [rad]", "MRMSE published [rad]",
                          "Imprv. ours [95 % CI]", "Imprv. published"], rows)
         )
+    if note:
+        parts.append(note)
     return "\n\n".join(parts)
 
 
@@ -606,27 +1130,36 @@ def render_report(
     out_dir: Path,
     n_boot: int,
     seed: int,
+    practical_pct: float = PRACTICAL_PCT,
+    min_pairs: int = MIN_PAIRED_RUNS,
 ) -> str:
-    """The full markdown text of ``report.md``."""
+    """The full markdown text of ``report.md``: header, Summary (:func:`summary_md` of
+    :func:`compare_filters` with ``practical_pct``), Definitions, tables, figures."""
     scenario = _scenario(metrics, manifest)
     ref = table.attrs["reference"]
     diverged = ", ".join(f"{r.filter} {r.diverged}" for r in table.itertuples(index=False))
+    comps = compare_filters(metrics, n_boot=n_boot, seed=seed, practical_pct=practical_pct,
+                            min_pairs=min_pairs)
     fig_text = (
         "\n".join(f"![{p.stem}]({p.relative_to(out_dir).as_posix()})" for p in figures)
         if figures
         else "No figures: `epochs.parquet` is absent."
     )
+    hpe_fig = ("; horizontal position error, mean ± 1 std across the non-diverged runs"
+               if any(Path(p).stem.startswith("hpe_") for p in figures) else "")
     return "\n\n".join(
         [
             "# nespm Monte Carlo report",
             _header_line(metrics, manifest),
-            _definitions(ref, n_boot, seed).rstrip(),
+            "## Summary\n\n" + summary_md(metrics, table, comps, practical_pct, min_pairs),
+            _definitions(ref, n_boot, seed, practical_pct, min_pairs).rstrip(),
             "## Track-averaged results (eq 51)\n\n" + _main_table(table),
             f"Diverged runs per filter: {diverged}.",
             "## Per-track results (eqs 50, 52)\n\n" + _track_md(tt),
+            "## Horizontal position error\n\n" + _horizontal_md(metrics),
             "## Comparison with the published tables\n\n" + _published_md(metrics, table, scenario, n_boot, seed),
             "## Figures\n\nPer track: velocity-error norm and misalignment norm, mean ± 1 std "
-            "across the non-diverged runs (band clipped at 0), grey = epochs without a DVL "
+            f"across the non-diverged runs (band clipped at 0){hpe_fig}; grey = epochs without a DVL "
             "update (outage); and the true vs mean estimated horizontal track.\n\n" + fig_text,
         ]
     ) + "\n"
@@ -679,7 +1212,8 @@ def _error_figure(
     import matplotlib.pyplot as plt
 
     col, label = {"vel": ("vel_err", "velocity error norm [m/s]"),
-                  "att": ("att_err", "misalignment norm [rad]")}[kind]
+                  "att": ("att_err", "misalignment norm [rad]"),
+                  "hpe": ("hpe", "horizontal position error [m]")}[kind]
     fig, ax = plt.subplots(figsize=(9, 4.8))
     for f in filters:
         d = ep[ep["filter"] == f].sort_values("t")
@@ -728,11 +1262,12 @@ def _track_figure(
 def plot_track_figures(
     epochs: pd.DataFrame, metrics: pd.DataFrame, fig_dir: Path, scenario: str | None = None
 ) -> list[Path]:
-    """Write three PNGs per track into ``fig_dir``; return their paths in track order.
+    """Write three or four PNGs per track into ``fig_dir``; return their paths in track order.
 
     ``vel_track<N>.png`` and ``att_track<N>.png``: mean ± 1 std of the error norms over time
     per filter, shading epochs (t > 0) where no filter applied a DVL update;
-    ``path_track<N>.png``: true and mean estimated horizontal track.
+    ``hpe_track<N>.png`` (only when ``epochs`` has ``hpe_mean`` and ``hpe_std``): the same for
+    the horizontal position error; ``path_track<N>.png``: true and mean estimated horizontal track.
     """
     import matplotlib
 
@@ -756,6 +1291,10 @@ def plot_track_figures(
         paths.append(_error_figure(ep, present, colors, "att",
                                    f"Misalignment, mean ± 1 std — {tail}",
                                    fig_dir / f"att_track{track}.png"))
+        if {"hpe_mean", "hpe_std"} <= set(ep.columns):
+            paths.append(_error_figure(ep, present, colors, "hpe",
+                                       f"Horizontal position error, mean ± 1 std — {tail}",
+                                       fig_dir / f"hpe_track{track}.png"))
         paths.append(_track_figure(ep, present, colors,
                                    f"Horizontal track — {tail}",
                                    fig_dir / f"path_track{track}.png"))
@@ -777,13 +1316,17 @@ def _write_atomic(path: Path, text: str) -> None:
         raise
 
 
-def write_report(out_dir: Path, reference: str | None = None, n_boot: int = 2000) -> Path:
+def write_report(out_dir: Path, reference: str | None = None, n_boot: int = 2000,
+                 practical_pct: float = PRACTICAL_PCT) -> Path:
     """Write ``out_dir/report.md`` and ``out_dir/figures/*.png``; return the report path.
 
-    Figures are skipped when ``epochs.parquet`` is absent. The bootstrap seed is 0. A sweep
-    folder (metrics with a ``param`` column) goes to :func:`sweep_report.write_sweep_report`
-    with ``reference`` as its baseline.
+    Figures are skipped when ``epochs.parquet`` is absent. The bootstrap seed is 0.
+    ``practical_pct`` [%] (default :data:`PRACTICAL_PCT`) is the smallest |improvement| the
+    Summary calls practically meaningful. A sweep folder (metrics with a ``param`` column) goes
+    to :func:`sweep_report.write_sweep_report` with ``reference`` as its baseline.
     """
+    if not (np.isfinite(practical_pct) and practical_pct >= 0):
+        raise NespmError(f"--practical must be a percentage >= 0, got {practical_pct}")
     out_dir = Path(out_dir)
     try:
         experiment = json.loads((out_dir / "manifest.json").read_text()).get("experiment")
@@ -802,7 +1345,7 @@ def write_report(out_dir: Path, reference: str | None = None, n_boot: int = 2000
     if is_sweep:
         from nespm_cli.sweep_report import write_sweep_report
 
-        return write_sweep_report(out_dir, reference, n_boot=n_boot)
+        return write_sweep_report(out_dir, reference, n_boot=n_boot, practical_pct=practical_pct)
     metrics, epochs, manifest = load_results(out_dir)
     seed = 0
     table = filter_table(metrics, reference, n_boot=n_boot, seed=seed)
@@ -810,7 +1353,8 @@ def write_report(out_dir: Path, reference: str | None = None, n_boot: int = 2000
     figures: list[Path] = []
     if epochs is not None and not epochs.empty:
         figures = plot_track_figures(epochs, metrics, out_dir / "figures", _scenario(metrics, manifest))
-    text = render_report(metrics, manifest, table, tt, figures, out_dir, n_boot, seed)
+    text = render_report(metrics, manifest, table, tt, figures, out_dir, n_boot, seed,
+                         practical_pct=practical_pct)
     path = out_dir / "report.md"
     _write_atomic(path, text)
     return path

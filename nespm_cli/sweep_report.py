@@ -6,9 +6,11 @@ filters and values, so per value the comparison of two filters is paired.
 
 For each swept value and filter the report gives the track-averaged VRMSE and MRMSE
 (anukf.md eqs 50-52), the mean NEES and the divergence rate, each with a 95 % interval, and
-the improvement of each filter over a baseline filter with a paired bootstrap interval. The
-sums, the paired bootstrap, the formatting and the markdown helpers are those of
-:mod:`nespm_cli.report`.
+the improvement of each filter over a baseline filter with a paired bootstrap interval; a
+summary per value names the best filter from head-to-head paired comparisons
+(:func:`report.compare_filters`). The sums, the paired bootstrap, the formatting and the
+markdown helpers are those of :mod:`nespm_cli.report`; the improvement table and the
+improvement figure both read :func:`improvement_points`.
 """
 from __future__ import annotations
 
@@ -26,11 +28,18 @@ from nespm_cli.report import (
     save_figure,
     DASH,
     METRICS_COLUMNS,
+    MIN_PAIRED_RUNS,
+    PRACTICAL_PCT,
+    SIG_MARK,
+    SMALL_MARK,
+    ci_marks,
+    compare_filters,
+    _fmt_imprv,
+    _headline,
+    paired_run_counts,
     _bootstrap_counts,
     _check_metrics,
     _fmt,
-    _fmt_ci,
-    _fmt_pct,
     _header_line,
     _md_table,
     _METRICS,
@@ -56,6 +65,7 @@ __all__ = [
     "filter_bootstrap",
     "sweep_table",
     "improvement_table",
+    "improvement_points",
     "nees_runs",
     "plot_sweep_figures",
     "render_sweep_report",
@@ -259,6 +269,7 @@ def improvement_table(
     baseline: str | None = None,
     n_boot: int = 2000,
     seed: int = 0,
+    min_pairs: int = MIN_PAIRED_RUNS,
 ) -> pd.DataFrame:
     """Improvement of each non-baseline filter over the baseline, per value, percent.
 
@@ -266,8 +277,10 @@ def improvement_table(
     better) for VRMSE and MRMSE over the runs that diverged in neither filter (so a filter
     is not credited for the runs its baseline lost); ``<key>_ci_lo`` / ``<key>_ci_hi`` is the 95 % paired
     bootstrap interval of :func:`report.paired_bootstrap` (runs diverged in neither filter,
-    the same resample for both) and ``<key>_ci_excludes_0`` flags an interval without 0.
-    ``attrs["baseline"]`` names the baseline.
+    the same resample for both) and ``<key>_ci_excludes_0`` flags an interval without 0;
+    ``pairs_min`` is the fewest paired runs on a track and ``<key>_significant`` = excludes 0
+    and ``pairs_min >= min_pairs``. ``attrs["baseline"]`` names the baseline. This table is
+    the only source of the improvements of the sweep report's table and figure.
     """
     base = default_baseline(metrics, baseline)
     rows = []
@@ -279,18 +292,54 @@ def improvement_table(
             row: dict[str, Any] = {"value": v, "filter": f}
             boot = paired_bootstrap(sub, base, f, n_boot=n_boot, seed=seed)
             paired = paired_improvement(sub, base, f)  # on the runs diverged in neither, as the interval
+            counts = paired_run_counts(sub, base, f)
+            row["pairs_min"] = min(counts.values()) if counts else 0
             for key in _METRICS:
                 row[f"{key}_imprv"] = paired[key]
                 lo, hi = _ci(boot[key])
                 row[f"{key}_ci_lo"], row[f"{key}_ci_hi"] = lo, hi
-                row[f"{key}_ci_excludes_0"] = bool(lo > 0 or hi < 0)
+                excludes, significant, _ = ci_marks(lo, hi, row["pairs_min"], min_pairs)
+                row[f"{key}_ci_excludes_0"] = excludes
+                row[f"{key}_significant"] = significant
             rows.append(row)
-    cols = ["value", "filter"] + [
-        f"{k}_{s}" for k in _METRICS for s in ("imprv", "ci_lo", "ci_hi", "ci_excludes_0")
+    cols = ["value", "filter", "pairs_min"] + [
+        f"{k}_{s}" for k in _METRICS for s in ("imprv", "ci_lo", "ci_hi", "ci_excludes_0", "significant")
     ]
     out = pd.DataFrame(rows, columns=cols)
     out.attrs["baseline"] = base
+    out.attrs["min_pairs"] = int(min_pairs)
     return out
+
+
+def improvement_points(imp: pd.DataFrame, key: str, filt: str) -> pd.DataFrame:
+    """The points of one filter's improvement curve, values ascending: ``value``, ``imprv``,
+    ``ci_lo``, ``ci_hi``, ``significant``, ``mark`` (``*``, ``†`` or ``""``). Both the
+    improvement table and the improvement figure are drawn from this (one run set: the pairs)."""
+    min_pairs = imp.attrs.get("min_pairs", MIN_PAIRED_RUNS)
+    d = imp[imp["filter"] == filt].sort_values("value")
+    small = d["pairs_min"].to_numpy(int) < min_pairs if "pairs_min" in d else np.zeros(len(d), bool)
+    sig = (d[f"{key}_significant"] if f"{key}_significant" in d else d[f"{key}_ci_excludes_0"]).to_numpy(bool)
+    return pd.DataFrame({
+        "value": d["value"].to_numpy(float),
+        "imprv": d[f"{key}_imprv"].to_numpy(float),
+        "ci_lo": d[f"{key}_ci_lo"].to_numpy(float),
+        "ci_hi": d[f"{key}_ci_hi"].to_numpy(float),
+        "significant": sig,
+        "mark": np.where(small, SMALL_MARK, np.where(sig, SIG_MARK, "")),
+    })
+
+
+def summary_rows(
+    metrics: pd.DataFrame, n_boot: int = 2000, seed: int = 0, practical_pct: float = PRACTICAL_PCT,
+    min_pairs: int = MIN_PAIRED_RUNS,
+) -> pd.DataFrame:
+    """:func:`report.compare_filters` per swept value (column ``value`` first)."""
+    parts = []
+    for v in sweep_values(metrics):
+        sub = metrics[metrics["value"] == v].drop(columns=["param", "value"])
+        c = compare_filters(sub, n_boot=n_boot, seed=seed, practical_pct=practical_pct, min_pairs=min_pairs)
+        parts.append(c.assign(value=v)[["value"] + list(c.columns)])
+    return pd.concat(parts, ignore_index=True)
 
 
 def nees_runs(metrics: pd.DataFrame) -> int:
@@ -420,22 +469,22 @@ def _improvement_figure(
         ax.axhline(0.0, color="k", lw=1.0)
         marked = False
         for f in filters:
-            d = imp[imp["filter"] == f].sort_values("value")
+            d = improvement_points(imp, key, f)  # the same numbers as the improvement table
             if d.empty:
                 continue
             x = d["value"].to_numpy(float)
-            y = d[f"{key}_imprv"].to_numpy(float)
+            y = d["imprv"].to_numpy(float)
             ax.plot(x, y, lw=1.6, color=colors[f], label=f"{f} vs {base}",
                     **_style(list(colors).index(f)))
-            ax.fill_between(x, d[f"{key}_ci_lo"].to_numpy(float), d[f"{key}_ci_hi"].to_numpy(float),
+            ax.fill_between(x, d["ci_lo"].to_numpy(float), d["ci_hi"].to_numpy(float),
                             color=colors[f], alpha=0.18, lw=0)
-            ex = d[f"{key}_ci_excludes_0"].to_numpy(bool)
+            ex = d["significant"].to_numpy(bool)
             if ex.any():
                 ax.plot(x[ex], y[ex], ls="none", marker="*", ms=15, mfc=colors[f], mec="k", mew=0.9)
                 marked = True
         if marked:  # one neutral legend entry for the highlighted points of every filter
             ax.plot([], [], ls="none", marker="*", ms=13, mfc="white", mec="k", mew=0.9,
-                    label="95 % CI excludes 0")
+                    label=f"95 % CI excludes 0 (≥ {imp.attrs.get('min_pairs', MIN_PAIRED_RUNS)} pairs per track)")
         if values:
             _setup_axes(ax, values, xlabel, f"{name} improvement over {base} [%]",
                         f"{name}: 100·({base} − filter)/{base}", False)
@@ -511,17 +560,58 @@ def _metric_md(table: pd.DataFrame, key: str, filters: Sequence[str], xlabel: st
 
 
 def _improvement_md(imp: pd.DataFrame, key: str, filters: Sequence[str], xlabel: str) -> str:
+    """Rows = values, columns = filters: ``point % [lo, hi] mark`` from :func:`improvement_points`."""
+    values = sorted(pd.unique(imp["value"]))
+    cols = {f: improvement_points(imp, key, f).set_index("value") for f in filters}
     rows = []
-    for v, d in imp.groupby("value", sort=True):
-        d = d.set_index("filter")
+    for v in values:
         cells = [f"{v:g}"]
         for f in filters:
-            r = d.loc[f]
-            point = _fmt_pct(r[f"{key}_imprv"])
-            ci = _fmt_ci(r[f"{key}_ci_lo"], r[f"{key}_ci_hi"], bool(r[f"{key}_ci_excludes_0"]))
-            cells.append(point if ci == DASH else f"{point} {ci}")
+            r = cols[f].loc[v]
+            cells.append(_fmt_imprv(r["imprv"], r["ci_lo"], r["ci_hi"], r["mark"]))
         rows.append(cells)
     return _md_table([xlabel] + list(filters), rows)
+
+
+_SHORT_VERDICT = {
+    "better": "meaningful",
+    "worse": "meaningful (the other is better)",
+    "no practical difference": "no practical difference",
+    "not significant": "not significant",
+    "too few runs": "too few paired runs",
+    "undefined": "undefined",
+}
+
+
+def _summary_md(comps: pd.DataFrame, practical_pct: float, min_pairs: int) -> str:
+    """Per value and metric: the best filter (head to head, paired) and each comparison."""
+    p = f"{practical_pct:g} %"
+    intro = (
+        f"Per value, head to head on the runs both filters kept: the best filter and its paired "
+        f"improvement 100 · (other − best) / other [95 % CI] over each other filter. *meaningful* = "
+        f"the interval excludes 0 (with at least {min_pairs} paired runs per track, else "
+        f"`{SMALL_MARK}` and \"too few paired runs\") and |improvement| ≥ {p}; *no practical "
+        f"difference* = |improvement| < {p}, significant or not."
+    )
+    names = {"vrmse": "VRMSE", "mrmse": "MRMSE", "hpe": "RMS HPE"}
+    rows = []
+    for v, cv in comps.groupby("value", sort=True):
+        for key in pd.unique(cv["metric"]):
+            c = cv[cv["metric"] == key]
+            first = c.iloc[0]
+            if first["best"] is None:
+                rows.append([f"{v:g}", names[key], "undefined (every run diverged on some track)", DASH])
+                continue
+            if first["verdict"] == "only filter":
+                rows.append([f"{v:g}", names[key], f"only `{first['best']}`", DASH])
+                continue
+            cells = []
+            for r in c.itertuples(index=False):
+                mark = SMALL_MARK if r.pairs_min < min_pairs else SIG_MARK if r.significant else ""
+                cells.append(f"vs `{r.other}` {_fmt_imprv(r.imprv, r.ci_lo, r.ci_hi, mark)} "
+                             f"{_SHORT_VERDICT[r.verdict]}")
+            rows.append([f"{v:g}", names[key], _headline(c), "; ".join(cells)])
+    return intro + "\n\n" + _md_table(["value", "metric", "verdict", "best vs each other filter"], rows)
 
 
 def render_sweep_report(
@@ -533,8 +623,15 @@ def render_sweep_report(
     out_dir: Path,
     n_boot: int,
     seed: int,
+    practical_pct: float = PRACTICAL_PCT,
+    comps: pd.DataFrame | None = None,
 ) -> str:
-    """The full markdown text of a sweep's ``report.md``."""
+    """The full markdown text of a sweep's ``report.md`` (``comps``: :func:`summary_rows`,
+    computed here when not given)."""
+    min_pairs = imp.attrs.get("min_pairs", MIN_PAIRED_RUNS)
+    if comps is None:
+        comps = summary_rows(metrics, n_boot=n_boot, seed=seed, practical_pct=practical_pct,
+                             min_pairs=min_pairs)
     param = _param(metrics)
     label = _param_label(param)
     values = sweep_values(metrics)
@@ -575,14 +672,23 @@ def render_sweep_report(
   the runs of each track are resampled with replacement and the metric recomputed. The
   divergence rate has a 95 % Wilson score interval.
 - **Improvement over `{base}`**: `100 · (metric_{base} − metric_filter) / metric_{base}`; positive
-  means the filter has the smaller error. Its interval is a *paired* bootstrap: per track, the
-  runs that diverged in neither filter are resampled and the same resample is used for both
-  filters. `*` marks an interval that excludes 0.
+  means the filter has the smaller error. Point and interval are over the runs that diverged in
+  neither the filter nor `{base}` (the pairs), in the table and the figure alike (both read the
+  same `improvement_points`). Its interval is a *paired* bootstrap: per track, the pairs are
+  resampled and the same resample is used for both filters. `{SIG_MARK}` marks an interval that
+  excludes 0; `{SMALL_MARK}` an interval from fewer than {min_pairs} paired runs on some track, where the
+  percentile bootstrap is unreliable and no significance is claimed. With divergences two
+  filters' improvements over `{base}` are over different pairs and the per-filter VRMSE table over
+  each filter's own runs, so they need not rank two filters alike: the **Summary** compares every
+  two filters head to head on their own pairs.
+- **Practically meaningful**: |improvement| ≥ {practical_pct:g} % (`practical_pct`); below it the
+  Summary says "no practical difference" even when the interval excludes 0.
 """
     sections = [
         f"# nespm sweep report: {param}",
         header,
         _header_line(metrics, manifest),
+        "## Summary\n\n" + _summary_md(comps, practical_pct, min_pairs),
         definitions.rstrip(),
         "## Track-averaged VRMSE [m/s] (eqs 50–51)\n\n"
         + _metric_md(table, "vrmse", filters, label) + fig("sweep_vrmse"),
@@ -610,9 +716,11 @@ def render_sweep_report(
 # ----------------------------------------------------------------------------- entry point
 
 
-def write_sweep_report(out_dir: Path, baseline: str | None = None, n_boot: int = 2000) -> Path:
+def write_sweep_report(out_dir: Path, baseline: str | None = None, n_boot: int = 2000,
+                       practical_pct: float = PRACTICAL_PCT) -> Path:
     """Write ``out_dir/report.md`` and ``out_dir/figures/sweep_*.png`` for a sweep folder;
-    return the report path. The bootstrap seed is 0."""
+    return the report path. The bootstrap seed is 0; ``practical_pct`` as in
+    :func:`report.write_report`."""
     out_dir = Path(out_dir)
     metrics, manifest = load_sweep(out_dir)
     if n_boot < 0:
@@ -622,7 +730,8 @@ def write_sweep_report(out_dir: Path, baseline: str | None = None, n_boot: int =
     table = sweep_table(metrics, n_boot=n_boot, seed=seed)
     imp = improvement_table(metrics, base, n_boot=n_boot, seed=seed)
     figures = plot_sweep_figures(metrics, manifest, table, imp, out_dir / "figures")
-    text = render_sweep_report(metrics, manifest, table, imp, figures, out_dir, n_boot, seed)
+    text = render_sweep_report(metrics, manifest, table, imp, figures, out_dir, n_boot, seed,
+                               practical_pct=practical_pct)
     path = out_dir / "report.md"
     _write_atomic(path, text)
     return path

@@ -9,13 +9,25 @@ import pandas as pd
 import pytest
 
 from nespm_cli.errors import NespmError
+from nespm_cli.metrics import nees_band
 from nespm_cli.report import (
+    MIN_PAIRED_RUNS,
+    PRACTICAL_PCT,
     PUBLISHED,
+    _decimals,
+    _fmt_ci,
+    _fmt_imprv,
     _fmt_pct,
+    compare_filters,
     default_reference,
     filter_table,
+    horizontal_table,
     load_results,
+    nees_consistency,
     paired_bootstrap,
+    paired_improvement,
+    published_tables,
+    render_report,
     track_table,
     write_report,
 )
@@ -297,7 +309,8 @@ def test_write_report_outage_without_epochs(tmp_path: Path) -> None:
 
 
 def test_published_dash_for_unpublished_filter(tmp_path: Path) -> None:
-    m = noisy_metrics(5, {"ekf": 0.15, "ukf": 0.12, "ukf-nespm": 0.1})
+    """anukf.md Table I has rows for two of the filters run (ukf, anukf): shown, anekf's row dashed."""
+    m = noisy_metrics(12, {"ekf": 0.15, "ukf": 0.12, "anukf": 0.1})
     m.to_parquet(tmp_path / "metrics.parquet")
     text = write_report(tmp_path, n_boot=50).read_text()
     pub = text.split("## Comparison with the published tables")[1].split("## Figures")[0]
@@ -307,7 +320,29 @@ def test_published_dash_for_unpublished_filter(tmp_path: Path) -> None:
     assert anekf_row.count("—") == 4  # not run: our VRMSE, our Imprv., our MRMSE, our Imprv.
     ukf_row = next(line for line in pub.splitlines() if line.startswith("| ukf "))
     assert "21.3 %" in ukf_row and "5.4 %" in ukf_row  # published Imprv. of ANUKF over UKF
-    assert "ukf-nespm Imprv." in text  # default reference
+    # ukf-nespm.md Table I has a row for anukf only: not shown, named in the note
+    assert "**ukf-nespm.md Table I**" not in pub
+    assert "ukf-nespm.md Table I [scenario `nominal`] needs anukf-nespm, anukf" in pub
+    assert "anukf Imprv." in text  # default reference: the last filter
+
+
+def test_published_table_omitted_when_rows_missing(tmp_path: Path) -> None:
+    """The main job's filters (ekf, ukf, ukf-nespm): no published table has two of them, so no
+    table of dashes, one line naming the tables and the filters they need."""
+    m = noisy_metrics(12, {"ekf": 0.15, "ukf": 0.12, "ukf-nespm": 0.1})
+    m.to_parquet(tmp_path / "metrics.parquet")
+    text = write_report(tmp_path, n_boot=50).read_text()
+    pub = text.split("## Comparison with the published tables")[1].split("## Figures")[0]
+    assert "0.1172" not in pub and "| Method |" not in pub
+    lines = [ln for ln in pub.splitlines() if ln.strip()]
+    assert len(lines) == 1
+    assert lines[0].startswith("No published table has rows for at least two of the filters run (ekf, ukf, ukf-nespm")
+    for needed in ("anukf.md Table I [scenario `nominal`] needs ukf, anekf, anukf",
+                   "ukf-nespm.md Table I [scenario `nominal`] needs anukf-nespm, anukf",
+                   "needs anekf, anukf"):
+        assert needed in lines[0]
+    assert published_tables(["ekf", "ukf", "ukf-nespm"], "nominal", min_filters=2) == []
+    assert len(published_tables(["ekf", "ukf", "ukf-nespm"], "nominal")) == 1  # default: one shared filter
 
 
 def test_load_results_errors(tmp_path: Path) -> None:
@@ -367,3 +402,261 @@ def test_improvement_point_lies_in_its_paired_interval_when_runs_diverge() -> No
     assert r["vrmse_imprv"] == pytest.approx(100 / 3, abs=1.0)  # ukf errors are 1/1.5 of ekf's on shared runs
     # the unpaired track averages would compare ekf's easy runs with ukf's hard ones
     assert 100 * (r["vrmse"] - t.loc["ukf", "vrmse"]) / r["vrmse"] < -100
+
+
+# ----------------------------------------------------------------------------- summary in words
+
+
+def add_hpe(m: pd.DataFrame, factor: float = 10.0) -> pd.DataFrame:
+    """The horizontal-position columns of metrics.parquet: per-run HPE = factor · vrmse."""
+    m = m.copy()
+    h = factor * m["vrmse"].to_numpy(float)
+    m["sse_hpe"] = m["n_samples"] * h**2
+    m["hpe_rms"] = h
+    m["hpe_final"] = 1.5 * h
+    m["hpe_max"] = 2.0 * h
+    m["distance"] = 1000.0 + m["track"]
+    m["hpe_final_pct"] = 100 * m["hpe_final"] / m["distance"]
+    return m
+
+
+def summary_of(text: str) -> str:
+    return text.split("## Summary")[1].split("## Definitions")[0]
+
+
+def test_summary_clear_winner_beyond_threshold(tmp_path: Path) -> None:
+    m = add_hpe(noisy_metrics(20, {"ukf": 0.12, "anekf": 0.11, "anukf": 0.09}, noise=0.002))
+    comps = compare_filters(m, n_boot=400)
+    assert set(comps["metric"]) == {"vrmse", "mrmse", "hpe"}
+    for key in ("vrmse", "mrmse", "hpe"):
+        c = comps[comps["metric"] == key].set_index("other")
+        assert (c["best"] == "anukf").all() and set(c.index) == {"ukf", "anekf"}
+        assert (c["verdict"] == "better").all() and c["significant"].all() and c["practical"].all()
+        for other in ("ukf", "anekf"):  # the paired improvement of the best over the other
+            assert c.loc[other, "imprv"] == pytest.approx(paired_improvement(m, other, "anukf", [key])[key], abs=1e-12)
+            assert c.loc[other, "ci_lo"] < c.loc[other, "imprv"] < c.loc[other, "ci_hi"]
+    m.to_parquet(tmp_path / "metrics.parquet")
+    text = write_report(tmp_path, n_boot=400).read_text()
+    assert text.index("## Summary") < text.index("## Definitions") < text.index("## Track-averaged")
+    summ = summary_of(text)
+    vr = next(ln for ln in summ.splitlines() if ln.startswith("- **VRMSE**"))
+    assert "`anukf` is best (meaningfully better than every other filter)" in vr
+    assert "`anukf` vs `ukf`:" in vr and "`anukf` vs `anekf`:" in vr
+    assert "statistically (interval excludes 0) and practically (≥ 1 %) meaningful" in vr
+    assert "no practical difference" not in vr
+    assert "- **Horizontal position error (RMS over the epochs)**" in summ
+    assert "% of distance" in summ
+    assert "Warning" not in summ
+
+
+def test_summary_significant_but_below_practical_threshold(tmp_path: Path) -> None:
+    """b = a · 0.998 in every run: 0.2 % better with a tight interval excluding 0 — significant,
+    but under the 1 % threshold: "no practical difference"; with practical_pct 0.1 it is meaningful."""
+    rng = np.random.default_rng(2)
+    vel = {}
+    for tr in TRACKS:
+        a = 0.1 + 0.01 * rng.standard_normal(20)
+        vel[(tr, "ekf")] = a
+        vel[(tr, "ukf")] = a * 0.998 * (1 + 1e-4 * rng.standard_normal(20))
+    m = make_metrics(vel)
+    c = compare_filters(m, n_boot=400).set_index("metric")
+    r = c.loc["vrmse"]
+    assert r["best"] == "ukf" and r["other"] == "ekf"
+    assert r["imprv"] == pytest.approx(0.2, abs=0.02)
+    assert r["significant"] and not r["practical"] and r["verdict"] == "no practical difference"
+    m.to_parquet(tmp_path / "metrics.parquet")
+    summ = summary_of(write_report(tmp_path, n_boot=400).read_text())
+    vr = next(ln for ln in summ.splitlines() if ln.startswith("- **VRMSE**"))
+    assert "no practical difference between the filters" in vr
+    assert "statistically significant, but below the 1 % practical threshold: **no practical difference**" in vr
+    assert "] *" in vr  # the interval itself is starred: statistically significant
+    assert f"`practical_pct` = {PRACTICAL_PCT:g}" in summ
+    # the keyword reaches the words: with 0.1 % the same 0.2 % is practically meaningful too
+    summ2 = summary_of(write_report(tmp_path, n_boot=400, practical_pct=0.1).read_text())
+    vr2 = next(ln for ln in summ2.splitlines() if ln.startswith("- **VRMSE**"))
+    assert "`ukf` is best" in vr2 and "practically (≥ 0.1 %) meaningful" in vr2
+    assert compare_filters(m, n_boot=100, practical_pct=0.1).set_index("metric").loc["vrmse", "verdict"] == "better"
+    with pytest.raises(NespmError, match="--practical"):
+        write_report(tmp_path, n_boot=10, practical_pct=-1)
+
+
+def test_summary_no_difference_when_interval_includes_zero() -> None:
+    m = noisy_metrics(30, {"ukf": 0.1, "anukf": 0.1}, noise=0.03)
+    r = compare_filters(m, n_boot=400).set_index("metric").loc["vrmse"]
+    assert r["ci_lo"] < 0 < r["ci_hi"] and not r["significant"]
+    assert r["verdict"] in ("no practical difference", "not significant")
+
+
+def test_summary_small_sample_warning_and_no_star(tmp_path: Path) -> None:
+    """4 runs per track, a large clear difference: the interval excludes 0 but is not starred
+    or called significant; the Summary warns."""
+    m = noisy_metrics(4, {"ekf": 0.15, "ukf": 0.10}, noise=0.002)
+    c = compare_filters(m, n_boot=300).set_index("metric").loc["vrmse"]
+    assert c["excludes_0"] and not c["significant"] and c["verdict"] == "too few runs" and c["pairs_min"] == 4
+    t = filter_table(m, "ukf", n_boot=300).set_index("filter")
+    assert t.loc["ekf", "vrmse_ci_excludes_0"] and not t.loc["ekf", "vrmse_significant"]
+    assert t.loc["ekf", "pairs_min"] == 4
+    m.to_parquet(tmp_path / "metrics.parquet")
+    text = write_report(tmp_path, n_boot=300).read_text()
+    summ = summary_of(text)
+    assert "**Warning — small sample**" in summ and "(track 5: 4, track 6: 4)" in summ
+    assert f"fewer than {MIN_PAIRED_RUNS} runs kept by both" in summ and "35 distinct resamples" in summ  # C(7, 4)
+    assert "not assessed (too few paired runs)" in summ
+    main = text.split("## Track-averaged results")[1].split("## Per-track")[0]
+    ekf_row = next(ln for ln in main.splitlines() if ln.startswith("| ekf "))
+    assert "†" in ekf_row and "*" not in ekf_row
+    assert f"fewer than {MIN_PAIRED_RUNS} paired runs" in text.split("## Definitions")[1]
+    # 10 runs per track: trusted, starred, no warning
+    m10 = noisy_metrics(10, {"ekf": 0.15, "ukf": 0.10}, noise=0.002)
+    m10.to_parquet(tmp_path / "metrics.parquet")
+    text10 = write_report(tmp_path, n_boot=300).read_text()
+    assert "Warning" not in summary_of(text10)
+    ekf10 = next(ln for ln in text10.split("## Track-averaged results")[1].splitlines() if ln.startswith("| ekf "))
+    assert "*" in ekf10 and "†" not in ekf10
+
+
+def test_summary_best_uses_pairs_when_runs_diverge() -> None:
+    """ekf diverges on the 5 hard runs: over its own runs its VRMSE is lower than ukf's, but on
+    the runs both kept ukf is better — the Summary names ukf, with the paired point."""
+    rng = np.random.default_rng(3)
+    vel = {}
+    for tr in TRACKS:
+        hard = np.r_[np.full(5, 2.0), np.full(25, 0.2)] + 0.01 * rng.standard_normal(30)
+        vel[(tr, "ekf")] = hard * 1.5
+        vel[(tr, "ukf")] = hard
+    m = make_metrics(vel)
+    lost = (m["filter"] == "ekf") & (m["run"] < 5)
+    m.loc[lost, "diverged"] = True
+    m.loc[lost, ["sse_vel", "sse_att", "vrmse", "mrmse"]] = np.nan
+    t = filter_table(m, "ukf", n_boot=0).set_index("filter")
+    assert t.loc["ekf", "vrmse"] < t.loc["ukf", "vrmse"]  # own runs: ekf looks better
+    r = compare_filters(m, n_boot=300).set_index("metric").loc["vrmse"]
+    assert r["best"] == "ukf" and r["other"] == "ekf" and r["verdict"] == "better"
+    assert r["imprv"] == pytest.approx(paired_improvement(m, "ekf", "ukf")["vrmse"], abs=1e-12)
+    assert r["imprv"] == pytest.approx(100 / 3, abs=1.0) and r["pairs_min"] == 25
+
+
+def test_definitions_match_the_code(tmp_path: Path) -> None:
+    noisy_metrics(12, {"ukf": 0.12, "anukf": 0.09}).to_parquet(tmp_path / "metrics.parquet")
+    defs = write_report(tmp_path, n_boot=50).read_text().split("## Definitions")[1].split("## Track-averaged")[0]
+    assert "uses every non-diverged run" not in defs
+    assert "Every improvement, its\n  point and its interval" in defs
+    assert "diverged in neither filter of the pair" in defs
+
+
+# ----------------------------------------------------------------------------- formatting
+
+
+def test_interval_formatting_distinguishes_close_values() -> None:
+    assert _fmt_imprv(-0.0076, -0.0091, -0.0061, "*") == "-0.0076 % [-0.0091, -0.0061] *"
+    assert _fmt_imprv(52.5, 42.3, 61.0) == "52.5 % [42.3, 61.0]"  # papers' one decimal for wide ones
+    assert _fmt_imprv(-0.113, -0.147, -0.094, "†") == "-0.113 % [-0.147, -0.094] †"  # was -0.1 % [-0.1, -0.1]
+    assert _fmt_ci(-0.147, -0.094, True) == "[-0.147, -0.094] % *"
+    assert _fmt_imprv(1.0, np.nan, np.nan) == "1.0 %" and _fmt_imprv(np.nan, 0.0, 1.0) == "—"
+    assert _fmt_imprv(10.0, 10.0, 10.0) == "10.0 % [10.0, 10.0]"  # a collapsed interval stays short
+    assert _fmt_imprv(-0.0004, -0.3, 0.3) == "0.00 % [-0.30, 0.30]"  # no "-0.00"
+    rng = np.random.default_rng(0)
+    for _ in range(300):  # three distinct values always print as three distinct strings
+        centre, width = rng.normal(0, 10) * 10.0 ** rng.integers(-3, 2), 10.0 ** rng.uniform(-5, 1)
+        lo, hi = centre - width * rng.random(), centre + width * rng.random()
+        point = lo + (hi - lo) * rng.uniform(0.05, 0.95)
+        text = _fmt_imprv(point, lo, hi)
+        p, rest = text.split(" % [")
+        a, b = rest.rstrip("]").split(", ")
+        assert len({p, a, b}) == 3, text
+        d = _decimals(point, lo, hi)
+        assert 10 ** -d <= (hi - lo), text  # the last digit is finer than the interval width
+
+
+def test_nees_band_words(tmp_path: Path) -> None:
+    m = noisy_metrics(20, {"ekf": 0.12, "ukf": 0.11, "ukf-nespm": 0.1})
+    m.loc[m["filter"] == "ekf", "nees"] = 6.1  # inside the 40-run band
+    m.loc[m["filter"] == "ukf", "nees"] = 12.0  # above
+    m.loc[m["filter"] == "ukf-nespm", "nees"] = 2.0  # below
+    lo, hi = nees_band(6, 40)
+    c = nees_consistency(m).set_index("filter")
+    assert c.loc["ekf", "consistency"] == "consistent"
+    assert c.loc["ukf", "consistency"] == "overconfident"
+    assert c.loc["ukf-nespm", "consistency"] == "conservative"
+    assert (c["nees_n"] == 40).all() and c.loc["ekf", "nees_lo"] == pytest.approx(lo) and c.loc["ekf", "nees_hi"] == pytest.approx(hi)
+    ins = noisy_metrics(20, {"ins": 0.5, "ekf": 0.1})
+    ins.loc[ins["filter"] == "ins", "nees"] = np.nan
+    assert nees_consistency(ins).set_index("filter").loc["ins", "consistency"] == "—"
+    m.to_parquet(tmp_path / "metrics.parquet")
+    text = write_report(tmp_path, n_boot=50).read_text()
+    band = f"[{lo:.2f}, {hi:.2f}]"
+    main = text.split("## Track-averaged results")[1].split("## Per-track")[0]
+    ukf_row = next(ln for ln in main.splitlines() if ln.startswith("| ukf "))
+    assert f"| 12.00 | {band} | overconfident |" in ukf_row
+    summ = summary_of(text)
+    assert f"`ekf` 6.10 vs {band} (40 runs): consistent" in summ
+    assert f"`ukf` 12.00 vs {band} (40 runs): overconfident (NEES above band" in summ
+    assert "`ukf-nespm` 2.00 vs" in summ and "conservative (NEES below band" in summ
+    per_track = text.split("## Per-track results")[1].split("## Horizontal")[0]
+    lo20, hi20 = nees_band(6, 20)
+    assert f"[{lo20:.2f}, {hi20:.2f}]" in per_track
+
+
+# ----------------------------------------------------------------------------- horizontal position
+
+
+def test_horizontal_table_values() -> None:
+    m = add_hpe(noisy_metrics(10, {"ekf": 0.12, "ukf": 0.1}))
+    ht = horizontal_table(m)
+    avg = ht[ht["track"].isna()].set_index("filter")
+    per = ht[ht["track"].notna()].set_index(["track", "filter"])
+    for f in ("ekf", "ukf"):
+        rms = []
+        for tr in TRACKS:
+            d = m[(m["track"] == tr) & (m["filter"] == f)]
+            assert per.loc[(tr, f), "hpe_final"] == pytest.approx(d["hpe_final"].mean(), abs=1e-12)
+            assert per.loc[(tr, f), "hpe_final_pct"] == pytest.approx(d["hpe_final_pct"].mean(), abs=1e-12)
+            assert per.loc[(tr, f), "distance"] == 1000.0 + tr
+            rms.append(d["sse_hpe"].sum() / d["n_samples"].sum())
+            assert per.loc[(tr, f), "hpe_rms"] == pytest.approx(np.sqrt(rms[-1]), abs=1e-12)
+        assert avg.loc[f, "hpe_rms"] == pytest.approx(np.sqrt(np.mean(rms)), abs=1e-12)
+        assert avg.loc[f, "hpe_final"] == pytest.approx(per.loc[[(t, f) for t in TRACKS], "hpe_final"].mean(), abs=1e-12)
+    assert horizontal_table(noisy_metrics(3, {"ukf": 0.1})) is None  # an older folder
+
+
+def make_hpe_epochs(tracks, filters, n: int = 300) -> pd.DataFrame:
+    ep = make_epochs(tracks, filters, n)
+    k = ep["filter"].map({f: i + 1 for i, f in enumerate(filters)})
+    ep["hpe_mean"] = np.hypot(ep["north_err_mean"], ep["east_err_mean"]) + 0.5 * k
+    ep["hpe_std"] = 0.2 * ep["hpe_mean"]
+    return ep
+
+
+def test_report_horizontal_section_and_figure(tmp_path: Path) -> None:
+    filters = ("ekf", "ukf")
+    m = add_hpe(noisy_metrics(12, {"ekf": 0.12, "ukf": 0.1}))
+    m.to_parquet(tmp_path / "metrics.parquet")
+    make_hpe_epochs(TRACKS, filters).to_parquet(tmp_path / "epochs.parquet")
+    text = write_report(tmp_path, n_boot=50).read_text()
+    sec = text.split("## Horizontal position error")[1].split("## Comparison")[0]
+    assert "| Track | Method | distance [m] | final HPE [m] | RMS HPE [m] | final HPE [% of distance] | diverged |" in sec
+    ht = horizontal_table(m)
+    for r in ht.itertuples(index=False):
+        label = "average" if r.track is None else str(r.track)
+        assert f"| {label} | {r.filter} | {r.distance:.1f} | {r.hpe_final:.4g} | {r.hpe_rms:.4g} | {r.hpe_final_pct:.3g} |" in sec
+    for tr in TRACKS:
+        png = tmp_path / "figures" / f"hpe_track{tr}.png"
+        assert png.stat().st_size > 5_000 and f"(figures/hpe_track{tr}.png)" in text
+    assert len(list((tmp_path / "figures").glob("*.png"))) == 4 * len(TRACKS)
+    # an older folder: no HPE metrics columns, no hpe_mean in epochs -> a note, no HPE figure, no error
+    old = tmp_path / "old"
+    old.mkdir()
+    noisy_metrics(12, {"ekf": 0.12, "ukf": 0.1}).to_parquet(old / "metrics.parquet")
+    make_epochs(TRACKS, filters).to_parquet(old / "epochs.parquet")
+    text_old = write_report(old, n_boot=20).read_text()
+    assert "No horizontal-position columns" in text_old
+    assert "Horizontal position error (RMS" not in summary_of(text_old)
+    assert not list((old / "figures").glob("hpe_*.png"))
+    assert len(list((old / "figures").glob("*.png"))) == 3 * len(TRACKS)
+
+
+def test_render_report_keyword_defaults() -> None:
+    import inspect
+
+    for fn in (write_report, render_report):
+        assert inspect.signature(fn).parameters["practical_pct"].default == PRACTICAL_PCT == 1.0

@@ -290,9 +290,12 @@ def test_write_sweep_report(tmp_path: Path) -> None:
     assert "initial misalignment std per axis [deg]" in text
     assert "| initial misalignment std per axis [deg] | ekf | ukf | ukf-nespm |" in text
     assert "| initial misalignment std per axis [deg] | ukf | ukf-nespm |" in text
+    summary, tables = text.split("## Summary")[1].split("## Definitions")
     for v in ("0.01", "1", "30"):
-        # VRMSE, MRMSE, NEES, divergence, 2 improvement tables
-        assert sum(ln.startswith(f"| {v} |") for ln in text.splitlines()) == 6
+        # VRMSE, MRMSE, NEES, divergence, 2 improvement tables; the summary: VRMSE, MRMSE
+        assert sum(ln.startswith(f"| {v} |") for ln in tables.splitlines()) == 6
+        assert sum(ln.startswith(f"| {v} | VRMSE |") or ln.startswith(f"| {v} | MRMSE |")
+                   for ln in summary.splitlines()) == 2
     r = row(sweep_table(m, n_boot=0), 1.0, "ukf")
     assert f"{r['vrmse']:.4g} [" in text
     for s in ("seed 7", "data dir /data/snapir", "wall time 123.4 s", "tracks 5, 6",
@@ -339,3 +342,95 @@ def test_load_sweep_errors(tmp_path: Path) -> None:
     write_folder(tmp_path, pd.concat([m, m.iloc[:1]]))
     with pytest.raises(NespmError, match="duplicate row"):
         load_sweep(tmp_path)
+
+
+# ----------------------------------------------------------------------------- one run set, table = figure
+
+
+def divergent_sweep() -> pd.DataFrame:
+    """At 30 the baseline loses many runs, ukf a few, ukf-nespm one: the pairs with ekf differ
+    between ukf and ukf-nespm (the README's 30 deg case)."""
+    div = {
+        (30.0, "ekf"): {(5, r) for r in range(0, 8)} | {(6, r) for r in range(0, 5)},
+        (30.0, "ukf"): {(5, 10), (6, 11), (6, 12)},
+        (30.0, "ukf-nespm"): {(5, 3)},
+    }
+    return make_sweep(diverged=div)
+
+
+def test_improvement_table_and_figure_show_the_same_numbers(tmp_path: Path, monkeypatch) -> None:
+    from nespm_cli import sweep_report as sr
+
+    m = divergent_sweep()
+    imp = improvement_table(m, n_boot=300)
+    plotted: dict[str, dict[str, tuple[np.ndarray, np.ndarray]]] = {}
+    original = sr.save_figure
+
+    def capture(fig, path, *a, **k):
+        if Path(path).stem == "sweep_improvement":
+            for ax, key in zip(fig.axes, ("vrmse", "mrmse")):
+                plotted[key] = {ln.get_label().split(" vs ")[0]: (np.asarray(ln.get_xdata(), float),
+                                                                   np.asarray(ln.get_ydata(), float))
+                                for ln in ax.get_lines() if " vs " in str(ln.get_label())}
+        return original(fig, path, *a, **k)
+
+    monkeypatch.setattr(sr, "save_figure", capture)
+    table = sweep_table(m, n_boot=0)
+    sr.plot_sweep_figures(m, {}, table, imp, tmp_path / "figures")
+    text = sr.render_sweep_report(m, {}, table, imp, [], tmp_path, 300, 0)
+    section = text.split("## Improvement over")[1]
+    tables = {"vrmse": section.split("**VRMSE**")[1].split("**MRMSE**")[0], "mrmse": section.split("**MRMSE**")[1]}
+    for key in ("vrmse", "mrmse"):
+        assert set(plotted[key]) == {"ukf", "ukf-nespm"}
+        for col, f in enumerate(("ukf", "ukf-nespm"), start=1):
+            pts = sr.improvement_points(imp, key, f)
+            x, y = plotted[key][f]
+            np.testing.assert_array_equal(x, pts["value"].to_numpy())
+            np.testing.assert_array_equal(y, pts["imprv"].to_numpy())  # the figure draws the table's numbers
+            for v in VALUES:  # each is the paired improvement over ekf on the runs both kept
+                sub = m[m["value"] == v]
+                want = report.paired_improvement(sub, "ekf", f)[key]
+                assert pts.set_index("value").loc[v, "imprv"] == pytest.approx(want, abs=1e-12)
+                cell = next(ln for ln in tables[key].splitlines() if ln.startswith(f"| {v:g} |"))
+                cells = [c.strip() for c in cell.strip("|").split("|")]
+                r = pts.set_index("value").loc[v]
+                assert cells[col] == report._fmt_imprv(r["imprv"], r["ci_lo"], r["ci_hi"], r["mark"])
+    # the pairs with ekf at 30: 27 on track 5 ... differ between the two filters
+    sub = m[m["value"] == 30.0]
+    assert report.paired_run_counts(sub, "ekf", "ukf") != report.paired_run_counts(sub, "ekf", "ukf-nespm")
+
+
+def test_sweep_summary_compares_filters_head_to_head(tmp_path: Path) -> None:
+    m = divergent_sweep()
+    write_folder(tmp_path, m, MANIFEST)
+    text = write_sweep_report(tmp_path, n_boot=300).read_text()
+    assert text.index("## Summary") < text.index("## Definitions")
+    summ = text.split("## Summary")[1].split("## Definitions")[0]
+    line30 = next(ln for ln in summ.splitlines() if ln.startswith("| 30 | VRMSE |"))
+    sub = m[m["value"] == 30.0].drop(columns=["param", "value"])
+    c = report.compare_filters(sub, n_boot=300).set_index(["metric", "other"])
+    best = c.loc["vrmse"]["best"].iloc[0]
+    assert best == "ukf-nespm"  # BASE 0.07 < 0.08 < 0.10
+    r = c.loc[("vrmse", "ukf")]
+    assert r["imprv"] == pytest.approx(report.paired_improvement(sub, "ukf", "ukf-nespm")["vrmse"], abs=1e-12)
+    assert f"vs `ukf` {report._fmt_imprv(r['imprv'], r['ci_lo'], r['ci_hi'], '*' if r['significant'] else '')} meaningful" in line30
+    assert "vs `ekf`" in line30 and "`ukf-nespm` is best" in line30
+    defs = text.split("## Definitions")[1]
+    assert "need not rank two filters alike" in defs and "improvement_points" in defs
+
+
+def test_sweep_small_sample_not_starred(tmp_path: Path) -> None:
+    m = make_sweep(values=(1.0, 30.0), runs=5)
+    imp = improvement_table(m, n_boot=200)
+    nespm = imp[imp["filter"] == "ukf-nespm"]
+    assert (nespm["pairs_min"] == 5).all()
+    assert nespm["vrmse_ci_excludes_0"].all() and not nespm["vrmse_significant"].any()
+    write_folder(tmp_path, m)
+    text = write_sweep_report(tmp_path, n_boot=200).read_text()
+    section = text.split("## Improvement over")[1]
+    rows = [ln for ln in section.splitlines() if ln.startswith(("| 1 |", "| 30 |"))]
+    assert rows and all("†" in ln and "*" not in ln for ln in rows)
+    summary = text.split("## Summary")[1].split("## Definitions")[0]
+    row30 = next(ln for ln in summary.splitlines() if ln.startswith("| 30 | VRMSE |"))
+    assert "not assessed (too few paired runs)" in row30 and "† too few paired runs" in row30
+    assert "*" not in row30
