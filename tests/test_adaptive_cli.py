@@ -14,12 +14,9 @@ import pytest
 from nespm_cli.adaptive import load_weights
 from nespm_cli.tracks import write_akit
 
-from test_cli import assert_one_error_line, cli, short_track
+from conftest import assert_one_error_line, cli, short_track
 
-
-@pytest.fixture(autouse=True)
-def _no_env_data_dir(monkeypatch):
-    monkeypatch.delenv("NESPM_DATA_DIR", raising=False)
+pytestmark = pytest.mark.usefixtures("no_env_data_dir")
 
 
 @pytest.fixture(scope="module")

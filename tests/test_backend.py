@@ -15,8 +15,6 @@ identity on it was checked by hand (docs/cluster.md).
 """
 from __future__ import annotations
 
-import contextlib
-import io
 import os
 import shutil
 import signal
@@ -29,20 +27,19 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
+from conftest import assert_one_error_line, chunk_mtimes, console_script, nespm, write_short_tracks
 from nespm_cli.backend import check_backend, parallel_map
-from nespm_cli.cli import main
-from nespm_cli.embedded import embedded_track
 from nespm_cli.errors import NespmError
 from nespm_cli.experiment import Cell, Spec, run_chunk
-from nespm_cli.tracks import Track, write_akit
-
-from test_cli import assert_one_error_line
 
 KEY = ["track", "filter", "run"]
 EPOCHS = 40
 RUNS = 8
 FILTERS = ("ekf", "ukf-nespm")
 CHUNKS = [f"metrics-5-{f}-{first:06d}.parquet" for f in FILTERS for first in range(0, RUNS, 2)]
+# Dask keys of the chunk tasks: nespm-<function>-<chunk index>-<token>, the function being
+# experiment.run_chunk_keyed (run_chunk before it)
+CHUNK_TASK = "nespm-run_chunk"
 
 
 @pytest.fixture(autouse=True)
@@ -51,37 +48,15 @@ def _clean_env(monkeypatch):
         monkeypatch.delenv(name, raising=False)
 
 
-def nespm(*argv) -> tuple[int, str, str]:
-    """Run ``nespm argv...`` in-process."""
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        rc = main([str(a) for a in argv])
-    return rc, out.getvalue(), err.getvalue()
-
-
 def metrics(d: Path) -> pd.DataFrame:
     m = pd.read_parquet(d / "metrics.parquet").drop(columns="seconds")
     return m.sort_values(KEY, kind="stable").reset_index(drop=True)
 
 
-def chunk_mtimes(d: Path) -> dict[str, int]:
-    return {p.name: p.stat().st_mtime_ns for p in (d / "chunks").glob("*.parquet")}
-
-
-def _console_script() -> list[str]:
-    script = Path(sys.executable).with_name("nespm")
-    return [str(script)] if script.exists() else [sys.executable, "-m", "nespm_cli.cli"]
-
-
 @pytest.fixture(scope="module")
 def data_dir(tmp_path_factory) -> Path:
     """The first 40 epochs of embedded track 5 as an A-KIT folder."""
-    tr = embedded_track(5)
-    s = slice(0, EPOCHS)
-    d = tmp_path_factory.mktemp("short-data")
-    write_akit(Track(number=5, t=tr.t[s], pos=tr.pos[s], v_n=tr.v_n[s], euler=tr.euler[s], dvl=tr.dvl[s],
-                     imu=None, source="short"), d)
-    return d
+    return write_short_tracks(tmp_path_factory.mktemp("short-data"), (5,), EPOCHS)
 
 
 @pytest.fixture(scope="module")
@@ -152,7 +127,7 @@ def test_worker_killed_mid_chunk(root, argv, cluster, mc_dask):
     out = root / "K"
     env = {**os.environ, "NESPM_DASK_SCHEDULER": lc.scheduler_address}  # the variable instead of --scheduler
     env.pop("NESPM_DATA_DIR", None)
-    proc = subprocess.Popen(_console_script() + argv + ["--backend", "dask", "--out", str(out)],
+    proc = subprocess.Popen(console_script() + argv + ["--backend", "dask", "--out", str(out)],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env, text=True)
     killed = None
     try:
@@ -164,11 +139,11 @@ def test_worker_killed_mid_chunk(root, argv, cluster, mc_dask):
                 busy = client.run(lambda dask_worker: [str(ts.key) for ts in dask_worker.state.executing])
                 pids = client.run(os.getpid)
                 for addr, keys in busy.items():
-                    firsts = [2 * int(k.split("-")[-2]) for k in keys if k.startswith("nespm-run_chunk-")]
+                    firsts = [2 * int(k.split("-")[-2]) for k in keys if k.startswith(CHUNK_TASK)]
                     if firsts and not (out / "chunks" / f"metrics-5-ukf-nespm-{firsts[0]:06d}.parquet").exists():
                         os.kill(pids[addr], signal.SIGKILL)
                         killed = firsts[0]
-                        killed_key = [k for k in keys if k.startswith("nespm-run_chunk-")][0]
+                        killed_key = [k for k in keys if k.startswith(CHUNK_TASK)][0]
                         break
             time.sleep(0.05)
         stdout, stderr = proc.communicate(timeout=180)

@@ -4,15 +4,16 @@ Every bad input must end in exit code 2 and exactly one stderr line ``nespm: err
 naming the offending option / file, never a traceback. Good commands are checked on their
 output: JSON summaries, time series files, track listings, realizations.
 
-Cost: a filter over a full 400 s track is ~6-10 s, so only three full-track filter passes
-run here (a clean ``ins`` run in-process and one through the console script, one ``ekf``
-run); the CSV check runs on a 30 s cut of an embedded track.
+Cost: a filter over a full 400 s track is ~6-10 s, so only one full-track filter pass runs
+here (a clean ``ins`` run of the embedded default through the console script); the other
+runs use ``short_data_dir`` (conftest: embedded tracks 5 and 6 cut to 80 epochs) or a 30 s cut
+of an embedded track. Only ``test_tracks_real_data_dir`` needs the real Snapir data (skipped
+without it).
 """
 from __future__ import annotations
 
 import json
 import math
-import os
 import re
 import subprocess
 import sys
@@ -22,13 +23,14 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from nespm_cli.cli import main
+from conftest import (SHORT_EPOCHS, assert_one_error_line, cli, console_script, env_without_data_dir,
+                      short_track)
 from nespm_cli.corruption import CorruptionConfig, draw, n_segments
 from nespm_cli.embedded import embedded_track
-from nespm_cli.tracks import Track, load_track, write_akit
+from nespm_cli.tracks import load_track, write_akit
 
-DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "snapir-akit"
-needs_data = pytest.mark.skipif(not (DATA / "Trajectory5").is_dir(), reason=f"real data not found in {DATA}")
+# The default (no --data-dir) must mean the embedded tracks whatever the caller's shell has.
+pytestmark = pytest.mark.usefixtures("no_env_data_dir")
 
 SUMMARY_KEYS = {"track", "filter", "vrmse", "mrmse", "max_vel_err", "max_att_err", "seconds"}
 REALIZATION_COLUMNS = [
@@ -36,38 +38,6 @@ REALIZATION_COLUMNS = [
     "dv0_n", "dv0_e", "dv0_d", "dpsi0_x", "dpsi0_y", "dpsi0_z",
     "ba_x", "ba_y", "ba_z", "bg_x", "bg_y", "bg_z", "acc_factors", "gyro_factors",
 ]
-
-
-@pytest.fixture(autouse=True)
-def _no_env_data_dir(monkeypatch):
-    """The default (no --data-dir) must mean the embedded tracks whatever the caller's shell has."""
-    monkeypatch.delenv("NESPM_DATA_DIR", raising=False)
-
-
-def cli(capsys, *argv) -> tuple[int, str, str]:
-    """Run ``nespm argv...`` in-process; return (exit code, stdout, stderr)."""
-    rc = main([str(a) for a in argv])
-    out, err = capsys.readouterr()
-    return rc, out, err
-
-
-def assert_one_error_line(rc: int, out: str, err: str, *must_contain: str) -> str:
-    assert rc == 2, (rc, out, err)
-    assert "Traceback" not in out + err
-    lines = err.splitlines()
-    assert len(lines) == 1, f"expected exactly one stderr line, got {lines!r}"
-    assert lines[0].startswith("nespm: error: "), lines[0]
-    for s in must_contain:
-        assert s in lines[0], f"{s!r} not in {lines[0]!r}"
-    return lines[0]
-
-
-def short_track(number: int = 1, epochs: int = 31) -> Track:
-    """The first ``epochs`` epochs (30 s) of an embedded track: a cheap valid track."""
-    tr = embedded_track(number)
-    s = slice(0, epochs)
-    return Track(number=tr.number, t=tr.t[s], pos=tr.pos[s], v_n=tr.v_n[s], euler=tr.euler[s],
-                 dvl=tr.dvl[s], imu=None, source="short")
 
 
 # --------------------------------------------------------------------------- bad input
@@ -199,10 +169,11 @@ def test_no_arguments_shows_commands(capsys):
 # --------------------------------------------------------------------------- nespm run
 
 
-@needs_data
-def test_run_clean_json_real_track(capsys):
-    """Clean case (exact initial state, clean IMU from the inverse strapdown): INS reproduces GT."""
-    rc, out, err = cli(capsys, "run", "--track", "5", "--filter", "ins", "--clean", "--json", "--data-dir", DATA)
+def test_run_clean_json_short_track(capsys, short_data_dir):
+    """Clean case (exact initial state, clean IMU from the inverse strapdown): INS reproduces GT
+    (read from an A-KIT folder: the short track 5)."""
+    rc, out, err = cli(capsys, "run", "--track", "5", "--filter", "ins", "--clean", "--json",
+                       "--data-dir", short_data_dir)
     assert rc == 0, err
     lines = out.strip().splitlines()
     assert len(lines) == 1, lines
@@ -212,21 +183,22 @@ def test_run_clean_json_real_track(capsys):
     assert s["max_vel_err"] < 1e-6
     assert s["max_att_err"] < 1e-8
     assert s["vrmse"] <= s["max_vel_err"] and s["mrmse"] <= s["max_att_err"]
-    assert s["n_samples"] == 400 and s["diverged"] is False
+    assert s["n_samples"] == SHORT_EPOCHS and s["diverged"] is False
     assert s["seconds"] > 0
 
 
-def test_run_time_series_parquet(capsys, tmp_path):
+def test_run_time_series_parquet(capsys, tmp_path, short_data_dir):
     out_file = tmp_path / "sub" / "x.parquet"
-    rc, out, err = cli(capsys, "run", "--track", "5", "--filter", "ekf", "--run", "3", "--out", out_file)
+    rc, out, err = cli(capsys, "run", "--track", "5", "--filter", "ekf", "--run", "3", "--out", out_file,
+                       "--data-dir", short_data_dir)
     assert rc == 0, err
     assert "vrmse" in out
     ts = pd.read_parquet(out_file)
-    assert len(ts) == 400
+    assert len(ts) == SHORT_EPOCHS
     for c in ("t", "vel_err", "vN_true", "vN_est", "sigma_dvN", "att_err", "dvl_used", "roll_true", "yaw_est"):
         assert c in ts.columns, c
     assert ts["t"].iloc[0] == 0.0 and np.all(np.diff(ts["t"]) > 0)
-    assert ts["t"].iloc[-1] == pytest.approx(load_track(5).duration)
+    assert ts["t"].iloc[-1] == pytest.approx(load_track(5, short_data_dir).duration)
     # the error column is the norm of the estimated minus true velocity
     dv = np.stack([ts[f"v{c}_est"] - ts[f"v{c}_true"] for c in "NED"], axis=1)
     np.testing.assert_allclose(ts["vel_err"], np.linalg.norm(dv, axis=1), rtol=1e-9, atol=1e-12)
@@ -268,9 +240,14 @@ def test_tracks_embedded(capsys):
     assert _listed_tracks(out) == [1, 2, 3, 4, 5, 6]
 
 
-@needs_data
-def test_tracks_data_dir(capsys):
-    rc, out, err = cli(capsys, "tracks", "--data-dir", DATA)
+def test_tracks_data_dir(capsys, short_data_dir):
+    rc, out, err = cli(capsys, "tracks", "--data-dir", short_data_dir)
+    assert rc == 0, err
+    assert _listed_tracks(out) == [5, 6]
+
+
+def test_tracks_real_data_dir(capsys, real_data_dir):
+    rc, out, err = cli(capsys, "tracks", "--data-dir", real_data_dir)
     assert rc == 0, err
     assert _listed_tracks(out) == list(range(1, 14))
 
@@ -335,22 +312,17 @@ def test_corrupt_segment_length(capsys, tmp_path):
 # --------------------------------------------------------------------------- the real console script
 
 
-def _console_script() -> list[str]:
-    script = Path(sys.executable).with_name("nespm")
-    return [str(script)] if script.exists() else [sys.executable, "-m", "nespm_cli.cli"]
-
-
 def test_console_script(tmp_path):
     """The installed ``nespm`` entry point: exit codes 0 and 2, JSON on stdout, one error line on stderr."""
-    env = {k: v for k, v in os.environ.items() if k != "NESPM_DATA_DIR"}
-    ok = subprocess.run(_console_script() + ["run", "--track", "1", "--filter", "ins", "--clean", "--json"],
+    env = env_without_data_dir()
+    ok = subprocess.run(console_script() + ["run", "--track", "1", "--filter", "ins", "--clean", "--json"],
                         capture_output=True, text=True, env=env, timeout=300)
     assert ok.returncode == 0, ok.stderr
     s = json.loads(ok.stdout)
     assert SUMMARY_KEYS <= set(s)
     assert s["track"] == 1 and s["max_vel_err"] < 1e-6 and s["max_att_err"] < 1e-8
 
-    bad = subprocess.run(_console_script() + ["mc", "--tracks", "9", "--out", str(tmp_path / "o")],
+    bad = subprocess.run(console_script() + ["mc", "--tracks", "9", "--out", str(tmp_path / "o")],
                          capture_output=True, text=True, env=env, timeout=120)
     assert bad.returncode == 2
     assert bad.stdout == ""
@@ -366,7 +338,7 @@ def test_ctrl_c_during_mc_prints_the_resume_hint(tmp_path):
     p = subprocess.Popen([sys.executable, "-m", "nespm_cli.cli", "mc", "--tracks", "5", "--runs", "2",
                           "--filters", "ekf", "--no-progress", "--out", str(out)],
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                         env={k: v for k, v in os.environ.items() if k != "NESPM_DATA_DIR"})
+                         env=env_without_data_dir())
     deadline = time.time() + 60
     while not (out / "manifest.json").exists() and time.time() < deadline and p.poll() is None:
         time.sleep(0.05)  # the manifest is written before the first chunk starts

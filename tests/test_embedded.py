@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -13,8 +12,6 @@ from nespm_cli.embedded import EMBEDDED_TRACKS, L_DVL, embedded_track
 from nespm_cli.errors import NespmError
 from nespm_cli.tracks import ENV_DATA_DIR, body_rate_fd, dvl_lever_arm_fit, load_track, track_summary
 
-# The real tracks (for a like-for-like comparison of scales); never copied into the repo.
-DATA = Path(__file__).resolve().parents[2] / "shared/data/snapir-akit"
 ALL = pytest.mark.parametrize("number", EMBEDDED_TRACKS)
 FIELDS = ("t", "pos", "v_n", "euler", "dvl")
 
@@ -90,8 +87,9 @@ def test_track_character() -> None:
         assert longest >= 100
 
 
-def test_scale_like_real_tracks() -> None:
-    real = track_summary(load_track(5, DATA))
+def test_scale_like_real_tracks(real_data_dir) -> None:
+    """Like-for-like with the real track 5 (conftest.real_data_dir: skipped without the real data)."""
+    real = track_summary(load_track(5, real_data_dir))
     for n in EMBEDDED_TRACKS:
         s = track_summary(embedded_track(n))
         assert 0.75 * real["distance_m"] < s["distance_m"] < 1.25 * real["distance_m"]

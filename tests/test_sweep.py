@@ -5,6 +5,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from conftest import cli
 from nespm_cli.cli import main
 from nespm_cli.corruption import draw
 from nespm_cli.experiment import Spec, couple_filter
@@ -12,12 +13,6 @@ from nespm_cli.filters import FilterConfig
 from nespm_cli.sweep import PARAMS, sweep_cells
 
 BASE = ["--tracks", "5", "--runs", "2", "--chunk-size", "2", "--jobs", "2", "--no-progress"]
-
-
-def cli(capsys, *args):
-    rc = main([str(a) for a in args])
-    out, err = capsys.readouterr()
-    return rc, out, err
 
 
 @pytest.fixture(scope="module")

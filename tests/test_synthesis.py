@@ -1,15 +1,16 @@
 """Tests of nespm_cli.synthesis: the 100 Hz truth and clean IMU synthesized from 1 Hz GT by
 inverse strapdown, on the 13 recorded Snapir tracks, the 6 embedded tracks and synthetic
-straight-and-level / stationary vehicles.
+straight-and-level / stationary vehicles. The real tracks' cases are skipped, with the
+reason, when the real data is not found (conftest.REAL_DATA); the rest need nothing but the repo.
 """
 from __future__ import annotations
 
 import types
-from pathlib import Path
 
 import numpy as np
 import pytest
 
+from conftest import REAL_DATA, needs_real_data
 from nespm_cli import earth
 from nespm_cli.embedded import embedded_track
 from nespm_cli.errors import NespmError
@@ -18,43 +19,62 @@ from nespm_cli.strapdown import na_cycle
 from nespm_cli.synthesis import ImuTruth, integrate_position, synthesize
 from nespm_cli.tracks import load_track
 
-DATA_DIR = Path(__file__).resolve().parents[2] / "shared" / "data" / "snapir-akit"
 REAL = [("real", n) for n in range(1, 14)]
 EMBEDDED = [("embedded", n) for n in range(1, 7)]
 ALL = REAL + EMBEDDED
 IDS = [f"{kind}-{n}" for kind, n in ALL]
+# the real tracks' cases are skipped (with the reason) when the real data is not found (conftest)
+KEYS = [pytest.param(key, id=i, marks=needs_real_data if key[0] == "real" else ()) for key, i in zip(ALL, IDS)]
+KINDS = [pytest.param("real", marks=needs_real_data), "embedded"]
 SUBSTEPS = 100
 
 
 @pytest.fixture(scope="module")
-def tracks():
-    """All 19 tracks and their synthesized truth/IMU, keyed by (kind, number)."""
-    assert DATA_DIR.is_dir(), f"real Snapir data not found at {DATA_DIR}"
-    out = {}
-    for kind, n in ALL:
-        tr = load_track(n, DATA_DIR) if kind == "real" else embedded_track(n)
-        out[(kind, n)] = (tr, synthesize(tr))
+def embedded_tracks():
+    """The 6 embedded tracks and their synthesized truth/IMU, keyed by (kind, number)."""
+    return {key: (tr, synthesize(tr)) for key in EMBEDDED for tr in [embedded_track(key[1])]}
+
+
+@pytest.fixture(scope="module")
+def real_tracks(real_data_dir):
+    """The 13 real tracks and their synthesized truth/IMU (skipped without the real data)."""
+    return {key: (tr, synthesize(tr)) for key in REAL for tr in [load_track(key[1], real_data_dir)]}
+
+
+@pytest.fixture
+def tracks(request):
+    """The (kind, number) -> (track, synthesis) lookup: the embedded tracks, plus the real ones
+    when the real data is there (the real cases are skipped otherwise)."""
+    out = dict(request.getfixturevalue("embedded_tracks"))
+    if REAL_DATA is not None:
+        out.update(request.getfixturevalue("real_tracks"))
     return out
 
 
 @pytest.fixture(scope="module")
-def free_inertial(tracks):
-    """Free-inertial run of all 19 tracks in ONE batched na_cycle loop (state stacked on a
-    leading axis of 19, dt of shape (19,)) from the initial truth with the clean IMU.
+def free_inertial(request, embedded_tracks):
+    """Free-inertial run of every available track (the 6 embedded, and the 13 real ones when
+    the real data is there) in ONE batched na_cycle loop (state stacked on a leading axis of
+    19, dt of shape (19,)) from the initial truth with the clean IMU.
 
-    Returns the worst velocity [m/s] and attitude [rad] error vs GT at every GT epoch, (19, N).
+    Returns ``{(kind, number): (worst velocity [m/s], worst attitude [rad] error vs GT at every
+    GT epoch, (N,) each)}``.
     """
-    items = [tracks[key] for key in ALL]
+    tracks = dict(embedded_tracks)
+    if REAL_DATA is not None:
+        tracks.update(request.getfixturevalue("real_tracks"))
+    keys = [key for key in ALL if key in tracks]
+    items = [tracks[key] for key in keys]
     steps = {s.steps for _, s in items}
     assert len(steps) == 1, f"tracks have different IMU step counts: {steps}"
     M = steps.pop()
     pos = np.stack([s.pos[0] for _, s in items])
     v = np.stack([s.v_n[0] for _, s in items])
     C = np.stack([s.C_bn[0] for _, s in items])
-    F = np.stack([s.f_b for _, s in items], axis=1)  # (M, 19, 3)
+    F = np.stack([s.f_b for _, s in items], axis=1)  # (M, K, 3)
     W = np.stack([s.w_ib_b for _, s in items], axis=1)
-    DT = np.stack([s.dt for _, s in items], axis=1)  # (M, 19)
-    gt_v = np.stack([tr.v_n for tr, _ in items], axis=1)  # (N, 19, 3)
+    DT = np.stack([s.dt for _, s in items], axis=1)  # (M, K)
+    gt_v = np.stack([tr.v_n for tr, _ in items], axis=1)  # (N, K, 3)
     gt_C = euler_to_dcm(np.stack([tr.euler for tr, _ in items], axis=1))
     N = gt_v.shape[0]
     assert M == SUBSTEPS * (N - 1)
@@ -68,13 +88,13 @@ def free_inertial(tracks):
             k = (j + 1) // SUBSTEPS
             err_v[:, k] = np.abs(v - gt_v[k]).max(axis=-1)
             err_a[:, k] = np.abs(attitude_minus(C, gt_C[k])).max(axis=-1)
-    return err_v, err_a
+    return {key: (err_v[i], err_a[i]) for i, key in enumerate(keys)}
 
 
 # ----------------------------------------------------------------------------- grid
 
 
-@pytest.mark.parametrize("key", ALL, ids=IDS)
+@pytest.mark.parametrize("key", KEYS)
 def test_imu_grid(tracks, key):
     tr, s = tracks[key]
     N = len(tr.t)
@@ -95,7 +115,7 @@ def test_imu_grid(tracks, key):
 # ----------------------------------------------------------------------------- truth at GT epochs
 
 
-@pytest.mark.parametrize("key", ALL, ids=IDS)
+@pytest.mark.parametrize("key", KEYS)
 def test_truth_passes_through_gt(tracks, key):
     tr, s = tracks[key]
     e = s.epoch_index
@@ -107,7 +127,7 @@ def test_truth_passes_through_gt(tracks, key):
     assert np.abs(CtC - np.eye(3)).max() < 1e-13
 
 
-@pytest.mark.parametrize("key", ALL, ids=IDS)
+@pytest.mark.parametrize("key", KEYS)
 def test_synthesized_imu_is_plausible(tracks, key):
     """Specific force near 1 g and body rates below 1 rad/s (no spline overshoot blow-ups);
     the measured ranges on these tracks are |f| 8.9-11.8 m/s^2, |w| <= 0.66 rad/s."""
@@ -124,7 +144,7 @@ def test_synthesized_imu_is_plausible(tracks, key):
     assert abs(np.mean(f_n[:, 2] + g_D)) < 0.01
 
 
-@pytest.mark.parametrize("key", ALL, ids=IDS)
+@pytest.mark.parametrize("key", KEYS)
 def test_integrated_position_vs_gt(tracks, key):
     """Position is integrated from velocity (only pos[0] is used). The embedded tracks are
     built the same way, so they agree to < 1 mm; the recorded GT position and velocity are
@@ -140,14 +160,14 @@ def test_integrated_position_vs_gt(tracks, key):
         assert np.abs(off[:, 2]).max() < 1.0
 
 
-def test_embedded_synthesis_close_to_analytic_truth(tracks):
+def test_embedded_synthesis_close_to_analytic_truth(embedded_tracks):
     """Between GT epochs the splines stay close to the embedded tracks' analytic C-infinity
     kinematics (uses the private embedded._kinematics; measured max errors: v 9e-5 m/s,
     attitude 3.3e-5 rad, body rate 9.4e-5 rad/s)."""
     from nespm_cli import embedded
 
     for n in range(1, 7):
-        tr, s = tracks[("embedded", n)]
+        tr, s = embedded_tracks[("embedded", n)]
         k = embedded._kinematics(embedded._SPECS[n], s.t)
         assert np.abs(s.v_n - k["v_n"]).max() < 5e-4
         assert np.abs(attitude_minus(s.C_bn, euler_to_dcm(k["euler"]))).max() < 2e-4
@@ -162,24 +182,26 @@ def test_embedded_synthesis_close_to_analytic_truth(tracks):
 # ----------------------------------------------------------------------------- free inertial
 
 
-def test_free_inertial_velocity_tracks_gt(free_inertial):
-    err_v, _ = free_inertial
-    worst = err_v.max(axis=1)
-    bad = {IDS[i]: float(worst[i]) for i in np.flatnonzero(worst >= 1e-6)}
+@pytest.mark.parametrize("kind", KINDS)
+def test_free_inertial_velocity_tracks_gt(free_inertial, kind):
+    worst = {f"{k}-{n}": float(ev.max()) for (k, n), (ev, _) in free_inertial.items() if k == kind}
+    assert len(worst) == (13 if kind == "real" else 6)
+    bad = {name: w for name, w in worst.items() if w >= 1e-6}
     assert not bad, f"velocity error >= 1e-6 m/s: {bad}"
 
 
-def test_free_inertial_attitude_tracks_gt(free_inertial):
-    _, err_a = free_inertial
-    worst = err_a.max(axis=1)
-    bad = {IDS[i]: float(worst[i]) for i in np.flatnonzero(worst >= 1e-8)}
+@pytest.mark.parametrize("kind", KINDS)
+def test_free_inertial_attitude_tracks_gt(free_inertial, kind):
+    worst = {f"{k}-{n}": float(ea.max()) for (k, n), (_, ea) in free_inertial.items() if k == kind}
+    assert len(worst) == (13 if kind == "real" else 6)
+    bad = {name: w for name, w in worst.items() if w >= 1e-8}
     assert not bad, f"attitude error >= 1e-8 rad: {bad}"
 
 
-def test_free_inertial_is_sensitive_to_imu(tracks):
+def test_free_inertial_is_sensitive_to_imu(embedded_tracks):
     """Negative control: a 1e-3 m/s^2 accelerometer bias on the same loop gives ~0.1 m/s
     after 100 s, so the 1e-6 m/s tolerance above is meaningful."""
-    tr, s = tracks[("real", 1)]
+    tr, s = embedded_tracks[("embedded", 1)]
     pos, v, C = s.pos[0], s.v_n[0], s.C_bn[0]
     M = 100 * SUBSTEPS
     for j in range(M):

@@ -1,4 +1,8 @@
-"""Tests of nespm_cli.tracks: loading the real Snapir tracks, validation errors, summaries."""
+"""Tests of nespm_cli.tracks: loading the real Snapir tracks, validation errors, summaries.
+
+The real-data tests take conftest's ``real_data_dir`` (skipped, with the reason, without the
+real data); everything else runs on embedded tracks written to temporary A-KIT folders.
+"""
 from __future__ import annotations
 
 import csv
@@ -27,10 +31,6 @@ from nespm_cli.tracks import (
     write_akit,
 )
 
-# The real A-KIT Snapir tracks: /work/shared/data/snapir-akit next to the repo (never copied in).
-DATA = Path(__file__).resolve().parents[2] / "shared/data/snapir-akit"
-
-
 @pytest.fixture(autouse=True)
 def _no_env(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.delenv(ENV_DATA_DIR, raising=False)
@@ -39,16 +39,16 @@ def _no_env(monkeypatch: pytest.MonkeyPatch) -> None:
 # ----------------------------------------------------------------------------- real data
 
 
-def test_all_13_real_tracks_load() -> None:
-    assert available_tracks(DATA) == list(range(1, 14))
-    tracks = load_tracks(None, DATA)
+def test_all_13_real_tracks_load(real_data_dir: Path) -> None:
+    assert available_tracks(real_data_dir) == list(range(1, 14))
+    tracks = load_tracks(None, real_data_dir)
     assert [tr.number for tr in tracks] == list(range(1, 14))
     for tr in tracks:
         assert tr.t.shape == (400,)
         for a in (tr.pos, tr.v_n, tr.euler, tr.dvl):
             assert a.shape == (400, 3)
         assert tr.imu is None
-        assert tr.source == str(DATA / f"Trajectory{tr.number}")
+        assert tr.source == str(real_data_dir / f"Trajectory{tr.number}")
         assert np.all(np.diff(tr.t) > 0)
         assert np.allclose(np.diff(tr.t), 400 / 399, atol=1e-9)
         assert np.all(tr.pos[:, 2] < 0.5)  # altitude negative below the surface
@@ -58,15 +58,15 @@ def test_all_13_real_tracks_load() -> None:
         assert 0.0 <= s["depth_min"] <= s["depth_max"] <= 36.0
 
 
-def test_real_tracks_load_fast() -> None:
+def test_real_tracks_load_fast(real_data_dir: Path) -> None:
     t0 = time.perf_counter()
-    load_tracks(range(1, 14), DATA)
+    load_tracks(range(1, 14), real_data_dir)
     assert time.perf_counter() - t0 < 1.0
 
 
-def test_track5_first_epoch_matches_file() -> None:
-    tr = load_track(5, DATA)
-    with open(DATA / "Trajectory5/GT_trajectory5.csv", newline="") as f:
+def test_track5_first_epoch_matches_file(real_data_dir: Path) -> None:
+    tr = load_track(5, real_data_dir)
+    with open(real_data_dir / "Trajectory5/GT_trajectory5.csv", newline="") as f:
         rows = list(csv.reader(f))
     head, first = rows[0], [float(x) for x in rows[1]]
     col = {name.strip(): j for j, name in enumerate(head)}
@@ -78,13 +78,13 @@ def test_track5_first_epoch_matches_file() -> None:
     assert tr.euler[0, 2] == first[col["Yaw [rad]"]]
     assert tr.t[0] == 0.0
     assert tr.duration == pytest.approx(400.0, abs=1e-9)
-    with open(DATA / "Trajectory5/DVL_trajectory5.csv", newline="") as f:
+    with open(real_data_dir / "Trajectory5/DVL_trajectory5.csv", newline="") as f:
         dvl_first = [float(x) for x in list(csv.reader(f))[1]]
     assert tr.dvl[0].tolist() == dvl_first[1:]
 
 
-def test_real_track5_lever_arm() -> None:
-    tr = load_track(5, DATA)
+def test_real_track5_lever_arm(real_data_dir: Path) -> None:
+    tr = load_track(5, real_data_dir)
     lever, resid = dvl_lever_arm_fit(tr)
     assert -2.5 < lever[0] < -0.8
     assert resid.shape == (400, 3)
@@ -100,12 +100,16 @@ def test_real_track5_lever_arm() -> None:
 
 
 def test_resolve_data_dir(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    data = tmp_path / "data"
+    write_akit(embedded_track(5), data)
+    other = tmp_path / "other"
+    other.mkdir()
     assert resolve_data_dir(None) is None
     assert resolve_data_dir("") is None
-    monkeypatch.setenv(ENV_DATA_DIR, str(DATA))
-    assert resolve_data_dir(None) == DATA
-    assert resolve_data_dir(tmp_path) == tmp_path  # --data-dir wins over the environment
-    assert load_track(5).source == str(DATA / "Trajectory5")
+    monkeypatch.setenv(ENV_DATA_DIR, str(data))
+    assert resolve_data_dir(None) == data
+    assert resolve_data_dir(other) == other  # --data-dir wins over the environment
+    assert load_track(5).source == str(data / "Trajectory5")
     monkeypatch.setenv(ENV_DATA_DIR, str(tmp_path / "nope"))
     with pytest.raises(NespmError) as e:
         resolve_data_dir(None)
@@ -148,8 +152,9 @@ def test_write_akit_round_trip_with_imu(tmp_path: Path) -> None:
     assert np.max(np.abs(back.imu - imu)) <= 1e-15
 
 
-def test_track_arrays_read_only() -> None:
-    tr = load_track(5, DATA)
+def test_track_arrays_read_only(tmp_path: Path) -> None:
+    write_akit(embedded_track(5), tmp_path)
+    tr = load_track(5, tmp_path)  # as read from files
     with pytest.raises(ValueError):
         tr.pos[0, 0] = 0.0
     assert tr.C_bn.shape == (400, 3, 3)
@@ -246,9 +251,12 @@ def test_unknown_track_number(tmp_path: Path) -> None:
     with pytest.raises(NespmError) as e:
         load_track(7, tmp_path)
     _check_msg(e, str(tmp_path), "no track 7", "available: 1, 3")
+
+
+def test_unknown_real_track_number(real_data_dir: Path) -> None:
     with pytest.raises(NespmError) as e:
-        load_track(14, DATA)
-    _check_msg(e, str(DATA), "no track 14", "available: 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13")
+        load_track(14, real_data_dir)
+    _check_msg(e, str(real_data_dir), "no track 14", "available: 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13")
 
 
 def test_unknown_embedded_track_number() -> None:
@@ -386,6 +394,7 @@ def test_track_summary_embedded() -> None:
     assert set(s) == {
         "track", "duration_s", "epochs", "distance_m", "mean_speed", "max_yaw_rate_dps",
         "depth_min", "depth_max", "imu", "dvl_resid_std", "dvl_resid_std_xyz", "lever_arm",
+        "lever_arm_std", "yaw_rate_rms_dps", "lever_arm_warning",  # the lever-arm uncertainty (tracks.lever_arm_std)
     }
     assert s["track"] == 3 and s["epochs"] == 400 and s["imu"] is False
     assert s["duration_s"] == pytest.approx(400.0, abs=1e-9)
@@ -400,4 +409,4 @@ def test_track_summary_embedded() -> None:
     assert s["depth_min"] == pytest.approx(-tr.pos[:, 2].max())
     assert s["depth_max"] == pytest.approx(-tr.pos[:, 2].min())
     assert 8.0 < s["max_yaw_rate_dps"] < 18.0
-    assert len(s["lever_arm"]) == 3 and len(s["dvl_resid_std_xyz"]) == 3
+    assert len(s["lever_arm"]) == 3 and len(s["dvl_resid_std_xyz"]) == 3 and len(s["lever_arm_std"]) == 3
