@@ -19,6 +19,7 @@ from typer.exceptions import Abort, Exit, TyperException
 from .corruption import CorruptionConfig
 from .errors import NespmError
 from .filters import FilterConfig
+from .report import PRACTICAL_PCT
 
 app = typer.Typer(
     add_completion=False,
@@ -48,16 +49,21 @@ def _filters(text: str) -> tuple[str, ...]:
     return tuple(x.strip().lower() for x in text.split(",") if x.strip())
 
 
-def _spec(**kw):
-    from .experiment import Spec, couple_filter
-
-    corr = CorruptionConfig(
+def _corruption(kw: dict) -> CorruptionConfig:
+    """Pop the corruption options (:data:`_CORRUPTION`, less seed and data_dir) from ``kw``."""
+    return CorruptionConfig(
         schedule=kw.pop("schedule"), segment_s=kw.pop("segment_length"), dynamic_bias=kw.pop("dynamic_bias"),
         misalignment_deg=kw.pop("misalignment_deg"), vel_h_std=kw.pop("vel_h_std"),
         vel_v_std=kw.pop("vel_v_std"), acc_noise=kw.pop("acc_noise"), gyro_noise=kw.pop("gyro_noise"),
         acc_bias=kw.pop("acc_bias"), gyro_bias=kw.pop("gyro_bias"), dvl_noise=kw.pop("dvl_noise"),
         heading_deg=kw.pop("heading_deg"),
     )
+
+
+def _spec(**kw):
+    from .experiment import Spec, couple_filter
+
+    corr = _corruption(kw)
     fcfg = couple_filter(FilterConfig(alpha=kw.pop("alpha"), time_update=kw.pop("time_update"),
                                       acc_bias_rw=kw.pop("acc_bias_rw"), gyro_bias_rw=kw.pop("gyro_bias_rw"),
                                       tau=kw.pop("tau"), tau_a=kw.pop("tau_a"), tau_g=kw.pop("tau_g"),
@@ -65,20 +71,13 @@ def _spec(**kw):
     return Spec(corruption=corr, filter_config=fcfg, **kw)
 
 
-_COMMON = [  # (name, type, default, flag, help): the options that define an experiment
-    ("scenario", str, "nominal", "--scenario", "nominal, or outage: no DVL for --outage-length s from --outage-start s."),
+_CORRUPTION = [  # (name, type, default, flag, help): the realizations (mc, sweep, run, corrupt)
     ("schedule", str, "constant", "--schedule", "IMU error schedule: constant (UKF-NESPM paper) or dynamic (ANUKF paper: noise and bias x U[1,6] per segment)."),
     ("segment_length", float, 20.0, "--segment-length", "Dynamic schedule segment [s]."),
     ("dynamic_bias", str, "run", "--dynamic-bias", "Dynamic schedule biases: run (x the run's first-segment factor, held) or segment (x every segment's factor: 20 s bias steps)."),
     ("seed", int, 0, "--seed", "Master seed; run r of track N draws from SeedSequence(seed, spawn_key=(N, r, stream))."),
     ("data_dir", Optional[str], None, "--data-dir", "Folder in the A-KIT layout (default: $NESPM_DATA_DIR, else the embedded tracks)."),
-    ("imu", str, "synthetic", "--imu", "synthetic (inverse strapdown of GT: exact truth) or recorded (IMU_trajectoryN.csv)."),
-    ("dvl", str, "recorded", "--dvl", "recorded (the track's DVL file) or synthetic (C_n^b v + w_nb x l + N(0, dvl-noise^2))."),
     ("dvl_noise", float, 0.02, "--dvl-noise", "Synthetic DVL noise std [m/s]."),
-    ("dvl_lever_arm", Tuple[float, float, float], (0.0, 0.0, 0.0), "--dvl-lever-arm", "DVL lever arm X Y Z [m, body] in the measurement model (and in synthetic DVL)."),
-    ("dvl_r_std", Optional[float], None, "--dvl-r-std", "Filter DVL std [m/s] (default 0.02 with synthetic DVL, 0.1 with recorded)."),
-    ("outage_start", float, 180.0, "--outage-start", "Outage start [s after the first epoch]."),
-    ("outage_length", float, 20.0, "--outage-length", "Outage length [s]."),
     ("misalignment_deg", float, 0.01, "--misalignment-deg", "Initial misalignment std per axis [deg]."),
     ("heading_deg", Optional[float], None, "--heading-deg", "Initial heading (yaw-axis) misalignment std [deg]; default: --misalignment-deg."),
     ("vel_h_std", float, 0.25, "--vel-h-std", "Initial north/east velocity error std [m/s]."),
@@ -87,6 +86,17 @@ _COMMON = [  # (name, type, default, flag, help): the options that define an exp
     ("gyro_noise", float, 7.3e-6, "--gyro-noise", "Gyro white noise std per sample [rad/s]."),
     ("acc_bias", float, 0.3, "--acc-bias", "Accelerometer bias std [m/s^2]."),
     ("gyro_bias", float, 7.3e-5, "--gyro-bias", "Gyro bias std [rad/s]."),
+]
+
+_COMMON = [  # the options that define an experiment: the realizations, the data, the filters
+    *_CORRUPTION,
+    ("scenario", str, "nominal", "--scenario", "nominal, or outage: no DVL for --outage-length s from --outage-start s."),
+    ("imu", str, "synthetic", "--imu", "synthetic (inverse strapdown of GT: exact truth) or recorded (IMU_trajectoryN.csv)."),
+    ("dvl", str, "recorded", "--dvl", "recorded (the track's DVL file) or synthetic (C_n^b v + w_nb x l + N(0, dvl-noise^2))."),
+    ("dvl_lever_arm", Tuple[float, float, float], (0.0, 0.0, 0.0), "--dvl-lever-arm", "DVL lever arm X Y Z [m, body] in the measurement model (and in synthetic DVL)."),
+    ("dvl_r_std", Optional[float], None, "--dvl-r-std", "Filter DVL std [m/s] (default 0.02 with synthetic DVL, 0.1 with recorded)."),
+    ("outage_start", float, 180.0, "--outage-start", "Outage start [s after the first epoch]."),
+    ("outage_length", float, 20.0, "--outage-length", "Outage length [s]."),
     ("acc_bias_rw", float, 1e-3, "--acc-bias-rw", "Filter accelerometer bias random walk [m/s^2/sqrt(s)]."),
     ("gyro_bias_rw", float, 1e-6, "--gyro-bias-rw", "Filter gyro bias random walk [rad/s/sqrt(s)]."),
     ("alpha", float, 1e-3, "--alpha", "UKF sigma-point spread alpha (beta = 2, kappa = 0)."),
@@ -104,7 +114,7 @@ _PARALLEL = [  # where the chunks of a resumable experiment run (mc, sweep, gp-u
     ("jobs", int, 2, "--jobs", "Local worker processes: loky, or the local Dask cluster (results do not depend on it)."),
     ("backend", str, "loky", "--backend", "Where chunks run: loky (local processes) or dask (a Dask cluster; pip install 'nespm[dask]')."),
     ("scheduler", Optional[str], None, "--scheduler", "Dask scheduler address (tcp://host:8786) or scheduler file; default $NESPM_DASK_SCHEDULER, else a local cluster of --jobs workers (docs/cluster.md)."),
-    ("no_progress", bool, False, "--no-progress", "No progress bar."),
+    ("no_progress", bool, False, "--no-progress", "No progress (a bar on a terminal, else a line on stderr every 15 s with the ETA)."),
 ]
 
 _RUNNER = [  # options of the commands that run many realizations (mc, sweep)
@@ -112,6 +122,7 @@ _RUNNER = [  # options of the commands that run many realizations (mc, sweep)
     ("runs", int, 100, "--runs", "Monte Carlo runs per track."),
     ("filters_", str, "ekf,ukf,ukf-nespm", "--filters", "Comma list of ins, ekf, ukf, ukf-nespm, anekf, anukf, anukf-nespm."),
     ("chunk_size", int, 50, "--chunk-size", "Runs per batch, the resumable unit."),
+    ("config", Optional[str], None, "--config", "TOML file of options (keys are option names: runs = 100, tracks = [5, 6]); options on the command line override it. See experiments/."),
     *_PARALLEL,
 ]
 
@@ -137,46 +148,59 @@ _common = _options(_COMMON)
 
 
 @app.command()
-def tracks(data_dir: Optional[str] = DATA_DIR) -> None:
+def tracks(data_dir: Optional[str] = DATA_DIR,
+           no_progress: bool = typer.Option(False, "--no-progress", help="Do not say which track is being read.")) -> None:
     """List the tracks: duration, distance, speed, yaw rate, depth, DVL residual and lever arm."""
     from rich.console import Console
+    from rich.markup import escape
     from rich.table import Table
 
+    from .progress import Status
     from .tracks import available_tracks, load_track, resolve_data_dir, track_summary
 
     d = resolve_data_dir(data_dir)
-    table = Table(title=f"tracks in {d if d else 'the embedded default'}")
+    table = Table(title=escape(f"tracks in {d if d else 'the embedded default'}"))
     for c in ("track", "duration [s]", "epochs", "distance [m]", "mean speed [m/s]", "max yaw rate [deg/s]",
-              "depth [m]", "IMU", "DVL resid std [m/s]", "lever arm [m]"):
-        table.add_column(c, justify="right")
-    for n in available_tracks(d):
-        s = track_summary(load_track(n, d))
-        table.add_row(str(n), f"{s['duration_s']:.1f}", str(s["epochs"]), f"{s['distance_m']:.0f}",
-                      f"{s['mean_speed']:.2f}", f"{s['max_yaw_rate_dps']:.1f}",
-                      f"{s['depth_min']:.1f}-{s['depth_max']:.1f}", "yes" if s["imu"] else "no",
-                      f"{s['dvl_resid_std']:.3f}", "(" + ", ".join(f"{x:.2f}" for x in s["lever_arm"]) + ")")
+              "depth [m]", "IMU", "DVL resid std [m/s]", "lever arm ± 1σ [m]"):
+        table.add_column(escape(c), justify="right")
+    warnings = []
+    numbers = available_tracks(d)
+    with Status("nespm tracks", enabled=not no_progress, plain=False) as status:
+        for i, n in enumerate(numbers, 1):
+            status(f"reading and fitting track {n} ({i}/{len(numbers)})")
+            s = track_summary(load_track(n, d))
+            arm = ", ".join(f"{x:.2f}±{e:.2f}" for x, e in zip(s["lever_arm"], s["lever_arm_std"]))
+            flag = " (?)" if s["lever_arm_warning"] else ""
+            table.add_row(str(n), f"{s['duration_s']:.1f}", str(s["epochs"]), f"{s['distance_m']:.0f}",
+                          f"{s['mean_speed']:.2f}", f"{s['max_yaw_rate_dps']:.1f}",
+                          f"{s['depth_min']:.1f}-{s['depth_max']:.1f}", "yes" if s["imu"] else "no",
+                          f"{s['dvl_resid_std']:.3f}", escape(f"({arm}){flag}"))
+            if s["lever_arm_warning"]:
+                warnings.append(s["lever_arm_warning"])
     Console(width=None if sys.stdout.isatty() else 200).print(table)
+    for w in warnings:
+        typer.echo(f"warning: {w}")
 
 
 @app.command()
+@_options(_CORRUPTION)
 def corrupt(
     tracks_: str = typer.Option("5 6", "--tracks", help="Track numbers, e.g. '5 6' or 5,6."),
     runs: int = typer.Option(100, "--runs", help="Monte Carlo runs per track."),
-    seed: int = typer.Option(0, "--seed", help="Master seed."),
-    schedule: str = typer.Option("constant", "--schedule", help="constant or dynamic."),
-    segment_length: float = typer.Option(20.0, "--segment-length", help="Dynamic schedule segment [s]."),
-    dynamic_bias: str = typer.Option("run", "--dynamic-bias", help="Dynamic schedule biases: run or segment (see mc --help)."),
-    out: Path = typer.Option(..., "--out", help="Output folder (realizations.parquet)."),
+    out: Path = typer.Option(..., "--out", help="Output folder (realizations.parquet, realizations.json)."),
     materialize: bool = typer.Option(False, "--materialize", help="Also write the 100 Hz IMU error streams (large)."),
-    data_dir: Optional[str] = DATA_DIR,
+    **kw,
 ) -> None:
-    """Draw the realizations (initial errors, biases, schedule factors) into DIR/realizations.parquet."""
+    """Draw the realizations (initial errors, biases, schedule factors) into DIR/realizations.parquet.
+
+    Takes every corruption option of mc, so it writes exactly the realizations that mc with the
+    same options runs. A folder holding different realizations is never overwritten."""
     from .realizations import write_realizations
 
-    path = write_realizations(_tracks(tracks_), runs, seed, CorruptionConfig(schedule=schedule, segment_s=segment_length,
-                                                                            dynamic_bias=dynamic_bias),
-                              out, data_dir=data_dir, materialize=materialize)
-    typer.echo(f"wrote {path}")
+    seed, data_dir = kw.pop("seed"), kw.pop("data_dir")
+    path, fresh = write_realizations(_tracks(tracks_), runs, seed, _corruption(kw), out, data_dir=data_dir,
+                                     materialize=materialize)
+    typer.echo(f"wrote {path}" if fresh else f"{path} already holds these realizations; nothing written")
 
 
 @app.command()
@@ -188,14 +212,18 @@ def run(
     clean: bool = typer.Option(False, "--clean", help="No corruption: exact initial state, clean IMU, noise-free synthetic DVL."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object with the run's metrics."),
     out: Optional[str] = typer.Option(None, "--out", help="Write the run's time series (Parquet, or CSV if the name ends in .csv)."),
+    no_progress: bool = typer.Option(False, "--no-progress", help="Do not say what is being done (on stderr)."),
     **kw,
 ) -> None:
     """Run one realization of one filter on one track; print its metrics."""
     from .single import run_single
 
+    from .progress import Status
+
     spec = _spec(tracks=(track,), runs=run + 1, filters=(filt.lower(),), **kw)
     t0 = time.perf_counter()
-    summary = run_single(spec, track, filt.lower(), run, clean=clean, out=out)
+    with Status("nespm run", enabled=not no_progress) as status:
+        summary = run_single(spec, track, filt.lower(), run, clean=clean, out=out, status=status)
     summary["seconds"] = round(time.perf_counter() - t0, 3)
     if as_json:
         typer.echo(json.dumps(summary))
@@ -205,7 +233,7 @@ def run(
 
 
 def _run_many(tracks_: str, runs: int, filters_: str, jobs: int, chunk_size: int,
-              no_progress: bool, backend: str, scheduler: Optional[str], **kw):
+              no_progress: bool, backend: str, scheduler: Optional[str], config: Optional[str] = None, **kw):
     """Shared body of mc and sweep: build the spec, run, print the summary line."""
     spec = _spec(tracks=_tracks(tracks_), runs=runs, filters=_filters(filters_), chunk_size=chunk_size, **kw)
     t0 = time.perf_counter()
@@ -252,11 +280,12 @@ def report(
     out_dir: Path = typer.Argument(..., help="Folder written by 'nespm mc', 'nespm sweep' or 'nespm gp-ukf'."),
     baseline: Optional[str] = typer.Option(None, "--baseline", help="Filter whose improvement over each other row is shown (the papers' 'Imprv.' column)."),
     n_boot: int = typer.Option(2000, "--n-boot", help="Paired bootstrap resamples for the 95 % intervals."),
+    practical: float = typer.Option(PRACTICAL_PCT, "--practical", help="Smallest improvement [%] the summary calls practically meaningful (a difference must also be statistically significant)."),
 ) -> None:
     """Write DIR/report.md (Tables I/II layout, paired 95 % intervals, published values) and figures."""
     from .report import write_report
 
-    path = write_report(out_dir, baseline, n_boot=n_boot)
+    path = write_report(out_dir, baseline, n_boot=n_boot, practical_pct=practical)
     typer.echo(path.read_text())
     typer.echo(f"wrote {path}")
 

@@ -12,6 +12,7 @@ import dataclasses
 import json
 import os
 import platform
+import shutil
 import socket
 import subprocess
 import sys
@@ -21,18 +22,20 @@ from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from functools import lru_cache
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 import pandas as pd
 
 from . import __version__
-from .corruption import SCHEDULES, CorruptionConfig, draw, dvl_noise, imu_errors
+from .corruption import CorruptionConfig, draw, dvl_noise, imu_errors
 from .adaptive import BIAS_MODES, WINDOW, load_weights, predict_interval_std
 from .errors import NespmError
 from .earth import ned_offset
 from .embedded import embedded_track
 from .filters import ADAPTIVE, FILTERS, FilterConfig, initial_nav, run_filter
 from .metrics import epoch_errors, run_metrics
+from .progress import PROGRESS_DIR
 from .rotations import log_so3
 from .synthesis import ImuTruth, from_recorded, synthesize
 from .tracks import Track, available_tracks, load_track, resolve_data_dir
@@ -48,7 +51,6 @@ class Spec:
     runs: int = 100
     filters: tuple = ("ekf", "ukf", "ukf-nespm")
     scenario: str = "nominal"
-    schedule: str = "constant"
     seed: int = 0
     chunk_size: int = 50
     data_dir: str | None = None
@@ -82,8 +84,6 @@ def validate(spec: Spec) -> Spec:
         raise NespmError("--filters: give each filter once, at least one")
     if spec.scenario not in SCENARIOS:
         raise NespmError(f"--scenario: unknown scenario {spec.scenario!r}; choose from {', '.join(SCENARIOS)}")
-    if spec.schedule not in SCHEDULES:
-        raise NespmError(f"--schedule: unknown schedule {spec.schedule!r}; choose from {', '.join(SCHEDULES)}")
     if spec.imu not in ("synthetic", "recorded"):
         raise NespmError(f"--imu: choose synthetic or recorded, got {spec.imu!r}")
     if spec.dvl not in ("synthetic", "recorded"):
@@ -125,7 +125,8 @@ def validate(spec: Spec) -> Spec:
                     f"--outage-start {spec.outage_start:g} + --outage-length {spec.outage_length:g} s "
                     f"ends past track {n}'s end ({dur:.1f} s)"
                 )
-    return dataclasses.replace(spec, data_dir=str(d) if d is not None else None)
+    spec = dataclasses.replace(spec, data_dir=str(d) if d is not None else None)
+    return dataclasses.replace(spec, filter_config=filter_config(spec))  # what the filters use, recorded as such
 
 
 @lru_cache(maxsize=16)
@@ -161,10 +162,13 @@ def body_rate_truth(truth: ImuTruth) -> np.ndarray:
     return w
 
 
-def simulate(spec: Spec, number: int, runs: np.ndarray, filters=None, clean: bool = False):
+def simulate(spec: Spec, number: int, runs: np.ndarray, filters=None, clean: bool = False,
+             progress: Callable[[int], None] | None = None):
     """Run ``filters`` on the realizations ``runs`` of track ``number``.
 
     Returns ``{filter: (FilterOutput, EpochErrors, seconds)}`` plus the truth object.
+    ``progress(done)``, if given, is called with the filter-epochs done so far (filters run one
+    after the other, each over the track's N-1 epoch intervals).
     """
     track, truth = prepared(number, spec.data_dir, spec.imu)
     e = truth.epoch_index
@@ -197,10 +201,11 @@ def simulate(spec: Spec, number: int, runs: np.ndarray, filters=None, clean: boo
         t0 = time.perf_counter()
         noise_std = predict_interval_std(f, w, e, spec.weights)
         net_seconds = time.perf_counter() - t0
-    for name in names:
+    for i, name in enumerate(names):
         t0 = time.perf_counter()
+        step = None if progress is None else (lambda k, base=i * (len(e) - 1): progress(base + k))
         out = run_filter(name, cfg, f, w, truth.dt, e, dvl, mask, nav0,
-                         noise_std if name in ADAPTIVE else None)
+                         noise_std if name in ADAPTIVE else None, progress=step)
         if name in ADAPTIVE:
             t0 -= net_seconds / sum(n in ADAPTIVE for n in names)  # the shared network pass, split
         err = epoch_errors(out, v_t, C_t, p_t)
@@ -265,23 +270,36 @@ def write_json_atomic(obj, path: Path) -> None:
     write_atomic(path, lambda tmp: tmp.write_text(json.dumps(obj, indent=2)))
 
 
-def run_chunk(cell: Cell, number: int, first: int, out_dir: str) -> dict:
-    """Compute one chunk (all filters not yet on disk) and write its files. Runs in a worker."""
+def chunk_key(cell: Cell, number: int, first: int) -> str:
+    """The name of a chunk in progress reports: ``<tag><track>-<first run>``."""
+    return f"{cell.tag}{number}-{first:06d}"
+
+
+def run_chunk(cell: Cell, number: int, first: int, out_dir: str, last: int | None = None) -> dict:
+    """Compute runs ``first .. last-1`` of track ``number`` (all filters not yet on disk) and
+    write their files. Runs in a worker. ``last`` defaults to ``first + chunk_size`` (at most
+    ``runs``). Its progress goes to ``out_dir/chunks/.progress`` (:mod:`nespm_cli.progress`)."""
+    from .progress import epoch_reporter
+
     spec, tag, extra = cell.spec, cell.tag, dict(cell.columns)
     chunks = Path(out_dir) / "chunks"
-    runs = np.arange(first, min(first + spec.chunk_size, spec.runs))
+    if last is None:
+        last = min(first + spec.chunk_size, spec.runs)
+    runs = np.arange(first, last)
     todo = [f for f in spec.filters if not (chunks / _chunk_name("metrics", number, f, first, tag)).exists()]
     timings = {}
     if not todo:
         return timings
-    results, truth, _ = simulate(spec, number, runs, todo)
+    n_epochs = track_epochs(spec, number)
+    report = epoch_reporter(chunks, chunk_key(cell, number, first), len(todo) * (n_epochs - 1))
+    results, truth, _ = simulate(spec, number, runs, todo, progress=report)
     e = truth.epoch_index
     t_rel = truth.t[e] - truth.t[e[0]]
     for name, (out, err, secs) in results.items():
         m = run_metrics(err, out.diverged)
         m.update(q_factors(out.noise_std, filter_config(spec), len(runs)))
         df = pd.DataFrame({**extra, "track": number, "filter": name, "run": runs, "scenario": spec.scenario,
-                           "schedule": spec.schedule, "seed": spec.seed, **m,
+                           "schedule": spec.corruption.schedule, "seed": spec.seed, **m,
                            "seconds": secs / len(runs)})
         R, N = err.vel.shape
         series = pd.DataFrame({
@@ -297,11 +315,47 @@ def run_chunk(cell: Cell, number: int, first: int, out_dir: str) -> dict:
     return timings
 
 
-def chunk_tasks(cells: list[Cell]) -> list[tuple[Cell, int, int]]:
-    return [(c, n, first) for c in cells for n in c.spec.tracks for first in range(0, c.spec.runs, c.spec.chunk_size)]
+def run_chunk_keyed(cell: Cell, number: int, first: int, out_dir: str, last: int | None = None) -> tuple[str, dict]:
+    """:func:`run_chunk`, returning ``(chunk_key, timings)`` so the parent knows which chunk ended."""
+    return chunk_key(cell, number, first), run_chunk(cell, number, first, out_dir, last)
 
 
-def _versions() -> dict:
+def chunk_tasks(cells: list[Cell], blocks: list[tuple[int, int]] | None = None) -> list[tuple[Cell, int, int, int]]:
+    """``(cell, track, first, last)`` of every chunk: runs ``first .. last-1``.
+
+    ``blocks`` are the run ranges ``[start, end)`` the folder was asked for, in order (one per
+    ``--runs`` extension; default ``[(0, runs)]``); each is cut into chunks of ``chunk_size``
+    from its start, so extending a folder never changes a finished chunk.
+    """
+    out = []
+    for c in cells:
+        for n in c.spec.tracks:
+            for start, end in (blocks or [(0, c.spec.runs)]):
+                out += [(c, n, f0, min(f0 + c.spec.chunk_size, end)) for f0 in range(start, end, c.spec.chunk_size)]
+    return out
+
+
+def run_blocks(old: dict | None, runs: int) -> list[tuple[int, int]]:
+    """The run blocks of a folder asked for ``runs`` runs, given its old manifest (or None)."""
+    if old is None:
+        return [(0, runs)]
+    blocks = [tuple(b) for b in old.get("run_blocks") or [(0, int(old["options"]["runs"]))]]
+    have = blocks[-1][1]
+    return blocks + [(have, runs)] if runs > have else blocks
+
+
+@lru_cache(maxsize=64)
+def _epochs_of(number: int, data_dir: str | None) -> int:
+    track = load_track(number, data_dir) if data_dir is not None else embedded_track(number)
+    return len(track.t)
+
+
+def track_epochs(spec: Spec, number: int) -> int:
+    """Number of GT epochs of track ``number`` (for progress totals; cached per process)."""
+    return _epochs_of(number, spec.data_dir)
+
+
+def versions() -> dict:
     import joblib, pyarrow, scipy  # noqa: E401
 
     return {"python": platform.python_version(), "nespm": __version__, "numpy": np.__version__,
@@ -309,7 +363,7 @@ def _versions() -> dict:
             "joblib": joblib.__version__}
 
 
-def _git_commit() -> str | None:
+def git_commit() -> str | None:
     try:
         r = subprocess.run(["git", "rev-parse", "HEAD"], cwd=Path(__file__).parent, capture_output=True,
                            text=True, timeout=5)
@@ -318,7 +372,7 @@ def _git_commit() -> str | None:
         return None
 
 
-def _check_existing(out: Path, options: dict) -> dict | None:
+def check_existing(out: Path, options: dict, extendable: tuple[str, ...] = ()) -> dict | None:
     mf = out / "manifest.json"
     if not mf.exists():
         if (out / "chunks").exists() and any((out / "chunks").iterdir()):
@@ -328,9 +382,16 @@ def _check_existing(out: Path, options: dict) -> dict | None:
         old = json.loads(mf.read_text())
     except (OSError, json.JSONDecodeError) as exc:
         raise NespmError(f"{mf}: unreadable manifest ({exc.__class__.__name__}); use a new --out folder") from None
-    if old.get("options") != options:
-        diff = sorted(k for k in set(old.get("options", {})) | set(options)
-                      if old.get("options", {}).get(k) != options.get(k))
+    before = old.get("options", {})
+    diff = sorted(k for k in set(before) | set(options) if before.get(k) != options.get(k))
+    grown = [k for k in diff if k in extendable and isinstance(before.get(k), int) and options.get(k, 0) > before[k]]
+    shrunk = [k for k in diff if k in extendable and isinstance(before.get(k), int) and options.get(k, 0) < before[k]]
+    if shrunk:
+        k = shrunk[0]
+        raise NespmError(f"{out}: holds {before[k]} {k}; --{k} {options[k]} would drop finished work "
+                         f"(give --{k} {before[k]} or more, or use a new --out folder)")
+    if set(diff) - set(grown):
+        diff = sorted(set(diff) - set(grown))
         raise NespmError(f"{out}: holds results of a different experiment (differs in: {', '.join(diff)}); "
                          "use a new --out folder or the same options to resume")
     return old
@@ -346,7 +407,8 @@ def assemble(out: Path, keys: tuple = ()) -> tuple[pd.DataFrame, pd.DataFrame]:
     metrics = pd.concat([pd.read_parquet(p) for p in sorted(chunks.glob("metrics-*.parquet"))], ignore_index=True)
     metrics = metrics.sort_values(keys + ["track", "filter", "run"], kind="stable").reset_index(drop=True)
     series = pd.concat([pd.read_parquet(p) for p in sorted(chunks.glob("series-*.parquet"))], ignore_index=True)
-    err_cols = ["vel_err", "att_err", "nees", "north_err", "east_err"]
+    series["hpe"] = np.hypot(series["north_err"], series["east_err"])  # horizontal position error [m]
+    err_cols = ["vel_err", "att_err", "nees", "north_err", "east_err", "hpe"]
     series.loc[series["diverged"], err_cols] = np.nan  # diverged runs count in no mean
     series["ok"] = ~series["diverged"]
     g = series.groupby(keys + ["track", "filter", "epoch"], sort=True)
@@ -354,7 +416,8 @@ def assemble(out: Path, keys: tuple = ()) -> tuple[pd.DataFrame, pd.DataFrame]:
     epochs = g.agg(t=("t", "first"), vel_err_mean=("vel_err", "mean"), vel_err_std=("vel_err", std0),
                    att_err_mean=("att_err", "mean"), att_err_std=("att_err", std0),
                    nees_mean=("nees", "mean"), north_err_mean=("north_err", "mean"),
-                   east_err_mean=("east_err", "mean"), dvl_used=("dvl_used", "first"),
+                   east_err_mean=("east_err", "mean"), hpe_mean=("hpe", "mean"), hpe_std=("hpe", std0),
+                   dvl_used=("dvl_used", "first"),
                    n_runs=("ok", "sum")).reset_index()
     epochs["n_runs"] = epochs["n_runs"].astype(np.int64)
     write_parquet_atomic(metrics, out / "metrics.parquet")
@@ -397,37 +460,41 @@ def run_cells(cells: list[Cell], options: dict, out_dir: str | Path, jobs: int =
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
         raise NespmError(f"--out {out}: exists and is not a folder")
-    old = _check_existing(out, options)
+    old = check_existing(out, options, extendable=("runs",))
     (out / "chunks").mkdir(parents=True, exist_ok=True)
+    shutil.rmtree(out / "chunks" / PROGRESS_DIR, ignore_errors=True)  # a killed run's stale reports
     first = cells[0].spec
+    blocks = run_blocks(old, first.runs)
     started = datetime.now(timezone.utc).isoformat(timespec="seconds")
     manifest = {"command": list(argv or sys.argv), "options": options, "seed": first.seed,
-                "data_dir": first.data_dir or "embedded", "versions": _versions(), "git_commit": _git_commit(),
+                "data_dir": first.data_dir or "embedded", "versions": versions(), "git_commit": git_commit(),
+                "filter_config": {c.tag or "all": dataclasses.asdict(c.spec.filter_config) for c in cells},
+                "run_blocks": [list(b) for b in blocks],
                 "started": (old or {}).get("started", started), "finished": None,
                 "chunk_seconds": (old or {}).get("chunk_seconds", {})}
     write_json_atomic(manifest, out / "manifest.json")
 
-    tasks = chunk_tasks(cells)
+    tasks = chunk_tasks(cells, blocks)
     chunks = out / "chunks"
-    todo = [(c, n, f0) for c, n, f0 in tasks
-            if any(not (chunks / _chunk_name("metrics", n, f, f0, c.tag)).exists() for f in c.spec.filters)]
+
+    def missing(c: Cell, n: int, f0: int) -> list[str]:
+        return [f for f in c.spec.filters if not (chunks / _chunk_name("metrics", n, f, f0, c.tag)).exists()]
+
+    todo = [(c, n, f0, f1, len(missing(c, n, f0))) for c, n, f0, f1 in tasks if missing(c, n, f0)]
     t0 = time.perf_counter()
     if todo:
-        results = parallel_map(run_chunk, [(_absolute(c), n, f0, str(out.resolve())) for c, n, f0 in todo],
-                               jobs, backend, scheduler)
-        if progress:
-            from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+        from .progress import Poller, Progress
 
-            cols = (TextColumn("[bold]" + label + "[/] {task.description}"), BarColumn(), MofNCompleteColumn(),
-                    TimeElapsedColumn(), TimeRemainingColumn())
-            with Progress(*cols, transient=False) as bar:
-                task = bar.add_task(f"{len(todo)} chunks x {len(first.filters)} filters", total=len(todo))
-                for timings in results:
-                    manifest["chunk_seconds"].update(timings)
-                    bar.advance(task)
-        else:
-            for timings in results:
+        units = {chunk_key(c, n, f0): k * (track_epochs(c.spec, n) - 1) for c, n, f0, _, k in todo}
+        results = parallel_map(run_chunk_keyed, [(_absolute(c), n, f0, str(out.resolve()), f1)
+                                                 for c, n, f0, f1, _ in todo], jobs, backend, scheduler)
+        with Progress(label, sum(units.values()), len(todo), enabled=progress) as bar, \
+                Poller(bar, chunks) as poller:
+            for key, timings in results:
                 manifest["chunk_seconds"].update(timings)
+                poller.finish(key)
+                bar.chunk_done(units.get(key, 0))
+                poller.poll()
     metrics, epochs = assemble(out, tuple(k for k, _ in cells[0].columns))
     epochs = add_true_track(epochs, first)
     write_parquet_atomic(epochs, out / "epochs.parquet")

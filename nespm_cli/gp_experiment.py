@@ -512,7 +512,7 @@ def run_gp_experiment(out_dir: str | Path, runs: int = 20, seed: int = 0, durati
     results. Schema of the outputs: docs/gp-ukf.md.
     """
     from .backend import check_backend, parallel_map
-    from .experiment import _check_existing, _git_commit, _versions
+    from .experiment import check_existing, git_commit, versions
 
     unknown = set(options) - {f.name for f in dataclasses.fields(GPSpec)}
     if unknown:
@@ -528,11 +528,11 @@ def run_gp_experiment(out_dir: str | Path, runs: int = 20, seed: int = 0, durati
     opts = {"experiment": EXPERIMENT, **spec.as_dict()}
     if (out / "models.npz").exists() and not (out / "manifest.json").exists():
         raise NespmError(f"{out}: has models.npz but no manifest.json; use a new --out folder")
-    old = _check_existing(out, opts)
+    old = check_existing(out, opts)
     (out / "chunks").mkdir(parents=True, exist_ok=True)
     started = datetime.now(timezone.utc).isoformat(timespec="seconds")
     manifest = {"experiment": EXPERIMENT, "command": list(argv or sys.argv), "options": opts, "seed": spec.seed,
-                "versions": _versions(), "git_commit": _git_commit(), "jobs": jobs, "backend": backend,
+                "versions": versions(), "git_commit": git_commit(), "jobs": jobs, "backend": backend,
                 "started": (old or {}).get("started", started), "finished": None,
                 "training": (old or {}).get("training"), "chunk_seconds": (old or {}).get("chunk_seconds", {})}
     _write_manifest(out, manifest)

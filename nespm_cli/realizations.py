@@ -1,6 +1,8 @@
 """``nespm corrupt``: write the realizations of an experiment as data."""
 from __future__ import annotations
 
+import dataclasses
+import json
 from pathlib import Path
 
 import numpy as np
@@ -8,27 +10,49 @@ import pandas as pd
 
 from .corruption import CorruptionConfig, draw, imu_errors
 from .errors import NespmError
-from .experiment import prepared, write_parquet_atomic
+from .experiment import prepared, write_json_atomic, write_parquet_atomic
 from .tracks import available_tracks, resolve_data_dir
 
 
 def write_realizations(tracks, runs: int, seed: int, config: CorruptionConfig, out: str | Path,
-                       data_dir: str | None = None, materialize: bool = False) -> Path:
-    """Write ``out/realizations.parquet`` (one row per track x run, docs/results-schema.md).
+                       data_dir: str | None = None, materialize: bool = False) -> tuple[Path, bool]:
+    """Write ``out/realizations.parquet`` (one row per track x run, docs/results-schema.md) and
+    ``out/realizations.json`` (the options that drew them).
 
     With ``materialize`` also ``out/imu_errors-<track>.parquet``: the additive IMU errors
     (run, step, e_fx..e_fz [m/s²], e_wx..e_wz [rad/s]) regenerated from the stored seeds.
+
+    Returns ``(path, written)``. A folder that already holds realizations of the same options
+    is left as it is (``written`` False); one holding others is refused (never overwritten).
     """
     if runs < 1:
         raise NespmError(f"--runs must be at least 1, got {runs}")
     d = resolve_data_dir(data_dir)
     have = available_tracks(d)
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    rows = []
     for n in tracks:
         if n not in have:
             raise NespmError(f"--tracks: no track {n}; available: {', '.join(map(str, have))}")
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise NespmError(f"--out {out}: exists and is not a folder")
+    path = out / "realizations.parquet"
+    options = {"tracks": [int(n) for n in tracks], "runs": int(runs), "seed": int(seed),
+               "data_dir": str(d.resolve()) if d is not None else "embedded", "materialize": bool(materialize),
+               "corruption": json.loads(json.dumps(dataclasses.asdict(config), default=list))}
+    meta = out / "realizations.json"
+    if path.exists() or meta.exists():
+        try:
+            old = json.loads(meta.read_text())
+        except (OSError, json.JSONDecodeError):
+            old = None
+        if old != options:
+            what = ("no readable realizations.json" if old is None else "different options: " + ", ".join(
+                sorted(k for k in set(old) | set(options) if old.get(k) != options.get(k))))
+            raise NespmError(f"--out {out}: already holds realizations ({what}); use a new folder or delete it")
+        return path, False
+    out.mkdir(parents=True, exist_ok=True)
+    rows = []
+    for n in tracks:
         _, truth = prepared(n, str(d) if d else None, "synthetic")
         duration = float(truth.t[-1] - truth.t[0])
         real = draw(seed, n, np.arange(runs), duration, config)
@@ -44,6 +68,6 @@ def write_realizations(tracks, runs: int, seed: int, config: CorruptionConfig, o
             for i, c in enumerate("xyz"):
                 df[f"e_w{c}"] = ew[..., i].ravel()
             write_parquet_atomic(df, out / f"imu_errors-{n}.parquet")
-    path = out / "realizations.parquet"
     write_parquet_atomic(pd.DataFrame(rows), path)
-    return path
+    write_json_atomic(options, meta)
+    return path, True

@@ -2,18 +2,22 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 import pandas as pd
 
 from .errors import NespmError
-from .experiment import Spec, simulate, validate, write_parquet_atomic
+from .experiment import Spec, prepared, simulate, validate, write_parquet_atomic
 from .metrics import run_metrics
 from .rotations import dcm_to_euler
 
 
-def run_single(spec: Spec, track: int, filt: str, run: int, clean: bool = False, out: str | None = None) -> dict:
+def run_single(spec: Spec, track: int, filt: str, run: int, clean: bool = False, out: str | None = None,
+               status: Callable[[str], None] | None = None) -> dict:
     """Run realization ``run`` (or the clean case) and return its summary metrics.
+
+    ``status(text)``, if given, is told what is being done (loading, IMU, every 10 % of the filter).
 
     ``out`` (optional): per-epoch time series as Parquet (CSV if it ends in .csv) with
     true and estimated velocity and attitude, errors, covariance diagonal and biases.
@@ -28,12 +32,22 @@ def run_single(spec: Spec, track: int, filt: str, run: int, clean: bool = False,
     have = available_tracks(resolve_data_dir(spec.data_dir))
     if track not in have:
         raise NespmError(f"--track: no track {track}; available: {', '.join(map(str, have))}")
-    spec = validate(spec)
-    results, truth, real = simulate(spec, track, np.array([run]), [filt], clean=clean)
+    say = status or (lambda text: None)
+    spec = validate(spec)  # before any progress line: a bad input's message is the only line
+    imu = "synthesizing the 100 Hz IMU from the GT" if spec.imu == "synthetic" else "reading the recorded IMU"
+    say(f"track {track}: {imu}")
+    _, truth0 = prepared(track, spec.data_dir, spec.imu)
+    n = len(truth0.epoch_index) - 1
+    tenth = max(n // 10, 1)
+
+    def progress(k: int) -> None:
+        if k % tenth == 0 or k == n:
+            say(f"{filt} on track {track}, run {run}: epoch {k}/{n}")
+    results, truth, real = simulate(spec, track, np.array([run]), [filt], clean=clean, progress=progress)
     o, err, secs = results[filt]
     m = run_metrics(err, o.diverged)
     summary = {"track": track, "filter": filt, "run": run, "clean": clean, "scenario": spec.scenario,
-               "schedule": spec.schedule, **{k: (bool(v[0]) if k == "diverged" else (int(v[0]) if k == "n_samples" else float(v[0])))
+               "schedule": spec.corruption.schedule, **{k: (bool(v[0]) if k == "diverged" else (int(v[0]) if k == "n_samples" else float(v[0])))
                                              for k, v in m.items()}}
     summary = {k: (None if isinstance(v, float) and not np.isfinite(v) else v) for k, v in summary.items()}
     if out:

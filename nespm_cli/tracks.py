@@ -368,6 +368,34 @@ def dvl_lever_arm_fit(track: Track) -> tuple[np.ndarray, np.ndarray]:
     return lever, r0 - A @ lever
 
 
+LEVER_MIN_TURN_DPS = 1.0  # [deg/s] RMS yaw rate below which turns do not determine the lever arm's x, y
+LEVER_MAX_STD = 0.3  # [m] an x or y lever-arm std above this is reported as undetermined
+
+
+def lever_arm_std(track: Track, resid: np.ndarray) -> np.ndarray:
+    """1-sigma uncertainty (3,) [m] of the :func:`dvl_lever_arm_fit` lever arm.
+
+    Least-squares covariance ``s^2 (A^T A)^-1`` with ``A = [w x]`` stacked over epochs and
+    ``s^2`` the residual variance, inflated by ``sqrt((1 + rho) / (1 - rho))`` for the
+    residual's lag-1 autocorrelation ``rho`` (largest over the axes): the 1 Hz residuals are
+    far from white, and the white-noise formula would understate the std 2-4x.
+    """
+    w = body_rate_fd(track.t, track.C_bn)
+    A = skew(w).reshape(-1, 3)
+    resid = np.asarray(resid, dtype=float)
+    dof = max(A.shape[0] - 3, 1)
+    s2 = float((resid**2).sum() / dof)
+    rho = []
+    for i in range(3):
+        r = resid[:, i] - resid[:, i].mean()
+        den = float((r * r).sum())
+        rho.append(float((r[1:] * r[:-1]).sum() / den) if den > 0 else 0.0)
+    rho_max = min(max(rho), 0.99)
+    inflation = np.sqrt(max((1 + rho_max) / (1 - rho_max), 1.0))
+    cov = s2 * np.linalg.pinv(A.T @ A)
+    return inflation * np.sqrt(np.clip(np.diag(cov), 0.0, None))
+
+
 def track_summary(track: Track) -> dict:
     """Summary numbers of a track (plain Python types, JSON-ready).
 
@@ -375,7 +403,10 @@ def track_summary(track: Track) -> dict:
     integral of |v_N, v_E|) [m]; ``mean_speed`` (mean |v_n|) [m/s]; ``max_yaw_rate_dps`` (max
     |d unwrap(yaw)/dt|) [deg/s]; ``depth_min``, ``depth_max`` (depth = -alt) [m]; ``imu`` (bool);
     ``dvl_resid_std`` (RMS over the 3 axes of the per-axis residual std after the lever-arm fit)
-    [m/s]; ``dvl_resid_std_xyz`` (the per-axis stds) [m/s]; ``lever_arm`` (x, y, z) [m, body].
+    [m/s]; ``dvl_resid_std_xyz`` (the per-axis stds) [m/s]; ``lever_arm`` (x, y, z) [m, body];
+    ``lever_arm_std`` (x, y, z) [m] (:func:`lever_arm_std`); ``yaw_rate_rms_dps`` [deg/s];
+    ``lever_arm_warning``: None, or why the track's turns cannot determine the lever arm
+    (RMS yaw rate below :data:`LEVER_MIN_TURN_DPS`, or an x/y std above :data:`LEVER_MAX_STD`).
     """
     t = np.asarray(track.t)
     v = np.asarray(track.v_n)
@@ -385,6 +416,15 @@ def track_summary(track: Track) -> dict:
     depth = -np.asarray(track.pos[:, 2])
     lever, resid = dvl_lever_arm_fit(track)
     std_xyz = resid.std(axis=0)
+    lever_std = lever_arm_std(track, resid)
+    yaw_rms = float(np.degrees(np.sqrt(np.mean(yaw_rate**2))))
+    warning = None
+    if yaw_rms < LEVER_MIN_TURN_DPS:
+        warning = (f"track {track.number}: RMS yaw rate {yaw_rms:.2f} deg/s < {LEVER_MIN_TURN_DPS:g}: too few turns "
+                   "to determine the DVL lever arm; do not use its fit")
+    elif max(lever_std[:2]) > LEVER_MAX_STD:
+        warning = (f"track {track.number}: lever-arm x/y std {max(lever_std[:2]):.2f} m > {LEVER_MAX_STD:g} m: "
+                   "the fit is poorly determined")
     return {
         "track": int(track.number),
         "duration_s": track.duration,
@@ -398,4 +438,7 @@ def track_summary(track: Track) -> dict:
         "dvl_resid_std": float(np.sqrt(np.mean(std_xyz**2))),
         "dvl_resid_std_xyz": tuple(float(s) for s in std_xyz),
         "lever_arm": tuple(float(x) for x in lever),
+        "lever_arm_std": tuple(float(x) for x in lever_std),
+        "yaw_rate_rms_dps": yaw_rms,
+        "lever_arm_warning": warning,
     }

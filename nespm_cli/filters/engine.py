@@ -21,6 +21,7 @@ between steps and every sigma set is centred on the navigation solution.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 
@@ -212,6 +213,7 @@ def run_filter(
     dvl_mask: np.ndarray,
     nav0: NavState,
     noise_std: tuple[np.ndarray, np.ndarray] | None = None,
+    progress: Callable[[int], None] | None = None,
 ) -> FilterOutput:
     """Run one filter over a batch of runs.
 
@@ -225,6 +227,8 @@ def run_filter(
         nav0: initial navigation solution of the R runs.
         noise_std: for the adaptive filters, ``(std_a, std_g)`` each (R, N-1, 3): the
             network's noise std per IMU sample in each DVL interval (``adaptive.predict_interval_std``).
+        progress: optional ``progress(k)``, called after each of the N-1 epoch intervals with
+            the number of intervals done (for a progress bar; it must not raise).
     """
     r = _Runner(kind, cfg, f_meas, w_meas, dt, nav0, noise_std)
     R, N = nav0.v_n.shape[0], len(epoch_index)
@@ -260,6 +264,8 @@ def run_filter(
                 out.dvl_used[k + 1] = True
             r.check()
             record(k + 1)
+            if progress is not None:
+                progress(k + 1)
     out.diverged = r.bad
     out.noise_std = r.noise_std
     return out

@@ -1,0 +1,246 @@
+"""Progress of long jobs, on a terminal (a rich bar) and off one (plain lines with an ETA).
+
+Workers of a run folder report how far each running chunk has got by writing a tiny
+text file ``DIR/chunks/.progress/<chunk>`` (``done total``, in filter-epochs) at most a few
+times a second; the parent polls those files, so the bar moves within a chunk on every
+backend that shares the folder (loky, Dask on a shared filesystem). A finished chunk's
+file is removed by the parent.
+
+Off a terminal (a log file, CI, a pipe) the parent prints one line every ``interval``
+seconds and at the end: ``mc: 45 % (1234/2745 filter-epochs, 2/4 chunks) 62 s elapsed, ETA 75 s``.
+"""
+from __future__ import annotations
+
+import os
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Callable, TextIO
+
+PROGRESS_DIR = ".progress"
+WRITE_EVERY_S = 0.5  # a worker rewrites its progress file at most this often
+PLAIN_EVERY_S = 15.0  # off a terminal: one line this often
+
+
+def fmt_seconds(s: float) -> str:
+    """``75 s``, ``12 min 5 s`` or ``2 h 3 min`` (None or negative: ``?``)."""
+    if s is None or s != s or s < 0:
+        return "?"
+    s = int(round(s))
+    if s < 120:
+        return f"{s} s"
+    if s < 7200:
+        return f"{s // 60} min {s % 60} s"
+    return f"{s // 3600} h {(s % 3600) // 60} min"
+
+
+def epoch_reporter(folder: str | Path, key: str, total: int) -> Callable[[int], None]:
+    """A worker's callback ``report(done)`` that writes ``done total`` to ``folder/.progress/key``.
+
+    Throttled to one write per :data:`WRITE_EVERY_S`; ``done == total`` is always written.
+    Write errors are ignored: progress must never fail a computation.
+    """
+    path = Path(folder) / PROGRESS_DIR / key
+    last = [0.0]
+
+    def report(done: int) -> None:
+        now = time.monotonic()
+        if done < total and now - last[0] < WRITE_EVERY_S:
+            return
+        last[0] = now
+        try:
+            path.parent.mkdir(exist_ok=True)  # never the folder above: a worker that cannot see --out must fail
+            tmp = path.with_name(f".{key}.{os.getpid()}.tmp")
+            tmp.write_text(f"{done} {total}")
+            os.replace(tmp, path)
+        except OSError:
+            pass
+    return report
+
+
+def read_reports(folder: str | Path) -> dict[str, tuple[int, int]]:
+    """``{key: (done, total)}`` of the progress files in ``folder/.progress`` (unreadable ones skipped)."""
+    out = {}
+    d = Path(folder) / PROGRESS_DIR
+    try:
+        paths = list(d.iterdir())
+    except OSError:
+        return out
+    for p in paths:
+        if p.name.startswith("."):
+            continue
+        try:
+            done, total = (int(x) for x in p.read_text().split())
+        except (OSError, ValueError):
+            continue
+        out[p.name] = (done, total)
+    return out
+
+
+def clear_report(folder: str | Path, key: str) -> None:
+    try:
+        (Path(folder) / PROGRESS_DIR / key).unlink(missing_ok=True)
+    except OSError:
+        pass
+
+
+class Progress:
+    """A progress display of ``total`` units over ``chunks`` chunks.
+
+    ``label`` names the job (``mc``, ``sweep``); ``enabled=False`` shows nothing. On a terminal
+    (``stream.isatty()``) a rich bar, else plain lines every ``interval`` seconds. Use as a
+    context manager; call :meth:`set_running` with the units done inside unfinished chunks and
+    :meth:`chunk_done` when one finishes.
+    """
+
+    def __init__(self, label: str, total: int, chunks: int, unit: str = "filter-epochs", enabled: bool = True,
+                 stream: TextIO | None = None, interval: float = PLAIN_EVERY_S) -> None:
+        self.label, self.total, self.chunks, self.unit = label, max(int(total), 1), chunks, unit
+        self.enabled = enabled
+        self.stream = stream if stream is not None else sys.stderr
+        self.interval = interval
+        self.finished_units = 0
+        self.running_units = 0
+        self.finished_chunks = 0
+        self.t0 = time.monotonic()
+        self._last_line = self.t0
+        self._bar = None
+        self._lock = threading.Lock()
+        tty = getattr(self.stream, "isatty", lambda: False)
+        self.tty = bool(tty())
+
+    # --- state -----------------------------------------------------------------------
+    @property
+    def done(self) -> int:
+        return min(self.finished_units + self.running_units, self.total)
+
+    def eta(self) -> float | None:
+        el = time.monotonic() - self.t0
+        if self.done <= 0 or el <= 0:
+            return None
+        return el * (self.total - self.done) / self.done
+
+    def line(self) -> str:
+        el = time.monotonic() - self.t0
+        pct = 100.0 * self.done / self.total
+        return (f"{self.label}: {pct:.0f} % ({self.done}/{self.total} {self.unit}, {self.finished_chunks}/{self.chunks} "
+                f"chunks) {fmt_seconds(el)} elapsed, ETA {fmt_seconds(self.eta())}")
+
+    # --- updates ---------------------------------------------------------------------
+    def set_running(self, units: int) -> None:
+        with self._lock:
+            self.running_units = int(units)
+        self._show()
+
+    def chunk_done(self, units: int) -> None:
+        with self._lock:
+            self.finished_units += int(units)
+            self.finished_chunks += 1
+        self._show()
+
+    def _show(self, force: bool = False) -> None:
+        if not self.enabled:
+            return
+        if self._bar is not None:
+            bar, task = self._bar
+            bar.update(task, completed=self.done,
+                       description=f"{self.finished_chunks}/{self.chunks} chunks")
+            return
+        now = time.monotonic()
+        if force or now - self._last_line >= self.interval:
+            self._last_line = now
+            print(self.line(), file=self.stream, flush=True)
+
+    # --- context ---------------------------------------------------------------------
+    def __enter__(self) -> "Progress":
+        if self.enabled and self.tty:
+            from rich.console import Console
+            from rich.progress import (BarColumn, Progress as RichProgress, TextColumn, TimeElapsedColumn,
+                                       TimeRemainingColumn)
+
+            bar = RichProgress(TextColumn(f"[bold]{self.label}[/] {{task.description}}"), BarColumn(),
+                               TextColumn("{task.percentage:>3.0f} %"), TimeElapsedColumn(), TimeRemainingColumn(),
+                               console=Console(file=self.stream), transient=False)
+            bar.start()
+            self._bar = (bar, bar.add_task(f"0/{self.chunks} chunks", total=self.total))
+        elif self.enabled:
+            print(f"{self.label}: {self.chunks} chunk{'s' if self.chunks != 1 else ''}, {self.total} {self.unit} to compute", file=self.stream,
+                  flush=True)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        if self._bar is not None:
+            self._bar[0].stop()
+            self._bar = None
+        elif self.enabled and exc[0] is None:
+            self._show(force=True)
+
+
+class Poller:
+    """A thread that feeds :class:`Progress` with the workers' progress files every ``period`` s."""
+
+    def __init__(self, progress: Progress, folder: str | Path, period: float = 0.5) -> None:
+        self.progress, self.folder, self.period = progress, Path(folder), period
+        self.finished: set[str] = set()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._loop, daemon=True)
+
+    def _loop(self) -> None:
+        while not self._stop.wait(self.period):
+            self.poll()
+
+    def poll(self) -> None:
+        reports = read_reports(self.folder)
+        self.progress.set_running(sum(d for k, (d, _) in reports.items() if k not in self.finished))
+
+    def finish(self, key: str) -> None:
+        """Chunk ``key`` is complete: its units move to the finished count."""
+        self.finished.add(key)
+        clear_report(self.folder, key)
+
+    def __enter__(self) -> "Poller":
+        if self.progress.enabled:
+            self._thread.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._stop.set()
+        if self._thread.is_alive():
+            self._thread.join(timeout=2)
+
+
+class Status:
+    """Say what a short command is doing: a transient rich status on a terminal, else one
+    line per step on ``stream`` (stderr), prefixed with ``label`` (``plain=False``: nothing off a
+    terminal, for steps too quick to be worth a log line). ``enabled=False``: silent."""
+
+    def __init__(self, label: str, enabled: bool = True, stream: TextIO | None = None, plain: bool = True) -> None:
+        self.label, self.enabled, self.plain = label, enabled, plain
+        self.stream = stream if stream is not None else sys.stderr
+        self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
+        self._status = None
+        self.t0 = time.monotonic()
+
+    def __call__(self, text: str) -> None:
+        if not self.enabled:
+            return
+        if self.tty:
+            if self._status is None:
+                from rich.console import Console
+
+                self._status = Console(file=self.stream).status(f"{self.label}: {text}")
+                self._status.start()
+            else:
+                self._status.update(f"{self.label}: {text}")
+        elif self.plain:
+            print(f"{self.label}: {text} ({fmt_seconds(time.monotonic() - self.t0)} elapsed)", file=self.stream,
+                  flush=True)
+
+    def __enter__(self) -> "Status":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        if self._status is not None:
+            self._status.stop()
+            self._status = None
