@@ -32,10 +32,10 @@ import scipy
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from nespm_cli.rotations import euler_to_dcm  # noqa: E402
-from nespm_cli.strapdown import na_cycle  # noqa: E402
-from nespm_cli.synthesis import synthesize  # noqa: E402
-from nespm_cli.tracks import load_track  # noqa: E402
+from nespm_cli.nav.rotations import euler_to_dcm  # noqa: E402
+from nespm_cli.nav.strapdown import na_cycle  # noqa: E402
+from nespm_cli.nav.synthesis import synthesize  # noqa: E402
+from nespm_cli.data.tracks import load_track  # noqa: E402
 
 DEFAULT_DATA_DIR = REPO.parent / "shared" / "data" / "snapir-akit"
 TARGET_SYNTH_S = 2.0
@@ -57,7 +57,7 @@ def median_time(fn, repeats: int, warmup: int = 1) -> tuple[float, list[float]]:
 def get_track(data_dir: Path | None):
     if data_dir is not None and data_dir.is_dir():
         return load_track(1, data_dir), f"{data_dir}/Trajectory1"
-    from nespm_cli.embedded import embedded_track
+    from nespm_cli.data.embedded import embedded_track
 
     return embedded_track(1), "embedded track 1"
 

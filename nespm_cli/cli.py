@@ -16,10 +16,10 @@ import numpy as np
 import typer
 from typer.exceptions import Abort, Exit, TyperException
 
-from .corruption import CorruptionConfig
-from .errors import NespmError
-from .filters import FilterConfig
-from .report import PRACTICAL_PCT
+from nespm_cli.data.corruption import CorruptionConfig
+from nespm_cli.errors import NespmError
+from nespm_cli.filters import FilterConfig
+from nespm_cli.reports.mc import PRACTICAL_PCT
 
 app = typer.Typer(
     add_completion=False,
@@ -61,7 +61,7 @@ def _corruption(kw: dict) -> CorruptionConfig:
 
 
 def _spec(**kw):
-    from .experiment import Spec, couple_filter
+    from nespm_cli.experiments.mc import Spec, couple_filter
 
     corr = _corruption(kw)
     fcfg = couple_filter(FilterConfig(alpha=kw.pop("alpha"), time_update=kw.pop("time_update"),
@@ -155,8 +155,8 @@ def tracks(data_dir: Optional[str] = DATA_DIR,
     from rich.markup import escape
     from rich.table import Table
 
-    from .progress import Status
-    from .tracks import available_tracks, load_track, resolve_data_dir, track_summary
+    from nespm_cli.experiments.progress import Status
+    from nespm_cli.data.tracks import available_tracks, load_track, resolve_data_dir, track_summary
 
     d = resolve_data_dir(data_dir)
     table = Table(title=escape(f"tracks in {d if d else 'the embedded default'}"))
@@ -195,7 +195,7 @@ def corrupt(
 
     Takes every corruption option of mc, so it writes exactly the realizations that mc with the
     same options runs. A folder holding different realizations is never overwritten."""
-    from .realizations import write_realizations
+    from nespm_cli.experiments.realizations import write_realizations
 
     seed, data_dir = kw.pop("seed"), kw.pop("data_dir")
     path, fresh = write_realizations(_tracks(tracks_), runs, seed, _corruption(kw), out, data_dir=data_dir,
@@ -216,9 +216,9 @@ def run(
     **kw,
 ) -> None:
     """Run one realization of one filter on one track; print its metrics."""
-    from .single import run_single
+    from nespm_cli.experiments.single_run import run_single
 
-    from .progress import Status
+    from nespm_cli.experiments.progress import Status
 
     spec = _spec(tracks=(track,), runs=run + 1, filters=(filt.lower(),), **kw)
     t0 = time.perf_counter()
@@ -254,7 +254,7 @@ def mc(
     **kw,
 ) -> None:
     """Monte Carlo: every filter on the same realizations; metrics/epochs Parquet, manifest; resumable."""
-    from .experiment import run_mc
+    from nespm_cli.experiments.mc import run_mc
 
     spec, t0, run_kw = _run_many(**kw)
     _summary(run_mc(spec, out, **run_kw), t0, out)
@@ -269,7 +269,7 @@ def sweep(
     **kw,
 ) -> None:
     """Paired Monte Carlo per value of one parameter (same seeds across values and filters); resumable."""
-    from .sweep import parse_values, run_sweep
+    from nespm_cli.experiments.sweep import parse_values, run_sweep
 
     spec, t0, run_kw = _run_many(**kw)
     _summary(run_sweep(spec, param, parse_values(values), out, **run_kw), t0, out)
@@ -283,7 +283,7 @@ def report(
     practical: float = typer.Option(PRACTICAL_PCT, "--practical", help="Smallest improvement [%] the summary calls practically meaningful (a difference must also be statistically significant)."),
 ) -> None:
     """Write DIR/report.md (Tables I/II layout, paired 95 % intervals, published values) and figures."""
-    from .report import write_report
+    from nespm_cli.reports.mc import write_report
 
     path = write_report(out_dir, baseline, n_boot=n_boot, practical_pct=practical)
     typer.echo(path.read_text())
@@ -317,14 +317,14 @@ def train(
     no_progress: bool = typer.Option(False, "--no-progress", help="No progress bar."),
 ) -> None:
     """Train the accelerometer and gyro ProcessNets (anukf.md eqs 34-42) on dynamic-schedule windows."""
-    from .training import train_processnet
+    from nespm_cli.learn.training import train_processnet
 
     train_t, test_t = _tracks(tracks_), _tracks(test_tracks)
     if not str(out).endswith(".npz"):
         raise NespmError(f"--out {out}: the weights file name must end in .npz")
     if runs < 1 or epochs < 1:
         raise NespmError("--runs and --epochs must be at least 1")
-    from .tracks import available_tracks, resolve_data_dir
+    from nespm_cli.data.tracks import available_tracks, resolve_data_dir
 
     d = resolve_data_dir(data_dir)
     have = available_tracks(d)
@@ -347,7 +347,10 @@ def train(
             bar.stop()
     typer.echo(f"Spearman (predicted vs injected noise std, tracks {' '.join(map(str, test_t))}): "
                f"acc {s['spearman']['acc']:.3f}, gyro {s['spearman']['gyro']:.3f}")
-    typer.echo(f"trained in {s['seconds']:.1f} s -> {s['path']} (loss curves {s['plot']})")
+    from nespm_cli.reports.training import plot_history
+
+    plot = plot_history(s["history"], Path(s["path"]).with_suffix(".png"), s["test"])
+    typer.echo(f"trained in {s['seconds']:.1f} s -> {s['path']} (loss curves {plot})")
 
 
 @app.command()
@@ -361,7 +364,7 @@ def simulate(
 ) -> None:
     """Simulate REMUS 100 helix runs (gp-ukf.md section 6: 6-DOF model, LOS guidance, PIDs on
     noisy, 12-bit sensors) and write them as tracks: 1 Hz GT and DVL, 100 Hz IMU."""
-    from .vehicles import simulate_runs, write_tracks
+    from nespm_cli.vehicles import simulate_runs, write_tracks
 
     if runs < 1 or first_number < 1:
         raise NespmError("--runs and --first-number must be at least 1")
@@ -396,7 +399,7 @@ def gp_ukf_cmd(
     **kw,
 ) -> None:
     """GP-UKF vs ideal UKF on simulated REMUS 100 helix runs (gp-ukf.md section 6, Tables 3-4); resumable."""
-    from .gp_experiment import run_gp_experiment
+    from nespm_cli.experiments.gp_ukf import run_gp_experiment
 
     t0 = time.perf_counter()
     m = run_gp_experiment(out, runs=runs, seed=seed, duration_s=duration, jobs=kw["jobs"], max_points=max_points,

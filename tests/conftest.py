@@ -30,8 +30,8 @@ from pathlib import Path
 import pytest
 
 from nespm_cli.cli import main
-from nespm_cli.embedded import embedded_track
-from nespm_cli.tracks import ENV_DATA_DIR, Track, write_akit
+from nespm_cli.data.embedded import embedded_track
+from nespm_cli.data.tracks import ENV_DATA_DIR, Track, write_akit
 
 REPO = Path(__file__).resolve().parents[1]
 SIBLING_REAL_DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "snapir-akit"

@@ -1,4 +1,4 @@
-"""Adaptive process noise (nespm_cli.adaptive, anukf.md eqs 43-48) and the adaptive filters.
+"""Adaptive process noise (nespm_cli.filters.adaptive, anukf.md eqs 43-48) and the adaptive filters.
 
 Checked: Q is symmetric positive semi-definite for any network output (a property test,
 extreme and non-finite values included); with the nominal std and the default τ's it is
@@ -17,13 +17,13 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from nespm_cli.adaptive import (adaptive_q, default_weights, interval_windows, load_weights,
-                                predict_interval_std, valid_std)
-from nespm_cli.corruption import CorruptionConfig
+from nespm_cli.filters.adaptive import adaptive_q, valid_std
+from nespm_cli.learn.noise_model import default_weights, interval_windows, load_weights, predict_interval_std
+from nespm_cli.data.corruption import CorruptionConfig
 from nespm_cli.errors import NespmError
 from nespm_cli.filters import FilterConfig
 from nespm_cli.filters.model import process_noise
-from nespm_cli.rotations import exp_so3
+from nespm_cli.nav.rotations import exp_so3
 
 from test_filters import make_inputs, run, short_truth
 
@@ -154,7 +154,7 @@ def test_packaged_weights_read_the_injected_level_of_run_time_windows(schedule):
     """Mean network std / nominal over 30 DVL intervals x 6 runs of track 6 (held out from
     training) against the injected factor (dynamic: U[1, 6] per 20 s segment; constant: 1):
     within 15 %."""
-    from nespm_cli.corruption import draw, segment_index
+    from nespm_cli.data.corruption import draw, segment_index
 
     truth = short_truth(epochs=31, number=6)
     cc = CorruptionConfig(schedule=schedule)

@@ -11,8 +11,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from nespm_cli.adaptive import load_weights
-from nespm_cli.tracks import write_akit
+from nespm_cli.learn.noise_model import load_weights
+from nespm_cli.data.tracks import write_akit
 
 from conftest import assert_one_error_line, cli, short_track
 

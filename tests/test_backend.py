@@ -1,4 +1,4 @@
-"""The Dask backend of the Monte Carlo runner (nespm_cli.backend, docs/cluster.md).
+"""The Dask backend of the Monte Carlo runner (nespm_cli.experiments.backend, docs/cluster.md).
 
 Checked: ``nespm mc --backend dask`` on a 2-worker LocalCluster gives the loky numbers bit
 for bit; a worker killed mid-chunk costs only that chunk, which the scheduler re-runs, and
@@ -28,9 +28,9 @@ import pandas as pd
 import pytest
 
 from conftest import assert_one_error_line, chunk_mtimes, console_script, nespm, write_short_tracks
-from nespm_cli.backend import check_backend, parallel_map
+from nespm_cli.experiments.backend import check_backend, parallel_map
 from nespm_cli.errors import NespmError
-from nespm_cli.experiment import Cell, Spec, run_chunk
+from nespm_cli.experiments.mc import Cell, Spec, run_chunk
 
 KEY = ["track", "filter", "run"]
 EPOCHS = 40

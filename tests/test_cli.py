@@ -25,9 +25,9 @@ import pytest
 
 from conftest import (SHORT_EPOCHS, assert_one_error_line, cli, console_script, env_without_data_dir,
                       short_track)
-from nespm_cli.corruption import CorruptionConfig, draw, n_segments
-from nespm_cli.embedded import embedded_track
-from nespm_cli.tracks import load_track, write_akit
+from nespm_cli.data.corruption import CorruptionConfig, draw, n_segments
+from nespm_cli.data.embedded import embedded_track
+from nespm_cli.data.tracks import load_track, write_akit
 
 # The default (no --data-dir) must mean the embedded tracks whatever the caller's shell has.
 pytestmark = pytest.mark.usefixtures("no_env_data_dir")

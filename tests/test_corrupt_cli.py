@@ -5,8 +5,8 @@ import numpy as np
 import pandas as pd
 
 from conftest import nespm
-from nespm_cli.corruption import CorruptionConfig, draw
-from nespm_cli.embedded import embedded_track
+from nespm_cli.data.corruption import CorruptionConfig, draw
+from nespm_cli.data.embedded import embedded_track
 
 
 def test_corrupt_takes_mc_corruption_options_and_matches_draw(tmp_path):

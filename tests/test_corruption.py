@@ -1,4 +1,4 @@
-"""The dynamic schedule's IMU errors (nespm_cli.corruption.imu_errors), both bias modes.
+"""The dynamic schedule's IMU errors (nespm_cli.data.corruption.imu_errors), both bias modes.
 
 The noise part is rebuilt from the documented streams, so the bias part is checked exactly.
 """
@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from nespm_cli.corruption import (STREAM_ACC, STREAM_GYRO, CorruptionConfig, draw, imu_errors, segment_index,
+from nespm_cli.data.corruption import (STREAM_ACC, STREAM_GYRO, CorruptionConfig, draw, imu_errors, segment_index,
                                   stream)
 from nespm_cli.errors import NespmError
 

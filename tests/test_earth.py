@@ -1,4 +1,4 @@
-"""Tests of nespm_cli.earth: WGS-84 radii, normal gravity, earth and transport rates.
+"""Tests of nespm_cli.nav.earth: WGS-84 radii, normal gravity, earth and transport rates.
 
 pos = [lat rad, lon rad, h m] with h positive up; vectors are NED.
 """
@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from nespm_cli import earth
+from nespm_cli.nav import earth
 
 PI = np.pi
 A = 6378137.0

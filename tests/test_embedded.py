@@ -1,4 +1,4 @@
-"""Tests of nespm_cli.embedded: the deterministic Snapir-like tracks used without a data folder."""
+"""Tests of nespm_cli.data.embedded: the deterministic Snapir-like tracks used without a data folder."""
 from __future__ import annotations
 
 import time
@@ -6,11 +6,11 @@ import time
 import numpy as np
 import pytest
 
-from nespm_cli import embedded
-from nespm_cli.earth import radii
-from nespm_cli.embedded import EMBEDDED_TRACKS, L_DVL, embedded_track
+from nespm_cli.data import embedded
+from nespm_cli.nav.earth import radii
+from nespm_cli.data.embedded import EMBEDDED_TRACKS, L_DVL, embedded_track
 from nespm_cli.errors import NespmError
-from nespm_cli.tracks import ENV_DATA_DIR, body_rate_fd, dvl_lever_arm_fit, load_track, track_summary
+from nespm_cli.data.tracks import ENV_DATA_DIR, body_rate_fd, dvl_lever_arm_fit, load_track, track_summary
 
 ALL = pytest.mark.parametrize("number", EMBEDDED_TRACKS)
 FIELDS = ("t", "pos", "v_n", "euler", "dvl")

@@ -1,4 +1,4 @@
-"""End-to-end tests of ``nespm mc`` (nespm_cli.experiment.run_mc through nespm_cli.cli.main).
+"""End-to-end tests of ``nespm mc`` (nespm_cli.experiments.mc.run_mc through nespm_cli.cli.main).
 
 Checked: results do not depend on --jobs (bit for bit) nor on --chunk-size (to 1e-12); an
 interrupted experiment (a deleted chunk, or a process killed mid-run) resumes by computing
@@ -31,7 +31,7 @@ import pytest
 
 from conftest import (SHORT_EPOCHS, assert_one_error_line, chunk_mtimes, console_script, env_without_data_dir,
                       nespm, short_track)
-from nespm_cli.tracks import load_track, write_akit
+from nespm_cli.data.tracks import load_track, write_akit
 
 SCHEMA_DOC = Path(__file__).resolve().parents[1] / "docs" / "results-schema.md"
 KEY = ["track", "filter", "run"]

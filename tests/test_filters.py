@@ -20,15 +20,15 @@ import warnings
 import numpy as np
 import pytest
 
-from nespm_cli.corruption import CorruptionConfig, draw, dvl_noise, imu_errors
-from nespm_cli.embedded import embedded_track
-from nespm_cli.experiment import Spec, simulate
+from nespm_cli.data.corruption import CorruptionConfig, draw, dvl_noise, imu_errors
+from nespm_cli.data.embedded import embedded_track
+from nespm_cli.experiments.mc import Spec, simulate
 from nespm_cli.filters import FilterConfig, NavState, initial_nav, run_filter
 from nespm_cli.filters.model import dvl_H, dvl_h
 from nespm_cli.filters.unscented import UTWeights, moments, sigma_offsets
-from nespm_cli.metrics import epoch_errors, run_metrics
-from nespm_cli.rotations import exp_so3
-from nespm_cli.synthesis import synthesize
+from nespm_cli.experiments.metrics import epoch_errors, run_metrics
+from nespm_cli.nav.rotations import exp_so3
+from nespm_cli.nav.synthesis import synthesize
 
 EPS = np.finfo(float).eps
 TRACK = 5

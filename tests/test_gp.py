@@ -1,4 +1,4 @@
-"""Tests of GP regression (nespm_cli.gp; gp-ukf.md eqs 4-10).
+"""Tests of GP regression (nespm_cli.learn.gp; gp-ukf.md eqs 4-10).
 
 Tolerances: the fits below are to smooth functions sampled with known noise, so the
 error of the posterior mean against the noiseless function is a fraction of the noise std.
@@ -12,7 +12,7 @@ import pytest
 from threadpoolctl import threadpool_limits
 
 from nespm_cli.errors import NespmError
-from nespm_cli.gp import GPModel, log_bounds, log_marginal_likelihood, theta_default
+from nespm_cli.learn.gp import GPModel, log_bounds, log_marginal_likelihood, theta_default
 
 
 @pytest.fixture(autouse=True)
@@ -57,7 +57,7 @@ def test_optimum_at_least_as_good_as_sklearn(sine_model):
     from sklearn.gaussian_process import GaussianProcessRegressor
     from sklearn.gaussian_process.kernels import RBF, ConstantKernel, WhiteKernel
 
-    from nespm_cli.gp import BOUNDS
+    from nespm_cli.learn.gp import BOUNDS
 
     X, y = sine_data()
     kernel = (ConstantKernel(1.0, BOUNDS["constant"]) * RBF(1.0, BOUNDS["length"])

@@ -1,4 +1,4 @@
-"""Tests of nespm_cli.metrics: horizontal position error columns, distance travelled, and that
+"""Tests of nespm_cli.experiments.metrics: horizontal position error columns, distance travelled, and that
 the existing per-run columns are unchanged by them."""
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from nespm_cli.earth import radii
-from nespm_cli.metrics import EpochErrors, distance_travelled, epoch_errors, nees_band, run_metrics
+from nespm_cli.nav.earth import radii
+from nespm_cli.experiments.metrics import EpochErrors, distance_travelled, epoch_errors, nees_band, run_metrics
 
 # On the equator from longitude 0, so that metre offsets of 1e-7 rad are not lost to the rounding
 # of a large latitude/longitude (at 32 deg, lat + 3 m / R_N is only good to ~1e-10 m).

@@ -1,4 +1,4 @@
-"""Tests of nespm_cli.processnet: exact gradients (finite differences), shapes and parameter
+"""Tests of nespm_cli.learn.processnet: exact gradients (finite differences), shapes and parameter
 count, the two pooling layers by hand, Adam, save/load, the normalizer, and learning a
 noise level from pure white noise.
 """
@@ -12,7 +12,7 @@ import pytest
 from scipy.stats import spearmanr
 
 from nespm_cli.errors import NespmError
-from nespm_cli.processnet import (
+from nespm_cli.learn.processnet import (
     Adam,
     Normalizer,
     ProcessNet,

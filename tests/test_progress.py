@@ -6,8 +6,8 @@ import io
 import numpy as np
 
 from conftest import nespm
-from nespm_cli.experiment import Spec, simulate, validate
-from nespm_cli.progress import Progress, epoch_reporter, fmt_seconds, read_reports
+from nespm_cli.experiments.mc import Spec, simulate, validate
+from nespm_cli.experiments.progress import Progress, epoch_reporter, fmt_seconds, read_reports
 
 
 def test_reporter_round_trip_and_throttle(tmp_path):

@@ -1,4 +1,4 @@
-"""Tests of nespm_cli.report: eq 50-51 tables, improvement, paired bootstrap, report.md, figures."""
+"""Tests of nespm_cli.reports.mc: eq 50-51 tables, improvement, paired bootstrap, report.md, figures."""
 from __future__ import annotations
 
 import json
@@ -9,8 +9,8 @@ import pandas as pd
 import pytest
 
 from nespm_cli.errors import NespmError
-from nespm_cli.metrics import nees_band
-from nespm_cli.report import (
+from nespm_cli.experiments.metrics import nees_band
+from nespm_cli.reports.mc import (
     MIN_PAIRED_RUNS,
     PRACTICAL_PCT,
     PUBLISHED,

@@ -1,4 +1,4 @@
-"""Tests of nespm_cli.rotations: skew/vee, SO(3) exp/log, Euler <-> DCM, attitude ⊕/⊖.
+"""Tests of nespm_cli.nav.rotations: skew/vee, SO(3) exp/log, Euler <-> DCM, attitude ⊕/⊖.
 
 Conventions under test: C_bn = body -> NED DCM, Euler [roll, pitch, yaw] ZYX
 (C_bn = Rz(yaw) Ry(pitch) Rx(roll)), ⊕ = exp([d x]) C (nav-frame misalignment on the left),
@@ -12,7 +12,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from nespm_cli import rotations as rot
+from nespm_cli.nav import rotations as rot
 
 PI = np.pi
 RNG_SEED = 20240611

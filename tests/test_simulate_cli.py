@@ -6,7 +6,7 @@ import json
 import pytest
 
 from conftest import assert_one_error_line, cli
-from nespm_cli.tracks import load_track
+from nespm_cli.data.tracks import load_track
 
 
 def test_simulated_tracks_load_and_their_imu_round_trips(capsys, tmp_path):

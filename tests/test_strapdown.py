@@ -1,4 +1,4 @@
-"""Tests of nespm_cli.strapdown: the navigation cycle ``na_cycle`` (ukf-nespm.md eqs 24-32),
+"""Tests of nespm_cli.nav.strapdown: the navigation cycle ``na_cycle`` (ukf-nespm.md eqs 24-32),
 its inverse ``na_cycle_inverse`` and the position update of eqs 28-30.
 
 State: pos = [lat, lon, h] (h positive up), v_n NED [m/s], C_bn body -> NED.
@@ -9,9 +9,11 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from nespm_cli import earth, strapdown
-from nespm_cli.rotations import attitude_minus, euler_to_dcm, exp_so3, log_so3, skew
-from nespm_cli.strapdown import cross, na_cycle, na_cycle_inverse, update_position
+from nespm_cli.nav import earth
+
+from nespm_cli.nav import strapdown
+from nespm_cli.nav.rotations import attitude_minus, euler_to_dcm, exp_so3, log_so3, skew
+from nespm_cli.nav.strapdown import cross, na_cycle, na_cycle_inverse, update_position
 
 # first GT epoch of Snapir track 1 (/work/shared/data/snapir-akit/Trajectory1)
 POS_REAL = np.array([0.573337071406794, 0.6089844335224215, -19.859909])

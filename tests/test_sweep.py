@@ -7,10 +7,10 @@ import pytest
 
 from conftest import cli
 from nespm_cli.cli import main
-from nespm_cli.corruption import draw
-from nespm_cli.experiment import Spec, couple_filter
+from nespm_cli.data.corruption import draw
+from nespm_cli.experiments.mc import Spec, couple_filter
 from nespm_cli.filters import FilterConfig
-from nespm_cli.sweep import PARAMS, sweep_cells
+from nespm_cli.experiments.sweep import PARAMS, sweep_cells
 
 BASE = ["--tracks", "5", "--runs", "2", "--chunk-size", "2", "--jobs", "2", "--no-progress"]
 

@@ -1,4 +1,4 @@
-"""Tests of nespm_cli.sweep_report: per-value tables (eqs 50-51), bootstrap and Wilson
+"""Tests of nespm_cli.reports.sweep: per-value tables (eqs 50-51), bootstrap and Wilson
 intervals, improvement over a baseline with paired intervals, divergences, axes, report.md."""
 from __future__ import annotations
 
@@ -10,10 +10,10 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from nespm_cli import report
+from nespm_cli.reports import mc as report
 from nespm_cli.errors import NespmError
-from nespm_cli.metrics import nees_band
-from nespm_cli.sweep_report import (
+from nespm_cli.experiments.metrics import nees_band
+from nespm_cli.reports.sweep import (
     default_baseline,
     filter_bootstrap,
     improvement_table,
@@ -359,7 +359,7 @@ def divergent_sweep() -> pd.DataFrame:
 
 
 def test_improvement_table_and_figure_show_the_same_numbers(tmp_path: Path, monkeypatch) -> None:
-    from nespm_cli import sweep_report as sr
+    from nespm_cli.reports import sweep as sr
 
     m = divergent_sweep()
     imp = improvement_table(m, n_boot=300)

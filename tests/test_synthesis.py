@@ -1,4 +1,4 @@
-"""Tests of nespm_cli.synthesis: the 100 Hz truth and clean IMU synthesized from 1 Hz GT by
+"""Tests of nespm_cli.nav.synthesis: the 100 Hz truth and clean IMU synthesized from 1 Hz GT by
 inverse strapdown, on the 13 recorded Snapir tracks, the 6 embedded tracks and synthetic
 straight-and-level / stationary vehicles. The real tracks' cases are skipped, with the
 reason, when the real data is not found (conftest.REAL_DATA); the rest need nothing but the repo.
@@ -11,13 +11,13 @@ import numpy as np
 import pytest
 
 from conftest import REAL_DATA, needs_real_data
-from nespm_cli import earth
-from nespm_cli.embedded import embedded_track
+from nespm_cli.nav import earth
+from nespm_cli.data.embedded import embedded_track
 from nespm_cli.errors import NespmError
-from nespm_cli.rotations import attitude_minus, euler_to_dcm
-from nespm_cli.strapdown import na_cycle
-from nespm_cli.synthesis import ImuTruth, integrate_position, synthesize
-from nespm_cli.tracks import load_track
+from nespm_cli.nav.rotations import attitude_minus, euler_to_dcm
+from nespm_cli.nav.strapdown import na_cycle
+from nespm_cli.nav.synthesis import ImuTruth, integrate_position, synthesize
+from nespm_cli.data.tracks import load_track
 
 REAL = [("real", n) for n in range(1, 14)]
 EMBEDDED = [("embedded", n) for n in range(1, 7)]
@@ -164,7 +164,7 @@ def test_embedded_synthesis_close_to_analytic_truth(embedded_tracks):
     """Between GT epochs the splines stay close to the embedded tracks' analytic C-infinity
     kinematics (uses the private embedded._kinematics; measured max errors: v 9e-5 m/s,
     attitude 3.3e-5 rad, body rate 9.4e-5 rad/s)."""
-    from nespm_cli import embedded
+    from nespm_cli.data import embedded
 
     for n in range(1, 7):
         tr, s = embedded_tracks[("embedded", n)]

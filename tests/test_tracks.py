@@ -1,4 +1,4 @@
-"""Tests of nespm_cli.tracks: loading the real Snapir tracks, validation errors, summaries.
+"""Tests of nespm_cli.data.tracks: loading the real Snapir tracks, validation errors, summaries.
 
 The real-data tests take conftest's ``real_data_dir`` (skipped, with the reason, without the
 real data); everything else runs on embedded tracks written to temporary A-KIT folders.
@@ -12,10 +12,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from nespm_cli.embedded import embedded_track
+from nespm_cli.data.embedded import embedded_track
 from nespm_cli.errors import NespmError
-from nespm_cli.rotations import euler_to_dcm
-from nespm_cli.tracks import (
+from nespm_cli.nav.rotations import euler_to_dcm
+from nespm_cli.data.tracks import (
     DVL_COLUMNS,
     ENV_DATA_DIR,
     GT_COLUMNS,
@@ -376,7 +376,7 @@ def test_ragged_csv_is_one_line_error(tmp_path: Path) -> None:
 def test_body_rate_fd_constant_rate() -> None:
     t = np.arange(50) * 0.7
     w_true = np.array([0.01, -0.02, 0.15])
-    from nespm_cli.rotations import exp_so3
+    from nespm_cli.nav.rotations import exp_so3
 
     C = exp_so3(t[:, None] * w_true)  # constant body rate: C(t) = exp(t [w x])
     np.testing.assert_allclose(body_rate_fd(t, C), np.broadcast_to(w_true, (50, 3)), atol=1e-12)
@@ -399,7 +399,7 @@ def test_track_summary_embedded() -> None:
     assert s["track"] == 3 and s["epochs"] == 400 and s["imu"] is False
     assert s["duration_s"] == pytest.approx(400.0, abs=1e-9)
     # horizontal path length from the position differences agrees with the integrated speed
-    from nespm_cli.earth import radii
+    from nespm_cli.nav.earth import radii
 
     R_N, R_E = radii(tr.pos[:, 0])
     dN = np.diff(tr.pos[:, 0]) * (R_N[1:] + tr.pos[1:, 2])

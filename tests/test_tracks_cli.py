@@ -7,8 +7,8 @@ import dataclasses
 import numpy as np
 
 from conftest import nespm
-from nespm_cli.embedded import L_DVL, embedded_track
-from nespm_cli.tracks import LEVER_MIN_TURN_DPS, Track, track_summary, write_akit
+from nespm_cli.data.embedded import L_DVL, embedded_track
+from nespm_cli.data.tracks import LEVER_MIN_TURN_DPS, Track, track_summary, write_akit
 
 
 def test_tracks_prints_units_and_lever_arm_std():

@@ -1,4 +1,4 @@
-"""Tests of nespm_cli.training: training windows and labels from the dynamic corruption
+"""Tests of nespm_cli.learn.training: training windows and labels from the dynamic corruption
 schedule, the training loop (early stopping, best weights restored), evaluation, the
 end-to-end train_processnet on embedded tracks and the inference helpers.
 """
@@ -9,12 +9,12 @@ import json
 import numpy as np
 import pytest
 
-from nespm_cli.corruption import CorruptionConfig, draw, imu_errors, segment_index
+from nespm_cli.data.corruption import CorruptionConfig, draw, imu_errors, segment_index
 from nespm_cli.errors import NespmError
-from nespm_cli.processnet import ProcessNet, load_nets, mse_loss
-from nespm_cli.synthesis import synthesize
-from nespm_cli.tracks import load_track
-from nespm_cli.training import (
+from nespm_cli.learn.processnet import ProcessNet, load_nets, mse_loss
+from nespm_cli.nav.synthesis import synthesize
+from nespm_cli.data.tracks import load_track
+from nespm_cli.learn.training import (
     evaluate,
     load_processnet,
     make_windows,
@@ -166,7 +166,9 @@ def test_train_processnet_end_to_end(tmp_path):
     res = train_processnet((1, 2), (5, 6), None, out, runs=6, epochs=3, seed=0, progress=calls.append,
                            test_runs=2, batch=32, lr=3e-3)
     assert out.is_file()
-    png = out.with_suffix(".png")
+    from nespm_cli.reports.training import plot_history
+
+    png = plot_history(res["history"], out.with_suffix(".png"), res["test"])
     assert png.is_file() and png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 10_000
     assert set(res["spearman"]) == {"acc", "gyro"}
     assert len(calls) == res["epochs_run"]["acc"] + res["epochs_run"]["gyro"]

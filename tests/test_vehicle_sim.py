@@ -8,11 +8,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from nespm_cli.earth import ned_offset
-from nespm_cli.rotations import attitude_minus
-from nespm_cli.strapdown import na_cycle
-from nespm_cli.synthesis import from_recorded
-from nespm_cli.tracks import load_track
+from nespm_cli.nav.earth import ned_offset
+from nespm_cli.nav.rotations import attitude_minus
+from nespm_cli.nav.strapdown import na_cycle
+from nespm_cli.nav.synthesis import from_recorded
+from nespm_cli.data.tracks import load_track
 from nespm_cli.vehicles import MEASUREMENT_NAMES, SensorSuite, simulate_runs, to_track, write_tracks
 from nespm_cli.vehicles.guidance import Helix
 from nespm_cli.vehicles.sensors import measure, quantize, true_measurement, wrap_angle

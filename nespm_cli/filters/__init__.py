@@ -1,5 +1,5 @@
 """Closed-loop error-state INS/DVL filters, batched over Monte Carlo runs."""
-from .engine import ADAPTIVE, FILTERS, FilterOutput, run_filter
-from .model import FilterConfig, NavState, initial_nav
+from nespm_cli.filters.engine import ADAPTIVE, FILTERS, FilterOutput, run_filter
+from nespm_cli.filters.model import FilterConfig, NavState, initial_nav
 
 __all__ = ["ADAPTIVE", "FILTERS", "FilterConfig", "FilterOutput", "NavState", "initial_nav", "run_filter"]

@@ -9,7 +9,7 @@ batched over the runs (and the sigma points). Filters:
 * ``ukf``: sigma points through the same Φ (anukf.md eqs 5-23) and the nonlinear DVL
   model of anukf.md eq 33. With a linear propagation its prediction equals the EKF's.
 * ``anekf``, ``anukf``, ``anukf-nespm``: the same three with Q from the ProcessNet noise
-  std of each DVL interval's IMU window (anukf.md eqs 43-49, :mod:`nespm_cli.adaptive`).
+  std of each DVL interval's IMU window (anukf.md eqs 43-49, :mod:`nespm_cli.filters.adaptive`).
 * ``ukf-nespm``: every sigma point is added to the mean solution (eqs 35-37), carried
   through ``na_cycle`` with the IMU compensated by its own biases (eq 38), and read back
   with ⊖ against the propagated mean (eqs 39-40); then the same UT update as ``ukf``.
@@ -25,14 +25,14 @@ from typing import Callable
 
 import numpy as np
 
-from ..adaptive import adaptive_q
-from ..errors import NespmError
-from ..rotations import attitude_minus, exp_so3
-from ..strapdown import _rates, na_cycle
-from ..earth import radii
-from .model import (BA, BG, DPSI, DV, N_STATES, FilterConfig, NavState, dvl_H, dvl_h,
+from nespm_cli.filters.adaptive import adaptive_q
+from nespm_cli.errors import NespmError
+from nespm_cli.nav.rotations import attitude_minus, exp_so3
+from nespm_cli.nav.strapdown import _rates, na_cycle
+from nespm_cli.nav.earth import radii
+from nespm_cli.filters.model import (BA, BG, DPSI, DV, N_STATES, FilterConfig, NavState, dvl_H, dvl_h,
                     dvl_innovation, feedback, process_noise, system_matrix)
-from .unscented import UTWeights, moments, safe_cholesky, sigma_offsets
+from nespm_cli.filters.unscented import UTWeights, moments, safe_cholesky, sigma_offsets
 
 FILTERS = ("ins", "ekf", "ukf", "ukf-nespm", "anekf", "anukf", "anukf-nespm")
 #: adaptive filter -> its non-adaptive twin (same propagation and update, Q from ProcessNet)

@@ -39,9 +39,9 @@ from typing import Callable, Sequence, Union
 
 import numpy as np
 
-from ..errors import NespmError
-from ..gp import MAX_POINTS, N_RESTARTS, GPModel
-from .unscented import UTWeights, moments, safe_cholesky, sigma_offsets
+from nespm_cli.errors import NespmError
+from nespm_cli.learn.gp import MAX_POINTS, N_RESTARTS, GPModel
+from nespm_cli.filters.unscented import UTWeights, moments, safe_cholesky, sigma_offsets
 
 ProcessModel = Callable[[np.ndarray, np.ndarray], np.ndarray]  # f(x (..., n), u (..., m)) -> (..., n)
 ObservationModel = Callable[[np.ndarray], np.ndarray]  # h(x (..., n)) -> (..., p)

@@ -16,9 +16,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..earth import d_w_en_d_v, radii
-from ..rotations import attitude_plus, exp_so3, exp_so3_minus_identity, skew
-from ..strapdown import _rates, cross
+from nespm_cli.nav.earth import d_w_en_d_v, radii
+from nespm_cli.nav.rotations import attitude_plus, exp_so3, exp_so3_minus_identity, skew
+from nespm_cli.nav.strapdown import _rates, cross
 
 N_STATES = 12
 DV, DPSI, BA, BG = slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12)
@@ -39,7 +39,7 @@ class FilterConfig:
       recorded DVL (its residual std against GT is 0.02-0.2 m/s).
     * alpha = 1e-3, beta = 2, kappa = 0 as in both papers.
     * adaptive filters: τ = the IMU step, τ_a = τ_g = the time-update span, network std
-      clipped to [0.25, 24] x nominal, bias noise nominal (:mod:`nespm_cli.adaptive`).
+      clipped to [0.25, 24] x nominal, bias noise nominal (:mod:`nespm_cli.filters.adaptive`).
     * time_update ``dvl``: the time update spans one DVL interval (the papers' "cycle(s)"):
       sigma points are drawn once per interval and carried through every IMU step; ``imu``
       redraws them at every IMU step.

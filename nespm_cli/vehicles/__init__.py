@@ -14,10 +14,10 @@ See ``docs/remus100.md`` for the model, its sources and every choice the paper l
 """
 from __future__ import annotations
 
-from .remus100 import COMMAND_NAMES, STATE_NAMES, Remus100, Remus100Params
-from .sensors import MEASUREMENT_NAMES, SensorSuite
-from .guidance import GuidanceGains, Helix
-from .simulate import SimResult, simulate_runs, to_track, write_tracks
+from nespm_cli.vehicles.remus100 import COMMAND_NAMES, STATE_NAMES, Remus100, Remus100Params
+from nespm_cli.vehicles.sensors import MEASUREMENT_NAMES, SensorSuite
+from nespm_cli.vehicles.guidance import GuidanceGains, Helix
+from nespm_cli.vehicles.simulate import SimResult, simulate_runs, to_track, write_tracks
 
 __all__ = [
     "COMMAND_NAMES",

@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .remus100 import IP, IPHI, IPSI, IQ, IR, ITHETA, IU, IV, IW, IZ
+from nespm_cli.vehicles.remus100 import IP, IPHI, IPSI, IQ, IR, ITHETA, IU, IV, IW, IZ
 
 MEASUREMENT_NAMES = ("u", "v", "w", "p", "q", "r", "Z", "theta", "psi", "phi")
 #: index into the 12-state vector of each measured component

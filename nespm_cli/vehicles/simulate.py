@@ -24,18 +24,18 @@ from pathlib import Path
 
 import numpy as np
 
-from ..earth import radii
-from ..rotations import euler_to_dcm
-from ..strapdown import na_cycle_inverse
-from ..synthesis import integrate_position
-from ..tracks import Track, write_akit
-from .guidance import GuidanceGains, GuidanceState, Helix, control_step
-from .remus100 import IPHI, IPSI, ITHETA, IU, IW, IX, IZ, Remus100, Remus100Params
-from .sensors import SensorSuite, draw_noise, measure, wrap_angle
+from nespm_cli.nav.earth import radii
+from nespm_cli.nav.rotations import euler_to_dcm
+from nespm_cli.nav.strapdown import na_cycle_inverse
+from nespm_cli.nav.synthesis import integrate_position
+from nespm_cli.data.tracks import Track, write_akit
+from nespm_cli.vehicles.guidance import GuidanceGains, GuidanceState, Helix, control_step
+from nespm_cli.vehicles.remus100 import IPHI, IPSI, ITHETA, IU, IW, IX, IZ, Remus100, Remus100Params
+from nespm_cli.vehicles.sensors import SensorSuite, draw_noise, measure, wrap_angle
 
 SENSOR_STREAM = 0  # spawn_key stream of the sensor noise
 #: default geodetic origin of the local NED frame (the helix axis at the surface): off Haifa,
-#: the same area as the Snapir tracks and nespm_cli.embedded
+#: the same area as the Snapir tracks and nespm_cli.data.embedded
 LAT0 = float(np.radians(32.84))
 LON0 = float(np.radians(34.93))
 IMU_HZ = 100  # rate of the written IMU file [Hz]
@@ -237,7 +237,7 @@ def simulate_runs(
 
 def geodetic_origin_offset(ned: np.ndarray, lat0: float, lon0: float) -> np.ndarray:
     """``[lat, lon, h]`` (3,) of a local NED point ``ned`` (3,) [m] about the surface origin
-    ``(lat0, lon0, 0)`` (the inverse of :func:`nespm_cli.earth.ned_offset`)."""
+    ``(lat0, lon0, 0)`` (the inverse of :func:`nespm_cli.nav.earth.ned_offset`)."""
     R_N, R_E = radii(np.asarray(lat0, dtype=float))
     n, e, d = (float(c) for c in ned)
     return np.array([lat0 + n / R_N, lon0 + e / (R_E * np.cos(lat0)), -d])
@@ -254,7 +254,7 @@ def to_track(
     """The A-KIT track of batch entry ``run`` (0..R-1) of ``result``, numbered ``number``.
 
     * GT and DVL at 1 Hz on ``t = 0, 1, ..., floor(duration)`` s;
-    * IMU at 100 Hz: each GT interval split in 100 steps (as :func:`nespm_cli.synthesis.synthesize`
+    * IMU at 100 Hz: each GT interval split in 100 steps (as :func:`nespm_cli.nav.synthesis.synthesize`
       builds its grid), row ``i >= 1`` at ``t_i`` holds the specific force and angular rate of
       step ``i - 1`` (from sample i-1 to i), which is how :func:`synthesis.from_recorded`
       reads it; row 0 repeats step 0. They are the exact inverse strapdown
@@ -324,7 +324,7 @@ def write_tracks(
     """Write every run of ``result`` as ``folder/TrajectoryN/{GT,DVL,IMU}_trajectoryN.csv``.
 
     Run i (batch position) becomes track ``first_number + i`` (:func:`to_track`,
-    :func:`nespm_cli.tracks.write_akit`). Returns the written ``TrajectoryN`` folders.
+    :func:`nespm_cli.data.tracks.write_akit`). Returns the written ``TrajectoryN`` folders.
     """
     return [
         write_akit(to_track(result, i, first_number + i, lat0, lon0, dvl), folder)

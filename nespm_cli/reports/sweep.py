@@ -9,7 +9,7 @@ For each swept value and filter the report gives the track-averaged VRMSE and MR
 the improvement of each filter over a baseline filter with a paired bootstrap interval; a
 summary per value names the best filter from head-to-head paired comparisons
 (:func:`report.compare_filters`). The sums, the paired bootstrap, the formatting and the
-markdown helpers are those of :mod:`nespm_cli.report`; the improvement table and the
+markdown helpers are those of :mod:`nespm_cli.reports.mc`; the improvement table and the
 improvement figure both read :func:`improvement_points`.
 """
 from __future__ import annotations
@@ -21,10 +21,10 @@ from typing import Any, Sequence
 import numpy as np
 import pandas as pd
 
-from nespm_cli import report as _rep
+from nespm_cli.reports import mc as _rep
 from nespm_cli.errors import NespmError
-from nespm_cli.metrics import nees_band
-from nespm_cli.report import (
+from nespm_cli.experiments.metrics import nees_band
+from nespm_cli.reports.mc import (
     save_figure,
     DASH,
     METRICS_COLUMNS,
@@ -124,7 +124,7 @@ def _param(metrics: pd.DataFrame) -> str:
 def _param_label(param: str) -> str:
     """Axis label with unit from ``sweep.PARAMS``, else the parameter name."""
     try:
-        from nespm_cli.sweep import PARAMS
+        from nespm_cli.experiments.sweep import PARAMS
     except Exception:  # pragma: no cover - sweep.py imports the experiment machinery
         return param
     return PARAMS[param].label if param in PARAMS else param

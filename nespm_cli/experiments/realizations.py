@@ -8,10 +8,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .corruption import CorruptionConfig, draw, imu_errors
-from .errors import NespmError
-from .experiment import prepared, write_json_atomic, write_parquet_atomic
-from .tracks import available_tracks, resolve_data_dir
+from nespm_cli.data.corruption import CorruptionConfig, draw, imu_errors
+from nespm_cli.errors import NespmError
+from nespm_cli.experiments.mc import prepared, write_json_atomic, write_parquet_atomic
+from nespm_cli.data.tracks import available_tracks, resolve_data_dir
 
 
 def write_realizations(tracks, runs: int, seed: int, config: CorruptionConfig, out: str | Path,
@@ -56,7 +56,7 @@ def write_realizations(tracks, runs: int, seed: int, config: CorruptionConfig, o
         _, truth = prepared(n, str(d) if d else None, "synthetic")
         duration = float(truth.t[-1] - truth.t[0])
         real = draw(seed, n, np.arange(runs), duration, config)
-        from .corruption import to_rows
+        from nespm_cli.data.corruption import to_rows
 
         rows += to_rows(real)
         if materialize:

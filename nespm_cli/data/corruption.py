@@ -40,7 +40,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .errors import NespmError
+from nespm_cli.errors import NespmError
 
 STREAM_INIT, STREAM_ACC, STREAM_GYRO, STREAM_DVL, STREAM_SCHEDULE = range(5)
 SCHEDULES = ("constant", "dynamic")

@@ -26,10 +26,10 @@ from functools import lru_cache
 
 import numpy as np
 
-from .earth import radii
-from .errors import NespmError
-from .rotations import euler_to_dcm
-from .tracks import Track
+from nespm_cli.nav.earth import radii
+from nespm_cli.errors import NespmError
+from nespm_cli.nav.rotations import euler_to_dcm
+from nespm_cli.data.track import Track
 
 EMBEDDED_TRACKS = (1, 2, 3, 4, 5, 6)
 N_EPOCHS = 400  # as in the recorded files: 0 .. 400 s

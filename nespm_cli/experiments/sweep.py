@@ -14,8 +14,8 @@ from typing import Callable
 import numpy as np
 import pandas as pd
 
-from .errors import NespmError
-from .experiment import Cell, Spec, couple_filter, run_cells, validate
+from nespm_cli.errors import NespmError
+from nespm_cli.experiments.mc import Cell, Spec, couple_filter, run_cells, validate
 
 
 @dataclass(frozen=True)

@@ -1,4 +1,4 @@
-"""Report of a GP-UKF experiment folder (``nespm_cli.gp_experiment``): gp-ukf.md Tables 3 and 4
+"""Report of a GP-UKF experiment folder (``nespm_cli.experiments.gp_ukf``): gp-ukf.md Tables 3 and 4
 beside ours, a paired bootstrap of the GP-UKF / UKF ratio, the learnt noise, and figures.
 
 Definitions (the paper defines neither its σ nor its Table 4 averages; ours are stated in the
@@ -20,11 +20,11 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .errors import NespmError
-from .report import _md_table, _read_parquet, _require_columns, _write_atomic, read_results_folder, save_figure
-from .gp_experiment import EXPERIMENT, FILTERS, STATE_UNITS
-from .vehicles import STATE_NAMES, SensorSuite
-from .vehicles.sensors import MEASUREMENT_NAMES
+from nespm_cli.errors import NespmError
+from nespm_cli.reports.mc import _md_table, _read_parquet, _require_columns, _write_atomic, read_results_folder, save_figure
+from nespm_cli.experiments.gp_ukf import EXPERIMENT, FILTERS, STATE_UNITS
+from nespm_cli.vehicles import STATE_NAMES, SensorSuite
+from nespm_cli.vehicles.sensors import MEASUREMENT_NAMES
 
 FIG_DPI = 130
 LABELS = {"ukf-ideal": "UKF (ideal)", "gp-ukf": "GP-UKF"}

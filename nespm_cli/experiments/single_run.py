@@ -7,10 +7,10 @@ from typing import Callable
 import numpy as np
 import pandas as pd
 
-from .errors import NespmError
-from .experiment import Spec, prepared, simulate, validate, write_parquet_atomic
-from .metrics import run_metrics
-from .rotations import dcm_to_euler
+from nespm_cli.errors import NespmError
+from nespm_cli.experiments.mc import Spec, prepared, simulate, validate, write_parquet_atomic
+from nespm_cli.experiments.metrics import run_metrics
+from nespm_cli.nav.rotations import dcm_to_euler
 
 
 def run_single(spec: Spec, track: int, filt: str, run: int, clean: bool = False, out: str | None = None,
@@ -22,8 +22,8 @@ def run_single(spec: Spec, track: int, filt: str, run: int, clean: bool = False,
     ``out`` (optional): per-epoch time series as Parquet (CSV if it ends in .csv) with
     true and estimated velocity and attitude, errors, covariance diagonal and biases.
     """
-    from .filters import FILTERS
-    from .tracks import available_tracks, resolve_data_dir
+    from nespm_cli.filters import FILTERS
+    from nespm_cli.data.tracks import available_tracks, resolve_data_dir
 
     if run < 0:
         raise NespmError(f"--run must be >= 0, got {run}")

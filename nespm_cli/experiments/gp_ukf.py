@@ -39,12 +39,12 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .errors import NespmError
-from .filters.gp_ukf import DeviationModel, GPUKFModels, gp_ukf, ideal_ukf, narx_training_data
-from .gp import GPModel, theta_default
-from .vehicles import STATE_NAMES, Remus100, SensorSuite, simulate_runs
-from .vehicles.remus100 import IPSI, saturate
-from .vehicles.sensors import I_PSI_MEAS, MEASURED_STATES, wrap_angle
+from nespm_cli.errors import NespmError
+from nespm_cli.filters.gp_ukf import DeviationModel, GPUKFModels, gp_ukf, ideal_ukf, narx_training_data
+from nespm_cli.learn.gp import GPModel, theta_default
+from nespm_cli.vehicles import STATE_NAMES, Remus100, SensorSuite, simulate_runs
+from nespm_cli.vehicles.remus100 import IPSI, saturate
+from nespm_cli.vehicles.sensors import I_PSI_MEAS, MEASURED_STATES, wrap_angle
 
 EXPERIMENT = "gp-ukf"
 #: GP-h inputs: "own" = each measurement's GP takes the one state it measures; "state" = every
@@ -179,7 +179,7 @@ TRUE_H = DeviationModel(_observe, lambda x0, D: (x0[..., _MEAS], D[..., _MEAS]))
 class MeasuredStateGP:
     """GP-h as one single-input GP per measurement, each on the state it measures.
 
-    Duck-types the part of :class:`~nespm_cli.gp.GPModel` that
+    Duck-types the part of :class:`~nespm_cli.learn.gp.GPModel` that
     :class:`~nespm_cli.filters.gp_ukf.GPUKFModels` uses for its observation model
     (``predict``, ``predict_offsets``, ``noise_var``); inputs are whole states (..., 12) and
     output j reads column ``cols[j]``.
@@ -313,7 +313,7 @@ def ideal_Q(x: np.ndarray, u: np.ndarray, f: TrueModel) -> np.ndarray:
 
 
 def _save_npz_atomic(path: Path, arrays: dict) -> None:
-    from .experiment import write_atomic
+    from nespm_cli.experiments.mc import write_atomic
 
     buf = io.BytesIO()
     np.savez(buf, **arrays)
@@ -327,7 +327,7 @@ def train_models(spec: GPSpec, out: Path, jobs: int, backend: str, scheduler: st
 
     ``progress``: optional callable(total, done) for a progress bar.
     """
-    from .backend import parallel_map
+    from nespm_cli.experiments.backend import parallel_map
 
     path = out / "models.npz"
     if path.exists():
@@ -423,7 +423,7 @@ def run_chunk(spec: GPSpec, first: int, out_dir: str) -> dict:
     """Compute one chunk (the filters whose metrics file is missing) and write its files."""
     from threadpoolctl import threadpool_limits
 
-    from .experiment import write_parquet_atomic
+    from nespm_cli.experiments.mc import write_parquet_atomic
 
     chunks = Path(out_dir) / "chunks"
     runs = np.arange(first, min(first + spec.chunk_size, spec.runs))
@@ -485,7 +485,7 @@ def run_chunk(spec: GPSpec, first: int, out_dir: str) -> dict:
 
 def assemble(out: Path) -> tuple[pd.DataFrame, pd.DataFrame]:
     """Concatenate the chunk files into metrics.parquet and epochs.parquet (sorted)."""
-    from .experiment import write_parquet_atomic
+    from nespm_cli.experiments.mc import write_parquet_atomic
 
     chunks = out / "chunks"
     order = {f: i for i, f in enumerate(FILTERS)}
@@ -511,8 +511,8 @@ def run_gp_experiment(out_dir: str | Path, runs: int = 20, seed: int = 0, durati
     ``rk4_substeps``, ``p0_std``). ``jobs``, ``backend`` and ``scheduler`` do not change the
     results. Schema of the outputs: docs/gp-ukf.md.
     """
-    from .backend import check_backend, parallel_map
-    from .experiment import check_existing, git_commit, versions
+    from nespm_cli.experiments.backend import check_backend, parallel_map
+    from nespm_cli.experiments.mc import check_existing, git_commit, versions
 
     unknown = set(options) - {f.name for f in dataclasses.fields(GPSpec)}
     if unknown:
@@ -583,6 +583,6 @@ def run_gp_experiment(out_dir: str | Path, runs: int = 20, seed: int = 0, durati
 
 
 def _write_manifest(out: Path, manifest: dict) -> None:
-    from .experiment import write_json_atomic
+    from nespm_cli.experiments.mc import write_json_atomic
 
     write_json_atomic(manifest, out / "manifest.json")

@@ -27,18 +27,19 @@ from typing import Callable
 import numpy as np
 import pandas as pd
 
-from . import __version__
-from .corruption import CorruptionConfig, draw, dvl_noise, imu_errors
-from .adaptive import BIAS_MODES, WINDOW, load_weights, predict_interval_std
-from .errors import NespmError
-from .earth import ned_offset
-from .embedded import embedded_track
-from .filters import ADAPTIVE, FILTERS, FilterConfig, initial_nav, run_filter
-from .metrics import epoch_errors, run_metrics
-from .progress import PROGRESS_DIR
-from .rotations import log_so3
-from .synthesis import ImuTruth, from_recorded, synthesize
-from .tracks import Track, available_tracks, load_track, resolve_data_dir
+from nespm_cli import __version__
+from nespm_cli.data.corruption import CorruptionConfig, draw, dvl_noise, imu_errors
+from nespm_cli.filters.adaptive import BIAS_MODES
+from nespm_cli.learn.noise_model import WINDOW, load_weights, predict_interval_std
+from nespm_cli.errors import NespmError
+from nespm_cli.nav.earth import ned_offset
+from nespm_cli.data.embedded import embedded_track
+from nespm_cli.filters import ADAPTIVE, FILTERS, FilterConfig, initial_nav, run_filter
+from nespm_cli.experiments.metrics import epoch_errors, run_metrics
+from nespm_cli.experiments.progress import PROGRESS_DIR
+from nespm_cli.nav.rotations import log_so3
+from nespm_cli.nav.synthesis import ImuTruth, from_recorded, synthesize
+from nespm_cli.data.tracks import Track, available_tracks, load_track, resolve_data_dir
 
 SCENARIOS = ("nominal", "outage")
 
@@ -221,7 +222,7 @@ def q_factors(noise_std, cfg: FilterConfig, R: int) -> dict:
     """
     if noise_std is None:
         return {"q_factor_acc": np.full(R, np.nan), "q_factor_gyro": np.full(R, np.nan)}
-    from .adaptive import valid_std
+    from nespm_cli.filters.adaptive import valid_std
 
     out = {}
     for key, s, nominal in (("acc", noise_std[0], cfg.acc_noise), ("gyro", noise_std[1], cfg.gyro_noise)):
@@ -278,8 +279,8 @@ def chunk_key(cell: Cell, number: int, first: int) -> str:
 def run_chunk(cell: Cell, number: int, first: int, out_dir: str, last: int | None = None) -> dict:
     """Compute runs ``first .. last-1`` of track ``number`` (all filters not yet on disk) and
     write their files. Runs in a worker. ``last`` defaults to ``first + chunk_size`` (at most
-    ``runs``). Its progress goes to ``out_dir/chunks/.progress`` (:mod:`nespm_cli.progress`)."""
-    from .progress import epoch_reporter
+    ``runs``). Its progress goes to ``out_dir/chunks/.progress`` (:mod:`nespm_cli.experiments.progress`)."""
+    from nespm_cli.experiments.progress import epoch_reporter
 
     spec, tag, extra = cell.spec, cell.tag, dict(cell.columns)
     chunks = Path(out_dir) / "chunks"
@@ -449,10 +450,10 @@ def run_cells(cells: list[Cell], options: dict, out_dir: str | Path, jobs: int =
               argv=None, label: str = "mc", backend: str = "loky", scheduler: str | None = None) -> pd.DataFrame:
     """Run (or resume) validated ``cells`` into ``out_dir``; ``options`` identify the experiment.
 
-    ``backend``/``scheduler`` choose where chunks run (:mod:`nespm_cli.backend`); they do not
+    ``backend``/``scheduler`` choose where chunks run (:mod:`nespm_cli.experiments.backend`); they do not
     change the results.
     """
-    from .backend import check_backend, parallel_map
+    from nespm_cli.experiments.backend import check_backend, parallel_map
 
     if jobs < 1:
         raise NespmError(f"--jobs must be at least 1, got {jobs}")
@@ -483,7 +484,7 @@ def run_cells(cells: list[Cell], options: dict, out_dir: str | Path, jobs: int =
     todo = [(c, n, f0, f1, len(missing(c, n, f0))) for c, n, f0, f1 in tasks if missing(c, n, f0)]
     t0 = time.perf_counter()
     if todo:
-        from .progress import Poller, Progress
+        from nespm_cli.experiments.progress import Poller, Progress
 
         units = {chunk_key(c, n, f0): k * (track_epochs(c.spec, n) - 1) for c, n, f0, _, k in todo}
         results = parallel_map(run_chunk_keyed, [(_absolute(c), n, f0, str(out.resolve()), f1)

@@ -15,8 +15,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .earth import OMEGA_IE, gravity_n, radii
-from .rotations import exp_so3, log_so3
+from nespm_cli.nav.earth import OMEGA_IE, gravity_n, radii
+from nespm_cli.nav.rotations import exp_so3, log_so3
 
 
 def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -16,10 +16,10 @@ import numpy as np
 from scipy.interpolate import CubicSpline
 from scipy.spatial.transform import Rotation, RotationSpline
 
-from .earth import radii
-from .errors import NespmError
-from .rotations import euler_to_dcm
-from .strapdown import na_cycle_inverse
+from nespm_cli.nav.earth import radii
+from nespm_cli.errors import NespmError
+from nespm_cli.nav.rotations import euler_to_dcm
+from nespm_cli.nav.strapdown import na_cycle_inverse
 
 
 @dataclass(frozen=True)

@@ -14,8 +14,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .earth import ned_offset
-from .rotations import attitude_minus, dcm_to_euler
+from nespm_cli.nav.earth import ned_offset
+from nespm_cli.nav.rotations import attitude_minus, dcm_to_euler
 
 
 @dataclass

@@ -4,7 +4,7 @@ A data folder holds ``TrajectoryN/GT_trajectoryN.csv`` and ``TrajectoryN/DVL_tra
 (and optionally ``TrajectoryN/IMU_trajectoryN.csv``), with the exact headers in
 :data:`GT_COLUMNS`, :data:`DVL_COLUMNS` and :data:`IMU_COLUMNS` (surrounding whitespace in a
 header name is ignored, extra columns are ignored). Without a data folder (no ``--data-dir`` and
-no ``NESPM_DATA_DIR``) the deterministic embedded tracks of :mod:`nespm_cli.embedded` are used.
+no ``NESPM_DATA_DIR``) the deterministic embedded tracks of :mod:`nespm_cli.data.embedded` are used.
 
 Every validation failure raises :class:`~nespm_cli.errors.NespmError` with a one-line message
 ``"<file>: data row R, column 'C': ..."``; *data rows* are numbered from 1 after the header line
@@ -12,21 +12,21 @@ Every validation failure raises :class:`~nespm_cli.errors.NespmError` with a one
 
 Conventions: ``pos = [lat rad, lon rad, alt m]`` with the altitude positive up (negative below
 the sea surface, as in the files; depth = -alt), ``v_n`` is NED [m/s], ``euler`` is
-``[roll, pitch, yaw]`` [rad], ZYX, body -> NED (see :mod:`nespm_cli.rotations`).
+``[roll, pitch, yaw]`` [rad], ZYX, body -> NED (see :mod:`nespm_cli.nav.rotations`).
 """
 from __future__ import annotations
 
 import os
 import re
 from collections.abc import Iterable
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-from .errors import NespmError
-from .rotations import euler_to_dcm, log_so3, skew
+from nespm_cli.data.track import Track
+from nespm_cli.errors import NespmError
+from nespm_cli.nav.rotations import log_so3, skew
 
 ENV_DATA_DIR = "NESPM_DATA_DIR"
 GT_COLUMNS = (
@@ -54,56 +54,6 @@ IMU_COLUMNS = (
 MAX_SPEED = 20.0  # [m/s]; a GT or DVL speed at or above this is rejected as a unit/column error
 EPOCH_TOL = 1e-6  # [s]; GT and DVL time stamps must agree to this
 _TRACK_DIR = re.compile(r"Trajectory(\d+)")
-
-
-@dataclass(frozen=True, eq=False)
-class Track:
-    """One ground-truth track with its DVL record (all arrays read-only).
-
-    Attributes:
-        number: track number N (``TrajectoryN``).
-        t: (N,) time [s], strictly increasing, as in the file (not shifted to 0).
-        pos: (N, 3) ``[lat rad, lon rad, alt m]``, alt positive up (negative below the surface).
-        v_n: (N, 3) NED velocity [m/s].
-        euler: (N, 3) ``[roll, pitch, yaw]`` [rad], ZYX, body -> NED.
-        dvl: (N, 3) body-frame DVL velocity [m/s] on the epochs ``t``.
-        imu: (M, 7) ``[t s, fx, fy, fz m/s^2, wx, wy, wz rad/s]`` recorded IMU, or None.
-        source: the ``TrajectoryN`` folder the track was read from, or ``"embedded"``.
-    """
-
-    number: int
-    t: np.ndarray
-    pos: np.ndarray
-    v_n: np.ndarray
-    euler: np.ndarray
-    dvl: np.ndarray
-    imu: np.ndarray | None
-    source: str
-
-    def __post_init__(self) -> None:
-        n = len(self.t)
-        for name in ("pos", "v_n", "euler", "dvl"):
-            if np.shape(getattr(self, name)) != (n, 3):
-                shape = np.shape(getattr(self, name))
-                raise ValueError(f"Track.{name} must have shape ({n}, 3), got {shape}")
-        if self.imu is not None and (np.ndim(self.imu) != 2 or np.shape(self.imu)[1] != 7):
-            raise ValueError(f"Track.imu must have shape (M, 7), got {np.shape(self.imu)}")
-        for name in ("t", "pos", "v_n", "euler", "dvl", "imu"):
-            a = getattr(self, name)
-            if a is not None:
-                a = np.array(a, dtype=float)  # private copy, then frozen
-                a.flags.writeable = False
-                object.__setattr__(self, name, a)
-
-    @property
-    def C_bn(self) -> np.ndarray:
-        """(N, 3, 3) body -> NED direction cosine matrices from :attr:`euler`."""
-        return euler_to_dcm(self.euler)
-
-    @property
-    def duration(self) -> float:
-        """Time span ``t[-1] - t[0]`` [s]."""
-        return float(self.t[-1] - self.t[0])
 
 
 # ----------------------------------------------------------------------------- data folders
@@ -139,7 +89,7 @@ def available_tracks(data_dir: Path | None) -> list[int]:
     Raises :class:`NespmError` if the folder does not exist or holds no ``TrajectoryN`` folder.
     """
     if data_dir is None:
-        from .embedded import EMBEDDED_TRACKS
+        from nespm_cli.data.embedded import EMBEDDED_TRACKS
 
         return list(EMBEDDED_TRACKS)
     data_dir = Path(data_dir)
@@ -167,7 +117,7 @@ def load_track(number: int, data_dir: str | Path | None = None) -> Track:
     """
     folder = resolve_data_dir(data_dir)
     if folder is None:
-        from .embedded import embedded_track
+        from nespm_cli.data.embedded import embedded_track
 
         return embedded_track(number)
     numbers = available_tracks(folder)
@@ -212,7 +162,7 @@ def load_tracks(numbers: Iterable[int] | None, data_dir: str | Path | None = Non
     if numbers is None:
         numbers = available_tracks(folder)
     if folder is None:
-        from .embedded import embedded_track
+        from nespm_cli.data.embedded import embedded_track
 
         return [embedded_track(int(n)) for n in numbers]
     return [load_track(int(n), folder) for n in numbers]

@@ -42,7 +42,7 @@ this for both sensors and is stored with the weights:
 With ``in_scale = σ_base·sqrt(C(2d, d))`` (the std of the d-th difference of white noise of
 std σ_base) and ``out_scale = σ_base``, both networks see inputs of std 1-6 and targets in
 [1, 6] whatever the sensor units. The choice of ``diff_order`` per sensor is discussed in
-:mod:`nespm_cli.training`.
+:mod:`nespm_cli.learn.training`.
 
 Files: :func:`save_nets` / :func:`load_nets` write one ``.npz`` holding any number of
 networks under prefixes ``<sensor>/`` (weights, normalizer, sensor name) and a JSON string
@@ -57,7 +57,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import NespmError
+from nespm_cli.errors import NespmError
 
 WINDOW = 100
 IN_CH = 3

@@ -32,7 +32,7 @@ import socket
 import uuid
 from collections.abc import Callable, Iterator
 
-from .errors import NespmError
+from nespm_cli.errors import NespmError
 
 BACKENDS = ("loky", "dask")
 ENV_SCHEDULER = "NESPM_DASK_SCHEDULER"
@@ -162,7 +162,7 @@ def _worker_env() -> dict:
     import numpy
     import scipy
 
-    from . import __version__
+    from nespm_cli import __version__
 
     return {"nespm": __version__, "numpy": numpy.__version__, "scipy": scipy.__version__}
 
@@ -255,7 +255,7 @@ def _ignore_sigint_plugin():
 
 def _call(fn: Callable, args: tuple):
     """Run one chunk on a worker; name the worker's host in the errors the user must act on."""
-    from .errors import NespmError as _NespmError
+    from nespm_cli.errors import NespmError as _NespmError
 
     try:
         return fn(*args)

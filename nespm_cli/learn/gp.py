@@ -47,7 +47,7 @@ from scipy.linalg import LinAlgError, cho_solve, cholesky, lapack, solve_triangu
 from scipy.optimize import minimize
 from scipy.spatial.distance import cdist
 
-from .errors import NespmError
+from nespm_cli.errors import NespmError
 
 #: Default number of training points kept per model (subset of data).
 MAX_POINTS = 1000

@@ -32,7 +32,7 @@ import numpy as np
 import pandas as pd
 
 from nespm_cli.errors import NespmError
-from nespm_cli.metrics import nees_band
+from nespm_cli.experiments.metrics import nees_band
 
 __all__ = [
     "PUBLISHED",
@@ -1333,7 +1333,7 @@ def write_report(out_dir: Path, reference: str | None = None, n_boot: int = 2000
     except (OSError, ValueError, AttributeError):
         experiment = None  # load_results reports a missing or unreadable manifest
     if experiment == "gp-ukf":
-        from nespm_cli.gp_report import write_gp_report
+        from nespm_cli.reports.gp_ukf import write_gp_report
 
         return write_gp_report(out_dir, n_boot=n_boot)  # --baseline does not apply
     try:  # schema only; an unreadable file is reported by load_results below
@@ -1343,7 +1343,7 @@ def write_report(out_dir: Path, reference: str | None = None, n_boot: int = 2000
     except Exception:
         is_sweep = False
     if is_sweep:
-        from nespm_cli.sweep_report import write_sweep_report
+        from nespm_cli.reports.sweep import write_sweep_report
 
         return write_sweep_report(out_dir, reference, n_boot=n_boot, practical_pct=practical_pct)
     metrics, epochs, manifest = load_results(out_dir)

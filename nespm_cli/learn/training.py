@@ -54,11 +54,11 @@ from typing import Callable
 import numpy as np
 from scipy.stats import spearmanr
 
-from .corruption import CorruptionConfig, draw, imu_errors, segment_index
-from .errors import NespmError
-from .processnet import Adam, Normalizer, ProcessNet, load_nets, mse_loss, save_nets
-from .synthesis import synthesize
-from .tracks import load_track
+from nespm_cli.data.corruption import CorruptionConfig, draw, imu_errors, segment_index
+from nespm_cli.errors import NespmError
+from nespm_cli.learn.processnet import Adam, Normalizer, ProcessNet, load_nets, mse_loss, save_nets
+from nespm_cli.nav.synthesis import synthesize
+from nespm_cli.data.tracks import load_track
 
 SENSORS = ("acc", "gyro")
 DEFAULT_RUNS = 24
@@ -238,11 +238,11 @@ def train_processnet(train_tracks=(1, 2, 3, 4), test_tracks=(5, 6), data_dir=Non
 
     * ``out_path`` (.npz): both networks (``acc/...``, ``gyro/...``) with their
       normalizers, and ``meta`` (JSON: configuration, histories, test metrics);
-    * ``out_path`` with suffix ``.png``: the training and validation loss curves.
+    (the loss curves are drawn by :func:`nespm_cli.reports.training.plot_history` from ``history``).
 
     Returns a summary: ``spearman`` ``{"acc", "gyro"}`` on the test tracks, ``test``
-    (full :func:`evaluate` dicts), ``epochs_run``, ``seconds`` (total and per phase),
-    ``path``, ``plot``.
+    (full :func:`evaluate` dicts), ``epochs_run``, ``history`` (per sensor), ``seconds`` (total
+    and per phase), ``path``.
     """
     t_all = time.perf_counter()
     out_path = Path(out_path)
@@ -275,42 +275,12 @@ def train_processnet(train_tracks=(1, 2, 3, 4), test_tracks=(5, 6), data_dir=Non
         "seconds": {"total": seconds, "data": t_data, **secs},
     }
     save_nets(out_path, nets, meta)
-    plot = plot_history(hists, out_path.with_suffix(".png"), tests)
     return {"spearman": {s: tests[s]["spearman"] for s in SENSORS}, "test": tests,
-            "epochs_run": {s: hists[s]["epochs_run"] for s in SENSORS},
+            "epochs_run": {s: hists[s]["epochs_run"] for s in SENSORS}, "history": hists,
             "seconds": time.perf_counter() - t_all, "seconds_detail": meta["seconds"],
-            "path": str(out_path), "plot": str(plot)}
+            "path": str(out_path)}
 
 
-def plot_history(hists: dict, path, tests: dict | None = None) -> Path:
-    """Loss curves (train and validation, log y) of every sensor, one panel each."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    path = Path(path)
-    fig, axes = plt.subplots(1, len(hists), figsize=(5 * len(hists), 3.6), squeeze=False)
-    for ax, (s, h) in zip(axes[0], hists.items()):
-        ep = np.arange(1, len(h["train_loss"]) + 1)
-        ax.plot(ep, h["train_loss"], "o-", label="train")
-        ax.plot(ep, h["val_loss"], "s-", label="validation")
-        ax.axvline(h["best_epoch"] + 1, color="0.6", ls=":", label="best (restored)")
-        ax.set_yscale("log")
-        ax.set_xlabel("epoch")
-        ax.set_ylabel("MSE loss (eq 42, normalized std²)")
-        title = f"{s} ProcessNet"
-        if tests and s in tests:
-            title += f" — test Spearman {tests[s]['spearman']:.3f}"
-        ax.set_title(title, fontsize=10)
-        ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=8)
-    from .report import save_figure
-
-    return save_figure(fig, path, dpi=110)
-
-
-# ----------------------------------------------------------------------------- inference
 def load_processnet(path) -> tuple[ProcessNet, ProcessNet, dict]:
     """Read a file written by :func:`train_processnet`: ``(acc_net, gyro_net, meta)``."""
     nets, meta = load_nets(path)

@@ -1,0 +1,58 @@
+"""The track: ground truth and DVL of one run, as every loader and generator returns it."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from nespm_cli.nav.rotations import euler_to_dcm
+
+
+@dataclass(frozen=True, eq=False)
+class Track:
+    """One ground-truth track with its DVL record (all arrays read-only).
+
+    Attributes:
+        number: track number N (``TrajectoryN``).
+        t: (N,) time [s], strictly increasing, as in the file (not shifted to 0).
+        pos: (N, 3) ``[lat rad, lon rad, alt m]``, alt positive up (negative below the surface).
+        v_n: (N, 3) NED velocity [m/s].
+        euler: (N, 3) ``[roll, pitch, yaw]`` [rad], ZYX, body -> NED.
+        dvl: (N, 3) body-frame DVL velocity [m/s] on the epochs ``t``.
+        imu: (M, 7) ``[t s, fx, fy, fz m/s^2, wx, wy, wz rad/s]`` recorded IMU, or None.
+        source: the ``TrajectoryN`` folder the track was read from, or ``"embedded"``.
+    """
+
+    number: int
+    t: np.ndarray
+    pos: np.ndarray
+    v_n: np.ndarray
+    euler: np.ndarray
+    dvl: np.ndarray
+    imu: np.ndarray | None
+    source: str
+
+    def __post_init__(self) -> None:
+        n = len(self.t)
+        for name in ("pos", "v_n", "euler", "dvl"):
+            if np.shape(getattr(self, name)) != (n, 3):
+                shape = np.shape(getattr(self, name))
+                raise ValueError(f"Track.{name} must have shape ({n}, 3), got {shape}")
+        if self.imu is not None and (np.ndim(self.imu) != 2 or np.shape(self.imu)[1] != 7):
+            raise ValueError(f"Track.imu must have shape (M, 7), got {np.shape(self.imu)}")
+        for name in ("t", "pos", "v_n", "euler", "dvl", "imu"):
+            a = getattr(self, name)
+            if a is not None:
+                a = np.array(a, dtype=float)  # private copy, then frozen
+                a.flags.writeable = False
+                object.__setattr__(self, name, a)
+
+    @property
+    def C_bn(self) -> np.ndarray:
+        """(N, 3, 3) body -> NED direction cosine matrices from :attr:`euler`."""
+        return euler_to_dcm(self.euler)
+
+    @property
+    def duration(self) -> float:
+        """Time span ``t[-1] - t[0]`` [s]."""
+        return float(self.t[-1] - self.t[0])
