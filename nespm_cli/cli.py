@@ -18,8 +18,10 @@ from typer.exceptions import Abort, Exit, TyperException
 
 from nespm_cli.data.corruption import CorruptionConfig
 from nespm_cli.errors import NespmError
+from nespm_cli.experiments.gp_ukf import GPSpec
+from nespm_cli.experiments.mc import Spec
 from nespm_cli.filters import FilterConfig
-from nespm_cli.reports.mc import PRACTICAL_PCT
+from nespm_cli.reports.stats import PRACTICAL_PCT
 
 app = typer.Typer(
     add_completion=False,
@@ -49,64 +51,73 @@ def _filters(text: str) -> tuple[str, ...]:
     return tuple(x.strip().lower() for x in text.split(",") if x.strip())
 
 
+#: option name -> field of the config dataclass it sets (where the names differ, or the class)
+CORRUPTION_FIELDS = {"schedule": "schedule", "segment_length": "segment_s", "dynamic_bias": "dynamic_bias",
+                     "dvl_noise": "dvl_noise", "misalignment_deg": "misalignment_deg", "heading_deg": "heading_deg",
+                     "vel_h_std": "vel_h_std", "vel_v_std": "vel_v_std", "acc_noise": "acc_noise",
+                     "gyro_noise": "gyro_noise", "acc_bias": "acc_bias", "gyro_bias": "gyro_bias"}
+FILTER_FIELDS = ("acc_bias_rw", "gyro_bias_rw", "alpha", "tau", "tau_a", "tau_g", "adaptive_bias", "q_clip",
+                 "time_update")
+
+
+def default(cls, name: str):
+    """The default of field ``name`` of dataclass ``cls``: the one place every option default lives."""
+    import dataclasses
+
+    f = next(f for f in dataclasses.fields(cls) if f.name == name)
+    return f.default if f.default is not dataclasses.MISSING else f.default_factory()
+
+
 def _corruption(kw: dict) -> CorruptionConfig:
-    """Pop the corruption options (:data:`_CORRUPTION`, less seed and data_dir) from ``kw``."""
-    return CorruptionConfig(
-        schedule=kw.pop("schedule"), segment_s=kw.pop("segment_length"), dynamic_bias=kw.pop("dynamic_bias"),
-        misalignment_deg=kw.pop("misalignment_deg"), vel_h_std=kw.pop("vel_h_std"),
-        vel_v_std=kw.pop("vel_v_std"), acc_noise=kw.pop("acc_noise"), gyro_noise=kw.pop("gyro_noise"),
-        acc_bias=kw.pop("acc_bias"), gyro_bias=kw.pop("gyro_bias"), dvl_noise=kw.pop("dvl_noise"),
-        heading_deg=kw.pop("heading_deg"),
-    )
+    """Pop the corruption options (:data:`CORRUPTION_FIELDS`) from ``kw``."""
+    return CorruptionConfig(**{field: kw.pop(opt) for opt, field in CORRUPTION_FIELDS.items()})
 
 
 def _spec(**kw):
     from nespm_cli.experiments.mc import Spec, couple_filter
 
     corr = _corruption(kw)
-    fcfg = couple_filter(FilterConfig(alpha=kw.pop("alpha"), time_update=kw.pop("time_update"),
-                                      acc_bias_rw=kw.pop("acc_bias_rw"), gyro_bias_rw=kw.pop("gyro_bias_rw"),
-                                      tau=kw.pop("tau"), tau_a=kw.pop("tau_a"), tau_g=kw.pop("tau_g"),
-                                      adaptive_bias=kw.pop("adaptive_bias"), q_clip=tuple(kw.pop("q_clip"))), corr)
+    fields = {k: kw.pop(k) for k in FILTER_FIELDS}
+    fcfg = couple_filter(FilterConfig(**{**fields, "q_clip": tuple(fields["q_clip"])}), corr)
     return Spec(corruption=corr, filter_config=fcfg, **kw)
 
 
 _CORRUPTION = [  # (name, type, default, flag, help): the realizations (mc, sweep, run, corrupt)
-    ("schedule", str, "constant", "--schedule", "IMU error schedule: constant (UKF-NESPM paper) or dynamic (ANUKF paper: noise and bias x U[1,6] per segment)."),
-    ("segment_length", float, 20.0, "--segment-length", "Dynamic schedule segment [s]."),
-    ("dynamic_bias", str, "run", "--dynamic-bias", "Dynamic schedule biases: run (x the run's first-segment factor, held) or segment (x every segment's factor: 20 s bias steps)."),
-    ("seed", int, 0, "--seed", "Master seed; run r of track N draws from SeedSequence(seed, spawn_key=(N, r, stream))."),
-    ("data_dir", Optional[str], None, "--data-dir", "Folder in the A-KIT layout (default: $NESPM_DATA_DIR, else the embedded tracks)."),
-    ("dvl_noise", float, 0.02, "--dvl-noise", "Synthetic DVL noise std [m/s]."),
-    ("misalignment_deg", float, 0.01, "--misalignment-deg", "Initial misalignment std per axis [deg]."),
-    ("heading_deg", Optional[float], None, "--heading-deg", "Initial heading (yaw-axis) misalignment std [deg]; default: --misalignment-deg."),
-    ("vel_h_std", float, 0.25, "--vel-h-std", "Initial north/east velocity error std [m/s]."),
-    ("vel_v_std", float, 0.05, "--vel-v-std", "Initial down velocity error std [m/s]."),
-    ("acc_noise", float, 0.03, "--acc-noise", "Accelerometer white noise std per 100 Hz sample [m/s^2]."),
-    ("gyro_noise", float, 7.3e-6, "--gyro-noise", "Gyro white noise std per sample [rad/s]."),
-    ("acc_bias", float, 0.3, "--acc-bias", "Accelerometer bias std [m/s^2]."),
-    ("gyro_bias", float, 7.3e-5, "--gyro-bias", "Gyro bias std [rad/s]."),
+    ("schedule", str, default(CorruptionConfig, "schedule"), "--schedule", "IMU error schedule: constant (UKF-NESPM paper) or dynamic (ANUKF paper: noise and bias x U[1,6] per segment)."),
+    ("segment_length", float, default(CorruptionConfig, "segment_s"), "--segment-length", "Dynamic schedule segment [s]."),
+    ("dynamic_bias", str, default(CorruptionConfig, "dynamic_bias"), "--dynamic-bias", "Dynamic schedule biases: run (x the run's first-segment factor, held) or segment (x every segment's factor: 20 s bias steps)."),
+    ("seed", int, default(Spec, "seed"), "--seed", "Master seed; run r of track N draws from SeedSequence(seed, spawn_key=(N, r, stream))."),
+    ("data_dir", Optional[str], default(Spec, "data_dir"), "--data-dir", "Folder in the A-KIT layout (default: $NESPM_DATA_DIR, else the embedded tracks)."),
+    ("dvl_noise", float, default(CorruptionConfig, "dvl_noise"), "--dvl-noise", "Synthetic DVL noise std [m/s]."),
+    ("misalignment_deg", float, default(CorruptionConfig, "misalignment_deg"), "--misalignment-deg", "Initial misalignment std per axis [deg]."),
+    ("heading_deg", Optional[float], default(CorruptionConfig, "heading_deg"), "--heading-deg", "Initial heading (yaw-axis) misalignment std [deg]; default: --misalignment-deg."),
+    ("vel_h_std", float, default(CorruptionConfig, "vel_h_std"), "--vel-h-std", "Initial north/east velocity error std [m/s]."),
+    ("vel_v_std", float, default(CorruptionConfig, "vel_v_std"), "--vel-v-std", "Initial down velocity error std [m/s]."),
+    ("acc_noise", float, default(CorruptionConfig, "acc_noise"), "--acc-noise", "Accelerometer white noise std per 100 Hz sample [m/s^2]."),
+    ("gyro_noise", float, default(CorruptionConfig, "gyro_noise"), "--gyro-noise", "Gyro white noise std per sample [rad/s]."),
+    ("acc_bias", float, default(CorruptionConfig, "acc_bias"), "--acc-bias", "Accelerometer bias std [m/s^2]."),
+    ("gyro_bias", float, default(CorruptionConfig, "gyro_bias"), "--gyro-bias", "Gyro bias std [rad/s]."),
 ]
 
 _COMMON = [  # the options that define an experiment: the realizations, the data, the filters
     *_CORRUPTION,
-    ("scenario", str, "nominal", "--scenario", "nominal, or outage: no DVL for --outage-length s from --outage-start s."),
-    ("imu", str, "synthetic", "--imu", "synthetic (inverse strapdown of GT: exact truth) or recorded (IMU_trajectoryN.csv)."),
-    ("dvl", str, "recorded", "--dvl", "recorded (the track's DVL file) or synthetic (C_n^b v + w_nb x l + N(0, dvl-noise^2))."),
-    ("dvl_lever_arm", Tuple[float, float, float], (0.0, 0.0, 0.0), "--dvl-lever-arm", "DVL lever arm X Y Z [m, body] in the measurement model (and in synthetic DVL)."),
-    ("dvl_r_std", Optional[float], None, "--dvl-r-std", "Filter DVL std [m/s] (default 0.02 with synthetic DVL, 0.1 with recorded)."),
-    ("outage_start", float, 180.0, "--outage-start", "Outage start [s after the first epoch]."),
-    ("outage_length", float, 20.0, "--outage-length", "Outage length [s]."),
-    ("acc_bias_rw", float, 1e-3, "--acc-bias-rw", "Filter accelerometer bias random walk [m/s^2/sqrt(s)]."),
-    ("gyro_bias_rw", float, 1e-6, "--gyro-bias-rw", "Filter gyro bias random walk [rad/s/sqrt(s)]."),
-    ("alpha", float, 1e-3, "--alpha", "UKF sigma-point spread alpha (beta = 2, kappa = 0)."),
-    ("weights", Optional[str], None, "--weights", "ProcessNet weights (.npz from 'nespm train') for anekf/anukf/anukf-nespm; default: the packaged ones (embedded tracks 1-4)."),
-    ("tau", Optional[float], None, "--tau", "Adaptive Q, eqs 44/46: q = std^2 * tau [s]; default: the IMU step."),
-    ("tau_a", Optional[float], None, "--tau-a", "Adaptive Q, eq 45: q_v = q_a * tau_a [s]; default: the time-update span."),
-    ("tau_g", Optional[float], None, "--tau-g", "Adaptive Q, eq 47: q_psi = q_g * tau_g [s]; default: the time-update span."),
-    ("adaptive_bias", str, "nominal", "--adaptive-bias", "Adaptive Q bias blocks: nominal (the fixed random walk), scaled (x (std/nominal)^2, matches --dynamic-bias segment) or paper (q_a, q_g of eq 43)."),
-    ("q_clip", Tuple[float, float], (0.25, 24.0), "--q-clip", "Validity bounds LOW HIGH on the network std, as multiples of the nominal std."),
-    ("time_update", str, "dvl", "--time-update", "dvl: one time update per DVL interval (sigma points carried through all its IMU steps); imu: every IMU step."),
+    ("scenario", str, default(Spec, "scenario"), "--scenario", "nominal, or outage: no DVL for --outage-length s from --outage-start s."),
+    ("imu", str, default(Spec, "imu"), "--imu", "synthetic (inverse strapdown of GT: exact truth) or recorded (IMU_trajectoryN.csv)."),
+    ("dvl", str, default(Spec, "dvl"), "--dvl", "recorded (the track's DVL file) or synthetic (C_n^b v + w_nb x l + N(0, dvl-noise^2))."),
+    ("dvl_lever_arm", Tuple[float, float, float], default(Spec, "dvl_lever_arm"), "--dvl-lever-arm", "DVL lever arm X Y Z [m, body] in the measurement model (and in synthetic DVL)."),
+    ("dvl_r_std", Optional[float], default(Spec, "dvl_r_std"), "--dvl-r-std", "Filter DVL std [m/s] (default 0.02 with synthetic DVL, 0.1 with recorded)."),
+    ("outage_start", float, default(Spec, "outage_start"), "--outage-start", "Outage start [s after the first epoch]."),
+    ("outage_length", float, default(Spec, "outage_length"), "--outage-length", "Outage length [s]."),
+    ("acc_bias_rw", float, default(FilterConfig, "acc_bias_rw"), "--acc-bias-rw", "Filter accelerometer bias random walk [m/s^2/sqrt(s)]."),
+    ("gyro_bias_rw", float, default(FilterConfig, "gyro_bias_rw"), "--gyro-bias-rw", "Filter gyro bias random walk [rad/s/sqrt(s)]."),
+    ("alpha", float, default(FilterConfig, "alpha"), "--alpha", "UKF sigma-point spread alpha (beta = 2, kappa = 0)."),
+    ("weights", Optional[str], default(Spec, "weights"), "--weights", "ProcessNet weights (.npz from 'nespm train') for anekf/anukf/anukf-nespm; default: the packaged ones (embedded tracks 1-4)."),
+    ("tau", Optional[float], default(FilterConfig, "tau"), "--tau", "Adaptive Q, eqs 44/46: q = std^2 * tau [s]; default: the IMU step."),
+    ("tau_a", Optional[float], default(FilterConfig, "tau_a"), "--tau-a", "Adaptive Q, eq 45: q_v = q_a * tau_a [s]; default: the time-update span."),
+    ("tau_g", Optional[float], default(FilterConfig, "tau_g"), "--tau-g", "Adaptive Q, eq 47: q_psi = q_g * tau_g [s]; default: the time-update span."),
+    ("adaptive_bias", str, default(FilterConfig, "adaptive_bias"), "--adaptive-bias", "Adaptive Q bias blocks: nominal (the fixed random walk), scaled (x (std/nominal)^2, matches --dynamic-bias segment) or paper (q_a, q_g of eq 43)."),
+    ("q_clip", Tuple[float, float], default(FilterConfig, "q_clip"), "--q-clip", "Validity bounds LOW HIGH on the network std, as multiples of the nominal std."),
+    ("time_update", str, default(FilterConfig, "time_update"), "--time-update", "dvl: one time update per DVL interval (sigma points carried through all its IMU steps); imu: every IMU step."),
 ]
 
 
@@ -118,10 +129,10 @@ _PARALLEL = [  # where the chunks of a resumable experiment run (mc, sweep, gp-u
 ]
 
 _RUNNER = [  # options of the commands that run many realizations (mc, sweep)
-    ("tracks_", str, "5 6", "--tracks", "Track numbers: --tracks 5 6 or --tracks 5,6."),
-    ("runs", int, 100, "--runs", "Monte Carlo runs per track."),
-    ("filters_", str, "ekf,ukf,ukf-nespm", "--filters", "Comma list of ins, ekf, ukf, ukf-nespm, anekf, anukf, anukf-nespm."),
-    ("chunk_size", int, 50, "--chunk-size", "Runs per batch, the resumable unit."),
+    ("tracks_", str, " ".join(map(str, default(Spec, "tracks"))), "--tracks", "Track numbers: --tracks 5 6 or --tracks 5,6."),
+    ("runs", int, default(Spec, "runs"), "--runs", "Monte Carlo runs per track."),
+    ("filters_", str, ",".join(default(Spec, "filters")), "--filters", "Comma list of ins, ekf, ukf, ukf-nespm, anekf, anukf, anukf-nespm."),
+    ("chunk_size", int, default(Spec, "chunk_size"), "--chunk-size", "Runs per batch, the resumable unit."),
     ("config", Optional[str], None, "--config", "TOML file of options (keys are option names: runs = 100, tracks = [5, 6]); options on the command line override it. See experiments/."),
     *_PARALLEL,
 ]
@@ -283,7 +294,7 @@ def report(
     practical: float = typer.Option(PRACTICAL_PCT, "--practical", help="Smallest improvement [%] the summary calls practically meaningful (a difference must also be statistically significant)."),
 ) -> None:
     """Write DIR/report.md (Tables I/II layout, paired 95 % intervals, published values) and figures."""
-    from nespm_cli.reports.mc import write_report
+    from nespm_cli.reports.dispatch import write_report
 
     path = write_report(out_dir, baseline, n_boot=n_boot, practical_pct=practical)
     typer.echo(path.read_text())
@@ -386,16 +397,16 @@ def simulate(
 @_options(_PARALLEL)
 def gp_ukf_cmd(
     out: str = typer.Option("results/gp-ukf", "--out", help="Output folder."),
-    runs: int = typer.Option(20, "--runs", help="Helix runs; run 0 trains the GPs and is evaluated too (as the paper)."),
-    duration: float = typer.Option(800.0, "--duration", help="Seconds per run (a multiple of 0.2 s, >= 10)."),
-    seed: int = typer.Option(0, "--seed", help="Master seed: run r's sensor noise SeedSequence(seed, spawn_key=(r, 0)), its initial estimate (r, 1)."),
-    max_points: int = typer.Option(500, "--max-points", help="Training points per GP model (from the 40 % sample of the training run)."),
-    restarts: int = typer.Option(0, "--restarts", help="Extra random optimizer starts per GP output."),
-    h_inputs: str = typer.Option("own", "--h-inputs", help="GP-h inputs: own (each measurement from the state it measures) or state (all 12 states, the paper's)."),
-    fraction: float = typer.Option(0.4, "--fraction", help="Random fraction of the training run's samples (paper: 0.4)."),
-    train_run: int = typer.Option(0, "--train-run", help="Run the GPs are trained on."),
-    rk4_substeps: int = typer.Option(4, "--rk4-substeps", help="RK4 steps of the ideal UKF's model per 0.2 s sample."),
-    chunk_size: int = typer.Option(10, "--chunk-size", help="Runs per batch, the resumable unit."),
+    runs: int = typer.Option(default(GPSpec, "runs"), "--runs", help="Helix runs; run 0 trains the GPs and is evaluated too (as the paper)."),
+    duration: float = typer.Option(default(GPSpec, "duration_s"), "--duration", help="Seconds per run (a multiple of 0.2 s, >= 10)."),
+    seed: int = typer.Option(default(GPSpec, "seed"), "--seed", help="Master seed: run r's sensor noise SeedSequence(seed, spawn_key=(r, 0)), its initial estimate (r, 1)."),
+    max_points: int = typer.Option(default(GPSpec, "max_points"), "--max-points", help="Training points per GP model (from the 40 % sample of the training run)."),
+    restarts: int = typer.Option(default(GPSpec, "n_restarts"), "--restarts", help="Extra random optimizer starts per GP output."),
+    h_inputs: str = typer.Option(default(GPSpec, "h_inputs"), "--h-inputs", help="GP-h inputs: own (each measurement from the state it measures) or state (all 12 states, the paper's)."),
+    fraction: float = typer.Option(default(GPSpec, "fraction"), "--fraction", help="Random fraction of the training run's samples (paper: 0.4)."),
+    train_run: int = typer.Option(default(GPSpec, "train_run"), "--train-run", help="Run the GPs are trained on."),
+    rk4_substeps: int = typer.Option(default(GPSpec, "rk4_substeps"), "--rk4-substeps", help="RK4 steps of the ideal UKF's model per 0.2 s sample."),
+    chunk_size: int = typer.Option(default(GPSpec, "chunk_size"), "--chunk-size", help="Runs per batch, the resumable unit."),
     **kw,
 ) -> None:
     """GP-UKF vs ideal UKF on simulated REMUS 100 helix runs (gp-ukf.md section 6, Tables 3-4); resumable."""

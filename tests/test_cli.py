@@ -346,3 +346,18 @@ def test_ctrl_c_during_mc_prints_the_resume_hint(tmp_path):
     _, err = p.communicate(timeout=120)
     assert p.returncode == 130
     assert err.splitlines() == ["nespm: interrupted; finished chunks are kept, re-run the same command to resume"]
+
+
+def test_cli_defaults_are_the_library_defaults():
+    """One source of defaults: the options' defaults build exactly the library's default Spec."""
+    from nespm_cli import cli as cli_mod
+    from nespm_cli.data.corruption import CorruptionConfig
+    from nespm_cli.experiments.mc import Spec, couple_filter
+    from nespm_cli.filters import FilterConfig
+
+    kw = {name: d for name, _, d, _, _ in cli_mod._COMMON}
+    spec = cli_mod._spec(tracks=(5, 6), runs=100, filters=("ekf", "ukf", "ukf-nespm"), chunk_size=50, **kw)
+    assert spec == Spec(filter_config=couple_filter(FilterConfig(), CorruptionConfig()))
+    runner = {name: d for name, _, d, _, _ in cli_mod._RUNNER}
+    assert runner["tracks_"] == "5 6" and runner["filters_"] == "ekf,ukf,ukf-nespm"
+    assert runner["runs"] == Spec().runs and runner["chunk_size"] == Spec().chunk_size

@@ -10,27 +10,20 @@ import pytest
 
 from nespm_cli.errors import NespmError
 from nespm_cli.experiments.metrics import nees_band
+from nespm_cli.reports.dispatch import write_report
+from nespm_cli.reports.markdown import decimals, fmt_ci, fmt_imprv, fmt_pct
 from nespm_cli.reports.mc import (
-    MIN_PAIRED_RUNS,
-    PRACTICAL_PCT,
-    PUBLISHED,
-    _decimals,
-    _fmt_ci,
-    _fmt_imprv,
-    _fmt_pct,
     compare_filters,
     default_reference,
     filter_table,
     horizontal_table,
-    load_results,
     nees_consistency,
-    paired_bootstrap,
-    paired_improvement,
-    published_tables,
     render_report,
     track_table,
-    write_report,
 )
+from nespm_cli.reports.published import PUBLISHED, published_tables
+from nespm_cli.reports.results import load_results
+from nespm_cli.reports.stats import MIN_PAIRED_RUNS, PRACTICAL_PCT, paired_bootstrap, paired_improvement
 
 TRACKS = (5, 6)
 
@@ -126,10 +119,10 @@ def test_table_I_of_anukf_reproduced() -> None:
     assert table.loc["ukf", "vrmse"] == pytest.approx(0.1172, abs=1e-12)
     assert table.loc["anukf", "vrmse"] == pytest.approx(0.0922, abs=1e-12)
     # the paper's "ANUKF Imprv." column: 21.3 %, 8.2 % (VRMSE) and 5.4 %, 32.1 % (MRMSE)
-    assert _fmt_pct(table.loc["ukf", "vrmse_imprv"]) == "21.3 %"
-    assert _fmt_pct(table.loc["anekf", "vrmse_imprv"]) == "8.2 %"
-    assert _fmt_pct(table.loc["ukf", "mrmse_imprv"]) == "5.4 %"
-    assert _fmt_pct(table.loc["anekf", "mrmse_imprv"]) == "32.1 %"
+    assert fmt_pct(table.loc["ukf", "vrmse_imprv"]) == "21.3 %"
+    assert fmt_pct(table.loc["anekf", "vrmse_imprv"]) == "8.2 %"
+    assert fmt_pct(table.loc["ukf", "mrmse_imprv"]) == "5.4 %"
+    assert fmt_pct(table.loc["anekf", "mrmse_imprv"]) == "32.1 %"
 
 
 def test_diverged_run_excluded_and_counted(three: pd.DataFrame) -> None:
@@ -548,23 +541,23 @@ def test_definitions_match_the_code(tmp_path: Path) -> None:
 
 
 def test_interval_formatting_distinguishes_close_values() -> None:
-    assert _fmt_imprv(-0.0076, -0.0091, -0.0061, "*") == "-0.0076 % [-0.0091, -0.0061] *"
-    assert _fmt_imprv(52.5, 42.3, 61.0) == "52.5 % [42.3, 61.0]"  # papers' one decimal for wide ones
-    assert _fmt_imprv(-0.113, -0.147, -0.094, "†") == "-0.113 % [-0.147, -0.094] †"  # was -0.1 % [-0.1, -0.1]
-    assert _fmt_ci(-0.147, -0.094, True) == "[-0.147, -0.094] % *"
-    assert _fmt_imprv(1.0, np.nan, np.nan) == "1.0 %" and _fmt_imprv(np.nan, 0.0, 1.0) == "—"
-    assert _fmt_imprv(10.0, 10.0, 10.0) == "10.0 % [10.0, 10.0]"  # a collapsed interval stays short
-    assert _fmt_imprv(-0.0004, -0.3, 0.3) == "0.00 % [-0.30, 0.30]"  # no "-0.00"
+    assert fmt_imprv(-0.0076, -0.0091, -0.0061, "*") == "-0.0076 % [-0.0091, -0.0061] *"
+    assert fmt_imprv(52.5, 42.3, 61.0) == "52.5 % [42.3, 61.0]"  # papers' one decimal for wide ones
+    assert fmt_imprv(-0.113, -0.147, -0.094, "†") == "-0.113 % [-0.147, -0.094] †"  # was -0.1 % [-0.1, -0.1]
+    assert fmt_ci(-0.147, -0.094, True) == "[-0.147, -0.094] % *"
+    assert fmt_imprv(1.0, np.nan, np.nan) == "1.0 %" and fmt_imprv(np.nan, 0.0, 1.0) == "—"
+    assert fmt_imprv(10.0, 10.0, 10.0) == "10.0 % [10.0, 10.0]"  # a collapsed interval stays short
+    assert fmt_imprv(-0.0004, -0.3, 0.3) == "0.00 % [-0.30, 0.30]"  # no "-0.00"
     rng = np.random.default_rng(0)
     for _ in range(300):  # three distinct values always print as three distinct strings
         centre, width = rng.normal(0, 10) * 10.0 ** rng.integers(-3, 2), 10.0 ** rng.uniform(-5, 1)
         lo, hi = centre - width * rng.random(), centre + width * rng.random()
         point = lo + (hi - lo) * rng.uniform(0.05, 0.95)
-        text = _fmt_imprv(point, lo, hi)
+        text = fmt_imprv(point, lo, hi)
         p, rest = text.split(" % [")
         a, b = rest.rstrip("]").split(", ")
         assert len({p, a, b}) == 3, text
-        d = _decimals(point, lo, hi)
+        d = decimals(point, lo, hi)
         assert 10 ** -d <= (hi - lo), text  # the last digit is finer than the interval width
 
 

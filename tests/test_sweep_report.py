@@ -10,6 +10,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from nespm_cli.reports import dispatch, markdown, stats
 from nespm_cli.reports import mc as report
 from nespm_cli.errors import NespmError
 from nespm_cli.experiments.metrics import nees_band
@@ -317,7 +318,7 @@ def test_write_sweep_report(tmp_path: Path) -> None:
 def test_write_report_dispatches_to_sweep(tmp_path: Path) -> None:
     m = make_sweep(values=(0.5, 2.0), runs=6, param="dvl-noise")
     write_folder(tmp_path, m)
-    path = report.write_report(tmp_path, "ukf", n_boot=40)
+    path = dispatch.write_report(tmp_path, "ukf", n_boot=40)
     text = path.read_text()
     assert text.startswith("# nespm sweep report: dvl-noise")
     assert "DVL noise std [m/s]" in text and "baseline `ukf`" in text
@@ -325,7 +326,7 @@ def test_write_report_dispatches_to_sweep(tmp_path: Path) -> None:
     # an ordinary mc folder still gets the ordinary report
     mc = tmp_path / "mc"
     write_folder(mc, m[m["value"] == 0.5].drop(columns=["param", "value"]))
-    assert report.write_report(mc, n_boot=20).read_text().startswith("# nespm Monte Carlo report")
+    assert dispatch.write_report(mc, n_boot=20).read_text().startswith("# nespm Monte Carlo report")
 
 
 def test_load_sweep_errors(tmp_path: Path) -> None:
@@ -389,15 +390,15 @@ def test_improvement_table_and_figure_show_the_same_numbers(tmp_path: Path, monk
             np.testing.assert_array_equal(y, pts["imprv"].to_numpy())  # the figure draws the table's numbers
             for v in VALUES:  # each is the paired improvement over ekf on the runs both kept
                 sub = m[m["value"] == v]
-                want = report.paired_improvement(sub, "ekf", f)[key]
+                want = stats.paired_improvement(sub, "ekf", f)[key]
                 assert pts.set_index("value").loc[v, "imprv"] == pytest.approx(want, abs=1e-12)
                 cell = next(ln for ln in tables[key].splitlines() if ln.startswith(f"| {v:g} |"))
                 cells = [c.strip() for c in cell.strip("|").split("|")]
                 r = pts.set_index("value").loc[v]
-                assert cells[col] == report._fmt_imprv(r["imprv"], r["ci_lo"], r["ci_hi"], r["mark"])
+                assert cells[col] == markdown.fmt_imprv(r["imprv"], r["ci_lo"], r["ci_hi"], r["mark"])
     # the pairs with ekf at 30: 27 on track 5 ... differ between the two filters
     sub = m[m["value"] == 30.0]
-    assert report.paired_run_counts(sub, "ekf", "ukf") != report.paired_run_counts(sub, "ekf", "ukf-nespm")
+    assert stats.paired_run_counts(sub, "ekf", "ukf") != stats.paired_run_counts(sub, "ekf", "ukf-nespm")
 
 
 def test_sweep_summary_compares_filters_head_to_head(tmp_path: Path) -> None:
@@ -412,8 +413,8 @@ def test_sweep_summary_compares_filters_head_to_head(tmp_path: Path) -> None:
     best = c.loc["vrmse"]["best"].iloc[0]
     assert best == "ukf-nespm"  # BASE 0.07 < 0.08 < 0.10
     r = c.loc[("vrmse", "ukf")]
-    assert r["imprv"] == pytest.approx(report.paired_improvement(sub, "ukf", "ukf-nespm")["vrmse"], abs=1e-12)
-    assert f"vs `ukf` {report._fmt_imprv(r['imprv'], r['ci_lo'], r['ci_hi'], '*' if r['significant'] else '')} meaningful" in line30
+    assert r["imprv"] == pytest.approx(stats.paired_improvement(sub, "ukf", "ukf-nespm")["vrmse"], abs=1e-12)
+    assert f"vs `ukf` {markdown.fmt_imprv(r['imprv'], r['ci_lo'], r['ci_hi'], '*' if r['significant'] else '')} meaningful" in line30
     assert "vs `ekf`" in line30 and "`ukf-nespm` is best" in line30
     defs = text.split("## Definitions")[1]
     assert "need not rank two filters alike" in defs and "improvement_points" in defs

@@ -47,6 +47,12 @@ SCHEDULES = ("constant", "dynamic")
 DYNAMIC_BIAS = ("run", "segment")
 
 
+#: The papers' white IMU noise std per 100 Hz sample: the corruption's default, the filters'
+#: nominal Q and ProcessNet's base std all come from here.
+NOMINAL_ACC_NOISE = 0.03  # [m/s^2]
+NOMINAL_GYRO_NOISE = 7.3e-6  # [rad/s]
+
+
 @dataclass(frozen=True)
 class CorruptionConfig:
     """Standard deviations of the protocol; defaults are the papers' values."""
@@ -55,8 +61,8 @@ class CorruptionConfig:
     vel_v_std: float = 0.05  # m/s, down
     misalignment_deg: float = 0.01  # deg per axis
     heading_deg: float | None = None  # if set, overrides the yaw-axis (down) misalignment std
-    acc_noise: float = 0.03  # m/s^2 per sample
-    gyro_noise: float = 7.3e-6  # rad/s per sample
+    acc_noise: float = NOMINAL_ACC_NOISE  # m/s^2 per sample
+    gyro_noise: float = NOMINAL_GYRO_NOISE  # rad/s per sample
     acc_bias: float = 0.3  # m/s^2
     gyro_bias: float = 7.3e-5  # rad/s
     schedule: str = "constant"

@@ -30,16 +30,15 @@ from __future__ import annotations
 import dataclasses
 import io
 import json
-import sys
 import time
 from dataclasses import dataclass
-from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 from nespm_cli.errors import NespmError
+from nespm_cli.experiments.store import ResultsFolder, Task, write_atomic, write_parquet_atomic
 from nespm_cli.filters.gp_ukf import DeviationModel, GPUKFModels, gp_ukf, ideal_ukf, narx_training_data
 from nespm_cli.learn.gp import GPModel, theta_default
 from nespm_cli.vehicles import STATE_NAMES, Remus100, SensorSuite, simulate_runs
@@ -313,8 +312,6 @@ def ideal_Q(x: np.ndarray, u: np.ndarray, f: TrueModel) -> np.ndarray:
 
 
 def _save_npz_atomic(path: Path, arrays: dict) -> None:
-    from nespm_cli.experiments.mc import write_atomic
-
     buf = io.BytesIO()
     np.savez(buf, **arrays)
     write_atomic(path, lambda tmp: tmp.write_bytes(buf.getvalue()))
@@ -419,18 +416,18 @@ def state_errors(est: np.ndarray, truth: np.ndarray) -> np.ndarray:
     return e
 
 
-def run_chunk(spec: GPSpec, first: int, out_dir: str) -> dict:
-    """Compute one chunk (the filters whose metrics file is missing) and write its files."""
+def run_chunk(spec: GPSpec, first: int, out_dir: str) -> tuple[str, dict]:
+    """Compute one chunk (the filters whose metrics file is missing) and write its files;
+    return ``(chunk key, timings)``."""
     from threadpoolctl import threadpool_limits
-
-    from nespm_cli.experiments.mc import write_parquet_atomic
 
     chunks = Path(out_dir) / "chunks"
     runs = np.arange(first, min(first + spec.chunk_size, spec.runs))
     todo = [f for f in FILTERS if not (chunks / _chunk_name("metrics", f, first)).exists()]
     timings: dict = {}
+    key = f"{first:06d}"
     if not todo:
-        return timings
+        return key, timings
     with threadpool_limits(1):
         sim, x, u, z = _simulate(spec, runs)
         x0, P0 = initial_estimate(spec, runs, x[:, 0])
@@ -478,15 +475,13 @@ def run_chunk(spec: GPSpec, first: int, out_dir: str) -> dict:
             write_parquet_atomic(pd.DataFrame(series), chunks / _chunk_name("series", name, first))
             write_parquet_atomic(metrics, chunks / _chunk_name("metrics", name, first))
             timings[f"{name}-{first}"] = round(secs, 3)
-    return timings
+    return key, timings
 
 
 # --- the runner -------------------------------------------------------------------------------
 
 def assemble(out: Path) -> tuple[pd.DataFrame, pd.DataFrame]:
     """Concatenate the chunk files into metrics.parquet and epochs.parquet (sorted)."""
-    from nespm_cli.experiments.mc import write_parquet_atomic
-
     chunks = out / "chunks"
     order = {f: i for i, f in enumerate(FILTERS)}
     sidx = {s: i for i, s in enumerate(STATE_NAMES)}
@@ -511,8 +506,7 @@ def run_gp_experiment(out_dir: str | Path, runs: int = 20, seed: int = 0, durati
     ``rk4_substeps``, ``p0_std``). ``jobs``, ``backend`` and ``scheduler`` do not change the
     results. Schema of the outputs: docs/gp-ukf.md.
     """
-    from nespm_cli.experiments.backend import check_backend, parallel_map
-    from nespm_cli.experiments.mc import check_existing, git_commit, versions
+    from nespm_cli.experiments.backend import check_backend
 
     unknown = set(options) - {f.name for f in dataclasses.fields(GPSpec)}
     if unknown:
@@ -523,31 +517,21 @@ def run_gp_experiment(out_dir: str | Path, runs: int = 20, seed: int = 0, durati
         raise NespmError(f"--jobs must be at least 1, got {jobs}")
     check_backend(backend)
     out = Path(out_dir)
-    if out.exists() and not out.is_dir():
-        raise NespmError(f"--out {out}: exists and is not a folder")
     opts = {"experiment": EXPERIMENT, **spec.as_dict()}
     if (out / "models.npz").exists() and not (out / "manifest.json").exists():
         raise NespmError(f"{out}: has models.npz but no manifest.json; use a new --out folder")
-    old = check_existing(out, opts)
-    (out / "chunks").mkdir(parents=True, exist_ok=True)
-    started = datetime.now(timezone.utc).isoformat(timespec="seconds")
-    manifest = {"experiment": EXPERIMENT, "command": list(argv or sys.argv), "options": opts, "seed": spec.seed,
-                "versions": versions(), "git_commit": git_commit(), "jobs": jobs, "backend": backend,
-                "started": (old or {}).get("started", started), "finished": None,
-                "training": (old or {}).get("training"), "chunk_seconds": (old or {}).get("chunk_seconds", {})}
-    _write_manifest(out, manifest)
+    folder = ResultsFolder(out, opts, argv).open(experiment=EXPERIMENT, seed=spec.seed, jobs=jobs, backend=backend)
+    folder.manifest.setdefault("training", None)
 
     firsts = list(range(0, spec.runs, spec.chunk_size))
-    chunks = out / "chunks"
-    todo = [f0 for f0 in firsts if any(not (chunks / _chunk_name("metrics", f, f0)).exists() for f in FILTERS)]
-    t0 = time.perf_counter()
+    todo = [Task(f"{f0:06d}", (spec, f0, str(out.resolve())), 1) for f0 in firsts
+            if any(not folder.done(_chunk_name("metrics", f, f0)) for f in FILTERS)]
     bar = None
-    if progress:
-        from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn,
-                                   TimeRemainingColumn)
+    if progress and not (out / "models.npz").exists():
+        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
         bar = Progress(TextColumn("[bold]gp-ukf[/] {task.description}"), BarColumn(), MofNCompleteColumn(),
-                       TimeElapsedColumn(), TimeRemainingColumn(), transient=False)
+                       TimeElapsedColumn(), transient=False)
         bar.start()
     try:
         fit_task = None
@@ -562,27 +546,14 @@ def run_gp_experiment(out_dir: str | Path, runs: int = 20, seed: int = 0, durati
 
         fitted_now = not (out / "models.npz").exists()
         info = train_models(spec, out, jobs, backend, scheduler, fit_progress if fitted_now else None)
-        manifest["training"] = info
-        _write_manifest(out, manifest)
-        if todo:
-            task = bar.add_task(f"{len(todo)} chunks x {len(FILTERS)} filters", total=len(todo)) if bar else None
-            results = parallel_map(run_chunk, [(spec, f0, str(out.resolve())) for f0 in todo], jobs, backend, scheduler)
-            for timings in results:
-                manifest["chunk_seconds"].update(timings)
-                if bar is not None:
-                    bar.advance(task)
     finally:
         if bar is not None:
             bar.stop()
+    folder.manifest["training"] = info
+    folder.save()
+    folder.run(run_chunk, todo, jobs, backend, scheduler, "gp-ukf", progress, unit="chunks")
     metrics, _ = assemble(out)
-    manifest.update(finished=datetime.now(timezone.utc).isoformat(timespec="seconds"),
-                    wall_seconds=round(time.perf_counter() - t0 + (old or {}).get("wall_seconds", 0.0), 3),
-                    chunks=len(firsts))
-    _write_manifest(out, manifest)
+    folder.finish(chunks=len(firsts))
     return metrics
 
 
-def _write_manifest(out: Path, manifest: dict) -> None:
-    from nespm_cli.experiments.mc import write_json_atomic
-
-    write_json_atomic(manifest, out / "manifest.json")

@@ -10,16 +10,8 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import os
-import platform
-import shutil
-import socket
-import subprocess
-import sys
 import time
-import uuid
 from dataclasses import dataclass, field
-from datetime import datetime, timezone
 from functools import lru_cache
 from pathlib import Path
 from typing import Callable
@@ -27,7 +19,6 @@ from typing import Callable
 import numpy as np
 import pandas as pd
 
-from nespm_cli import __version__
 from nespm_cli.data.corruption import CorruptionConfig, draw, dvl_noise, imu_errors
 from nespm_cli.filters.adaptive import BIAS_MODES
 from nespm_cli.learn.noise_model import WINDOW, load_weights, predict_interval_std
@@ -36,7 +27,7 @@ from nespm_cli.nav.earth import ned_offset
 from nespm_cli.data.embedded import embedded_track
 from nespm_cli.filters import ADAPTIVE, FILTERS, FilterConfig, initial_nav, run_filter
 from nespm_cli.experiments.metrics import epoch_errors, run_metrics
-from nespm_cli.experiments.progress import PROGRESS_DIR
+from nespm_cli.experiments.store import ResultsFolder, Task, chunk_firsts, run_blocks, write_parquet_atomic
 from nespm_cli.nav.rotations import log_so3
 from nespm_cli.nav.synthesis import ImuTruth, from_recorded, synthesize
 from nespm_cli.data.tracks import Track, available_tracks, load_track, resolve_data_dir
@@ -248,29 +239,6 @@ class Cell:
     columns: tuple = ()
 
 
-def write_atomic(path: Path, write) -> None:
-    """Call ``write(tmp)`` on a temporary file beside ``path``, then rename it onto ``path``.
-
-    The temporary name holds host, process and a random part, so workers of several hosts
-    writing into one shared folder never collide; a failed write leaves no temporary behind.
-    """
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.{socket.gethostname()}.{os.getpid()}.{uuid.uuid4().hex[:8]}.tmp")
-    try:
-        write(tmp)
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
-
-
-def write_parquet_atomic(df: pd.DataFrame, path: Path) -> None:
-    write_atomic(path, lambda tmp: df.to_parquet(tmp, index=False))
-
-
-def write_json_atomic(obj, path: Path) -> None:
-    write_atomic(path, lambda tmp: tmp.write_text(json.dumps(obj, indent=2)))
-
-
 def chunk_key(cell: Cell, number: int, first: int) -> str:
     """The name of a chunk in progress reports: ``<tag><track>-<first run>``."""
     return f"{cell.tag}{number}-{first:06d}"
@@ -328,21 +296,8 @@ def chunk_tasks(cells: list[Cell], blocks: list[tuple[int, int]] | None = None) 
     ``--runs`` extension; default ``[(0, runs)]``); each is cut into chunks of ``chunk_size``
     from its start, so extending a folder never changes a finished chunk.
     """
-    out = []
-    for c in cells:
-        for n in c.spec.tracks:
-            for start, end in (blocks or [(0, c.spec.runs)]):
-                out += [(c, n, f0, min(f0 + c.spec.chunk_size, end)) for f0 in range(start, end, c.spec.chunk_size)]
-    return out
-
-
-def run_blocks(old: dict | None, runs: int) -> list[tuple[int, int]]:
-    """The run blocks of a folder asked for ``runs`` runs, given its old manifest (or None)."""
-    if old is None:
-        return [(0, runs)]
-    blocks = [tuple(b) for b in old.get("run_blocks") or [(0, int(old["options"]["runs"]))]]
-    have = blocks[-1][1]
-    return blocks + [(have, runs)] if runs > have else blocks
+    return [(c, n, f0, f1) for c in cells for n in c.spec.tracks
+            for f0, f1 in chunk_firsts(blocks or [(0, c.spec.runs)], c.spec.chunk_size)]
 
 
 @lru_cache(maxsize=64)
@@ -354,48 +309,6 @@ def _epochs_of(number: int, data_dir: str | None) -> int:
 def track_epochs(spec: Spec, number: int) -> int:
     """Number of GT epochs of track ``number`` (for progress totals; cached per process)."""
     return _epochs_of(number, spec.data_dir)
-
-
-def versions() -> dict:
-    import joblib, pyarrow, scipy  # noqa: E401
-
-    return {"python": platform.python_version(), "nespm": __version__, "numpy": np.__version__,
-            "scipy": scipy.__version__, "pandas": pd.__version__, "pyarrow": pyarrow.__version__,
-            "joblib": joblib.__version__}
-
-
-def git_commit() -> str | None:
-    try:
-        r = subprocess.run(["git", "rev-parse", "HEAD"], cwd=Path(__file__).parent, capture_output=True,
-                           text=True, timeout=5)
-        return r.stdout.strip() or None if r.returncode == 0 else None
-    except (OSError, subprocess.SubprocessError):
-        return None
-
-
-def check_existing(out: Path, options: dict, extendable: tuple[str, ...] = ()) -> dict | None:
-    mf = out / "manifest.json"
-    if not mf.exists():
-        if (out / "chunks").exists() and any((out / "chunks").iterdir()):
-            raise NespmError(f"{out}: has chunk files but no manifest.json; use a new --out folder")
-        return None
-    try:
-        old = json.loads(mf.read_text())
-    except (OSError, json.JSONDecodeError) as exc:
-        raise NespmError(f"{mf}: unreadable manifest ({exc.__class__.__name__}); use a new --out folder") from None
-    before = old.get("options", {})
-    diff = sorted(k for k in set(before) | set(options) if before.get(k) != options.get(k))
-    grown = [k for k in diff if k in extendable and isinstance(before.get(k), int) and options.get(k, 0) > before[k]]
-    shrunk = [k for k in diff if k in extendable and isinstance(before.get(k), int) and options.get(k, 0) < before[k]]
-    if shrunk:
-        k = shrunk[0]
-        raise NespmError(f"{out}: holds {before[k]} {k}; --{k} {options[k]} would drop finished work "
-                         f"(give --{k} {before[k]} or more, or use a new --out folder)")
-    if set(diff) - set(grown):
-        diff = sorted(set(diff) - set(grown))
-        raise NespmError(f"{out}: holds results of a different experiment (differs in: {', '.join(diff)}); "
-                         "use a new --out folder or the same options to resume")
-    return old
 
 
 def assemble(out: Path, keys: tuple = ()) -> tuple[pd.DataFrame, pd.DataFrame]:
@@ -448,61 +361,38 @@ def run_mc(spec: Spec, out_dir: str | Path, jobs: int = 2, progress: bool = True
 
 def run_cells(cells: list[Cell], options: dict, out_dir: str | Path, jobs: int = 2, progress: bool = True,
               argv=None, label: str = "mc", backend: str = "loky", scheduler: str | None = None) -> pd.DataFrame:
-    """Run (or resume) validated ``cells`` into ``out_dir``; ``options`` identify the experiment.
+    """Run (or resume, or extend to more runs) validated ``cells`` into ``out_dir``; ``options``
+    identify the experiment (:class:`nespm_cli.experiments.store.ResultsFolder`).
 
-    ``backend``/``scheduler`` choose where chunks run (:mod:`nespm_cli.experiments.backend`); they do not
-    change the results.
+    ``backend``/``scheduler`` choose where chunks run (:mod:`nespm_cli.experiments.backend`);
+    they do not change the results.
     """
-    from nespm_cli.experiments.backend import check_backend, parallel_map
+    from nespm_cli.experiments.backend import check_backend
 
     if jobs < 1:
         raise NespmError(f"--jobs must be at least 1, got {jobs}")
     check_backend(backend)  # before --out is created
-    out = Path(out_dir)
-    if out.exists() and not out.is_dir():
-        raise NespmError(f"--out {out}: exists and is not a folder")
-    old = check_existing(out, options, extendable=("runs",))
-    (out / "chunks").mkdir(parents=True, exist_ok=True)
-    shutil.rmtree(out / "chunks" / PROGRESS_DIR, ignore_errors=True)  # a killed run's stale reports
+    folder = ResultsFolder(out_dir, options, argv, extendable=("runs",))
     first = cells[0].spec
-    blocks = run_blocks(old, first.runs)
-    started = datetime.now(timezone.utc).isoformat(timespec="seconds")
-    manifest = {"command": list(argv or sys.argv), "options": options, "seed": first.seed,
-                "data_dir": first.data_dir or "embedded", "versions": versions(), "git_commit": git_commit(),
-                "filter_config": {c.tag or "all": dataclasses.asdict(c.spec.filter_config) for c in cells},
-                "run_blocks": [list(b) for b in blocks],
-                "started": (old or {}).get("started", started), "finished": None,
-                "chunk_seconds": (old or {}).get("chunk_seconds", {})}
-    write_json_atomic(manifest, out / "manifest.json")
-
+    folder.open(seed=first.seed, data_dir=first.data_dir or "embedded",
+                filter_config={c.tag or "all": dataclasses.asdict(c.spec.filter_config) for c in cells})
+    blocks = run_blocks(folder.old, first.runs)
+    folder.manifest["run_blocks"] = [list(b) for b in blocks]
+    folder.save()
+    out = folder.out
     tasks = chunk_tasks(cells, blocks)
-    chunks = out / "chunks"
 
     def missing(c: Cell, n: int, f0: int) -> list[str]:
-        return [f for f in c.spec.filters if not (chunks / _chunk_name("metrics", n, f, f0, c.tag)).exists()]
+        return [f for f in c.spec.filters if not folder.done(_chunk_name("metrics", n, f, f0, c.tag))]
 
-    todo = [(c, n, f0, f1, len(missing(c, n, f0))) for c, n, f0, f1 in tasks if missing(c, n, f0)]
-    t0 = time.perf_counter()
-    if todo:
-        from nespm_cli.experiments.progress import Poller, Progress
-
-        units = {chunk_key(c, n, f0): k * (track_epochs(c.spec, n) - 1) for c, n, f0, _, k in todo}
-        results = parallel_map(run_chunk_keyed, [(_absolute(c), n, f0, str(out.resolve()), f1)
-                                                 for c, n, f0, f1, _ in todo], jobs, backend, scheduler)
-        with Progress(label, sum(units.values()), len(todo), enabled=progress) as bar, \
-                Poller(bar, chunks) as poller:
-            for key, timings in results:
-                manifest["chunk_seconds"].update(timings)
-                poller.finish(key)
-                bar.chunk_done(units.get(key, 0))
-                poller.poll()
+    todo = [Task(chunk_key(c, n, f0), (_absolute(c), n, f0, str(out.resolve()), f1),
+                 len(missing(c, n, f0)) * (track_epochs(c.spec, n) - 1))
+            for c, n, f0, f1 in tasks if missing(c, n, f0)]
+    folder.run(run_chunk_keyed, todo, jobs, backend, scheduler, label, progress)
     metrics, epochs = assemble(out, tuple(k for k, _ in cells[0].columns))
     epochs = add_true_track(epochs, first)
     write_parquet_atomic(epochs, out / "epochs.parquet")
-    manifest.update(finished=datetime.now(timezone.utc).isoformat(timespec="seconds"),
-                    wall_seconds=round(time.perf_counter() - t0 + (old or {}).get("wall_seconds", 0.0), 3),
-                    chunks=len(tasks))
-    write_json_atomic(manifest, out / "manifest.json")
+    folder.finish(chunks=len(tasks))
     return metrics
 
 

@@ -10,7 +10,8 @@ import pandas as pd
 
 from nespm_cli.data.corruption import CorruptionConfig, draw, imu_errors
 from nespm_cli.errors import NespmError
-from nespm_cli.experiments.mc import prepared, write_json_atomic, write_parquet_atomic
+from nespm_cli.experiments.mc import prepared
+from nespm_cli.experiments.store import write_json_atomic, write_parquet_atomic
 from nespm_cli.data.tracks import available_tracks, resolve_data_dir
 
 

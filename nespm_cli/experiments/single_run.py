@@ -8,7 +8,8 @@ import numpy as np
 import pandas as pd
 
 from nespm_cli.errors import NespmError
-from nespm_cli.experiments.mc import Spec, prepared, simulate, validate, write_parquet_atomic
+from nespm_cli.experiments.mc import Spec, prepared, simulate, validate
+from nespm_cli.experiments.store import write_parquet_atomic
 from nespm_cli.experiments.metrics import run_metrics
 from nespm_cli.nav.rotations import dcm_to_euler
 

@@ -57,6 +57,7 @@ from pathlib import Path
 
 import numpy as np
 
+from nespm_cli.data.corruption import NOMINAL_ACC_NOISE, NOMINAL_GYRO_NOISE
 from nespm_cli.errors import NespmError
 
 WINDOW = 100
@@ -68,7 +69,7 @@ PARAM_NAMES = ("W1", "b1", "W2", "b2", "W3", "b3", "W4", "b4", "W5", "b5")
 
 # Base white-noise std per 100 Hz sample of the corruption protocol (corruption.py) and the
 # input difference order chosen per sensor (see training.py for the measurements).
-SENSOR_BASE_STD = {"acc": 0.03, "gyro": 7.3e-6}  # m/s^2, rad/s
+SENSOR_BASE_STD = {"acc": NOMINAL_ACC_NOISE, "gyro": NOMINAL_GYRO_NOISE}  # m/s^2, rad/s
 SENSOR_DIFF_ORDER = {"acc": 1, "gyro": 2}
 
 

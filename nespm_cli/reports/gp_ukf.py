@@ -21,7 +21,10 @@ import numpy as np
 import pandas as pd
 
 from nespm_cli.errors import NespmError
-from nespm_cli.reports.mc import _md_table, _read_parquet, _require_columns, _write_atomic, read_results_folder, save_figure
+from nespm_cli.reports.figures import save_figure
+from nespm_cli.reports.markdown import DASH, md_table
+from nespm_cli.reports.results import read_parquet, read_results_folder, require_columns, write_atomic
+from nespm_cli.reports.stats import percentile_ci, resample_counts
 from nespm_cli.experiments.gp_ukf import EXPERIMENT, FILTERS, STATE_UNITS
 from nespm_cli.vehicles import STATE_NAMES, SensorSuite
 from nespm_cli.vehicles.sensors import MEASUREMENT_NAMES
@@ -51,7 +54,6 @@ PUBLISHED_TABLE3 = {
 #: gp-ukf.md Table 4 ("Mean RMSE results from UKF and GP-UKF for correction and prediction")
 PUBLISHED_TABLE4 = {("ukf-ideal", "correction"): "0.0028", ("gp-ukf", "correction"): "0.086",
                     ("ukf-ideal", "prediction"): "2.91", ("gp-ukf", "prediction"): "2.86"}
-DASH = "—"
 
 
 # --- loading ----------------------------------------------------------------------------------
@@ -60,11 +62,11 @@ def load_gp_results(out_dir: Path) -> tuple[pd.DataFrame, pd.DataFrame | None, d
     """``(metrics, epochs or None, manifest)`` of a GP-UKF experiment folder."""
     out_dir = Path(out_dir)
     metrics, manifest = read_results_folder(out_dir, "gp-ukf", experiment=EXPERIMENT)
-    _require_columns(metrics, ("filter", "run", "state", "training_run", "rmse_correction", "rmse_prediction",
+    require_columns(metrics, ("filter", "run", "state", "training_run", "rmse_correction", "rmse_prediction",
                                "diverged"), out_dir / "metrics.parquet")
     epochs = None
     if (out_dir / "epochs.parquet").exists():
-        epochs = _read_parquet(out_dir / "epochs.parquet")
+        epochs = read_parquet(out_dir / "epochs.parquet")
     return metrics, epochs, manifest
 
 
@@ -122,9 +124,9 @@ def ratio_bootstrap(metrics: pd.DataFrame, col: str = "rmse_correction", n_boot:
     A, B = a.loc[runs, list(STATE_NAMES)].to_numpy(), b.loc[runs, list(STATE_NAMES)].to_numpy()
     n = len(runs)
     if n and n_boot:
-        idx = rng.integers(0, n, size=(n_boot, n))
-        ra = A[idx].mean(axis=1) / B[idx].mean(axis=1)  # (n_boot, 12)
-        lo, hi = np.percentile(ra, [2.5, 97.5], axis=0)
+        counts = resample_counts(n, n_boot, rng)  # (n_boot, n): the resamples of the runs
+        ra = (counts @ A) / (counts @ B)  # (n_boot, 12): ratio of the resampled means
+        lo, hi = percentile_ci(ra, axis=0)
     else:
         lo = hi = np.full(len(STATE_NAMES), np.nan)
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -155,7 +157,7 @@ def _table3_md(t3: pd.DataFrame) -> str:
         rows.append([f"σ-{pub} — ours"] + [_f(t3.loc[(f, "std"), s]) for s in cols])
         rows.append([f"{pub} — paper"] + [_f(PUBLISHED_TABLE3[pub][s]) for s in cols])
         rows.append([f"σ-{pub} — paper"] + [_f(PUBLISHED_TABLE3["σ-" + pub][s]) for s in cols])
-    return _md_table(head, rows)
+    return md_table(head, rows)
 
 
 def _table4_md(t4: pd.DataFrame, t4h: pd.DataFrame) -> str:
@@ -165,7 +167,7 @@ def _table4_md(t4: pd.DataFrame, t4h: pd.DataFrame) -> str:
             unit = "mixed" if kind == "correction" else "m"
             rows.append([f"RMSE-{pub} {kind}", unit, _f(t4.loc[f, kind]), _f(t4.loc[f, f"{kind}_std"]),
                          _f(t4h.loc[f, kind]), PUBLISHED_TABLE4[(f, kind)]])
-    return _md_table(["RMSE", "unit", "ours, mean", "ours, σ across runs", "ours, held-out runs", "paper (Table 4)"],
+    return md_table(["RMSE", "unit", "ours, mean", "ours, σ across runs", "ours, held-out runs", "paper (Table 4)"],
                rows)
 
 
@@ -177,7 +179,7 @@ def _ratio_md(rc: pd.DataFrame, rp: pd.DataFrame, t3: pd.DataFrame, mp: dict) ->
                      f"{_f(rc.loc[s, 'ratio'], '.3g')} [{_f(rc.loc[s, 'lo'], '.3g')}, {_f(rc.loc[s, 'hi'], '.3g')}]",
                      _f(mp["ukf-ideal"][s]), _f(mp["gp-ukf"][s]),
                      f"{_f(rp.loc[s, 'ratio'], '.3g')} [{_f(rp.loc[s, 'lo'], '.3g')}, {_f(rp.loc[s, 'hi'], '.3g')}]"])
-    return _md_table(["state", "UKF corr.", "GP-UKF corr.", "ratio [95 % CI]", "UKF pred.", "GP-UKF pred.",
+    return md_table(["state", "UKF corr.", "GP-UKF corr.", "ratio [95 % CI]", "UKF pred.", "GP-UKF pred.",
                 "ratio [95 % CI]"], rows)
 
 
@@ -195,7 +197,7 @@ def _noise_md(manifest: dict) -> str:
         rows.append([f"{SYMBOL[s]} ({u})", _f(q[i], ".3g"), _f(nf[i], ".3g"),
                      _f(float(np.sqrt(sigma[j] ** 2 + lsb[j] ** 2 / 12)), ".3g") if j is not None else DASH,
                      _f(nh[j], ".3g") if j is not None else DASH])
-    return _md_table(["state", "ideal UKF √Q", "GP-f noise σ_n", "ideal UKF √R", "GP-h noise σ_n"], rows)
+    return md_table(["state", "ideal UKF √Q", "GP-f noise σ_n", "ideal UKF √R", "GP-h noise σ_n"], rows)
 
 
 # --- figures ----------------------------------------------------------------------------------
@@ -412,5 +414,5 @@ def write_gp_report(out_dir: str | Path, n_boot: int = 2000) -> Path:
         figures = plot_figures(epochs, metrics, out_dir / "figures")
     text = render_gp_report(metrics, manifest, figures, out_dir, n_boot)
     path = out_dir / "report.md"
-    _write_atomic(path, text)
+    write_atomic(path, text)
     return path

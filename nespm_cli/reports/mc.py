@@ -1,4 +1,4 @@
-"""Summary report of a Monte Carlo results folder: summary in words, tables, paired bootstrap, figures.
+"""Report of a Monte Carlo results folder (``nespm mc``): summary in words, tables, paired bootstrap, figures.
 
 Reads the files described in ``docs/results-schema.md`` (``metrics.parquet``, optionally
 ``epochs.parquet`` and ``manifest.json``) and writes ``report.md`` plus PNG figures.
@@ -18,195 +18,79 @@ Metric definitions (anukf.md eqs 50-53), repeated in the report text:
 * an improvement is *practically* meaningful when ``|improvement| >= practical_pct``
   (default :data:`PRACTICAL_PCT` percent) and *statistically* when its interval excludes 0;
 * mean NEES against its two-sided 95 % chi-square band (:func:`metrics.nees_band`).
+
+The equations are those of :mod:`nespm_cli.reports.stats`, the tables' markdown that of
+:mod:`nespm_cli.reports.markdown`; :func:`nespm_cli.reports.dispatch.write_report` picks this module
+for an ordinary Monte Carlo folder.
 """
 from __future__ import annotations
 
-import json
 import math
-import os
-import tempfile
 from pathlib import Path
-from typing import Any, Iterable, Sequence
+from typing import Any, Sequence
 
 import numpy as np
 import pandas as pd
 
 from nespm_cli.errors import NespmError
-from nespm_cli.experiments.metrics import nees_band
+from nespm_cli.reports.figures import filter_colors, outage_spans, save_figure
+from nespm_cli.reports.markdown import (
+    DASH,
+    SIG_MARK,
+    SMALL_MARK,
+    fmt,
+    fmt_imprv,
+    fmt_pct,
+    header_line,
+    imprv_cells,
+    md_table,
+)
+from nespm_cli.reports.published import PUBLISHED, published_tables
+from nespm_cli.reports.results import (
+    check_metrics,
+    filters_in_order,
+    has_hpe,
+    load_results,
+    scenario_of,
+    write_atomic,
+)
+from nespm_cli.reports.stats import (
+    METRICS,
+    MIN_PAIRED_RUNS,
+    PRACTICAL_PCT,
+    check_practical_pct,
+    ci_marks,
+    improvement,
+    interval_mark,
+    metric_keys,
+    nees_check,
+    paired_averages,
+    paired_bootstrap,
+    paired_improvement,
+    paired_run_counts,
+    percentile_ci,
+    rmse,
+    track_average,
+)
 
 __all__ = [
-    "PUBLISHED",
-    "PRACTICAL_PCT",
-    "MIN_PAIRED_RUNS",
-    "load_results",
-    "filter_table",
+    "DEFAULT_REFERENCE",
+    "default_reference",
     "track_table",
+    "filter_table",
     "horizontal_table",
     "compare_filters",
     "nees_consistency",
+    "verdict_headline",
     "summary_md",
-    "published_tables",
-    "default_reference",
-    "plot_track_figures",
     "render_report",
-    "write_report",
+    "plot_track_figures",
+    "write_mc_report",
 ]
 
-#: Published track-averaged results (real Snapir tracks 5 and 6, authors' recorded IMU).
-#: ``values`` maps our filter name to ``{"vrmse": m/s, "mrmse": rad}`` (table order);
-#: ``reference`` is the table's proposed method, whose 'Imprv.' over each row is shown.
-PUBLISHED: dict[str, dict[str, Any]] = {
-    "anukf-table1": {
-        "source": "anukf.md Table I",
-        "scenario": "nominal",
-        "reference": "anukf",
-        "values": {
-            "ukf": {"vrmse": 0.1172, "mrmse": 0.0112},
-            "anekf": {"vrmse": 0.1004, "mrmse": 0.0156},
-            "anukf": {"vrmse": 0.0922, "mrmse": 0.0106},
-        },
-    },
-    "anukf-table2": {
-        "source": "anukf.md Table II (20 s DVL outage from t = 180 s)",
-        "scenario": "outage",
-        "reference": "anukf",
-        "values": {
-            "anekf": {"vrmse": 0.222, "mrmse": 0.0156},
-            "anukf": {"vrmse": 0.1183, "mrmse": 0.0106},
-        },
-    },
-    "ukf-nespm-table1": {
-        "source": "ukf-nespm.md Table I",
-        "scenario": "nominal",
-        "reference": "anukf-nespm",
-        "values": {
-            "anukf-nespm": {"vrmse": 0.073, "mrmse": 0.0065},
-            "anukf": {"vrmse": 0.08, "mrmse": 0.0079},
-        },
-    },
-}
-
-METRICS_COLUMNS: tuple[str, ...] = (
-    "track", "filter", "run", "sse_vel", "sse_att", "n_samples", "nees", "diverged",
-)
-EPOCHS_COLUMNS: tuple[str, ...] = (
-    "track", "filter", "t", "vel_err_mean", "vel_err_std", "att_err_mean", "att_err_std",
-    "north_err_mean", "east_err_mean", "north_true", "east_true", "dvl_used",
-)
-#: metrics.parquet columns of the horizontal position error (absent in folders written before them).
-HPE_COLUMNS: tuple[str, ...] = ("sse_hpe", "hpe_final", "hpe_rms", "hpe_final_pct", "distance")
 DEFAULT_REFERENCE = "ukf-nespm"
-FIG_DPI = 150
-DASH = "—"
-#: Default practical threshold [%]: an improvement smaller than this in magnitude is "no practical
-#: difference" even when its interval excludes 0 (``write_report(..., practical_pct=...)``).
-PRACTICAL_PCT = 1.0
-#: Fewest paired runs per track for which a percentile-bootstrap interval is trusted; below it the
-#: interval is marked ``†`` and no significance is claimed.
-MIN_PAIRED_RUNS = 10
-NEES_DOF = 6
-SIG_MARK = "*"
-SMALL_MARK = "†"
-
-# metric key -> (sse column, display name, unit): the columns of the papers' tables
-_METRICS: dict[str, tuple[str, str, str]] = {
-    "vrmse": ("sse_vel", "VRMSE", "m/s"),
-    "mrmse": ("sse_att", "MRMSE", "rad"),
-}
-# every RMS metric pooled as eq 50 (sum of squares over sum of epochs); "hpe" needs HPE_COLUMNS
-_RMS_METRICS: dict[str, tuple[str, str, str]] = {
-    **_METRICS,
-    "hpe": ("sse_hpe", "RMS horizontal position error", "m"),
-}
 
 
-# ----------------------------------------------------------------------------- loading
-
-
-def read_results_folder(out_dir: Path, command: str = "mc",
-                        experiment: str | None = None) -> tuple[pd.DataFrame, dict]:
-    """Read ``manifest.json`` (optional) and ``metrics.parquet`` (required, unvalidated) of a
-    results folder written by ``nespm <command>``; one-line :class:`NespmError` otherwise.
-
-    With ``experiment``, the manifest must exist and name it (checked before the metrics).
-    """
-    out_dir = Path(out_dir)
-    if not out_dir.is_dir():
-        raise NespmError(f"results folder not found: {out_dir}")
-    manifest_path = out_dir / "manifest.json"
-    manifest: dict = {}
-    if manifest_path.is_file():
-        try:
-            manifest = json.loads(manifest_path.read_text())
-        except (OSError, ValueError) as exc:
-            raise NespmError(f"{manifest_path}: not valid JSON ({_one_line(exc)})") from exc
-        if not isinstance(manifest, dict):
-            raise NespmError(f"{manifest_path}: expected a JSON object")
-    if experiment is not None and manifest.get("experiment") != experiment:
-        raise NespmError(f"{manifest_path}: not a {experiment.upper()} experiment folder "
-                         f"(experiment = {manifest.get('experiment')!r}); run `nespm {command} --out {out_dir}`")
-    metrics_path = out_dir / "metrics.parquet"
-    if not metrics_path.is_file():
-        raise NespmError(f"{metrics_path} not found: run `nespm {command} ... --out {out_dir}` first")
-    return _read_parquet(metrics_path), manifest
-
-
-def load_results(out_dir: Path) -> tuple[pd.DataFrame, pd.DataFrame | None, dict]:
-    """Read ``metrics.parquet`` (required), ``epochs.parquet`` and ``manifest.json``.
-
-    Returns ``(metrics, epochs or None, manifest or {})``. Raises :class:`NespmError`
-    for a missing folder, a missing/unreadable metrics file or missing columns.
-    """
-    out_dir = Path(out_dir)
-    metrics, manifest = read_results_folder(out_dir, "mc")
-    _check_metrics(metrics, out_dir / "metrics.parquet")
-    epochs_path = out_dir / "epochs.parquet"
-    epochs = _read_parquet(epochs_path) if epochs_path.is_file() else None
-    if epochs is not None:
-        _require_columns(epochs, EPOCHS_COLUMNS, epochs_path)
-    return metrics, epochs, manifest
-
-
-def _read_parquet(path: Path) -> pd.DataFrame:
-    """Read one Parquet file, turning reader errors into a one-line NespmError."""
-    try:
-        return pd.read_parquet(path)
-    except Exception as exc:  # pyarrow raises many types for a damaged file
-        raise NespmError(f"{path}: cannot read Parquet ({_one_line(exc)})") from exc
-
-
-def _one_line(exc: BaseException) -> str:
-    """First line of an exception message."""
-    text = str(exc).strip()
-    return text.splitlines()[0] if text else type(exc).__name__
-
-
-def _require_columns(df: pd.DataFrame, columns: Iterable[str], where: object) -> None:
-    """Raise NespmError naming the columns of ``columns`` that ``df`` lacks."""
-    missing = [c for c in columns if c not in df.columns]
-    if missing:
-        raise NespmError(f"{where}: missing column(s) {', '.join(missing)}")
-
-
-def _check_metrics(metrics: pd.DataFrame, where: object = "metrics") -> None:
-    """Validate the columns, non-emptiness and (track, filter, run) uniqueness."""
-    _require_columns(metrics, METRICS_COLUMNS, where)
-    if metrics.empty:
-        raise NespmError(f"{where}: no rows")
-    dup = metrics.duplicated(["track", "filter", "run"])
-    if dup.any():
-        row = metrics.loc[dup].iloc[0]
-        raise NespmError(
-            f"{where}: duplicate row for track {row['track']}, filter {row['filter']}, run {row['run']}"
-        )
-
-
-# ----------------------------------------------------------------------------- tables
-
-
-def filters_in_order(metrics: pd.DataFrame) -> list[str]:
-    """Filter names in their order of first appearance."""
-    return [str(f) for f in pd.unique(metrics["filter"])]
 
 
 def default_reference(metrics: pd.DataFrame, reference: str | None = None) -> str:
@@ -226,11 +110,6 @@ def default_reference(metrics: pd.DataFrame, reference: str | None = None) -> st
         return DEFAULT_REFERENCE
     aided = [n for n in names if n != "ins"]
     return aided[-1] if aided else names[-1]
-
-
-def has_hpe(metrics: pd.DataFrame) -> bool:
-    """Whether ``metrics`` holds the horizontal-position columns (:data:`HPE_COLUMNS`)."""
-    return all(c in metrics.columns for c in HPE_COLUMNS)
 
 
 def _sums(metrics: pd.DataFrame) -> pd.DataFrame:
@@ -259,22 +138,9 @@ def _sums(metrics: pd.DataFrame) -> pd.DataFrame:
     return out
 
 
-def _rmse(sse: pd.Series | np.ndarray, n: pd.Series | np.ndarray) -> np.ndarray:
-    """sqrt(sse / n), NaN where n == 0 (every run diverged)."""
-    sse = np.asarray(sse, dtype=float)
-    n = np.asarray(n, dtype=float)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return np.where(n > 0, np.sqrt(sse / np.where(n > 0, n, 1.0)), np.nan)
-
-
-def _band(mean: float, n: int) -> tuple[float, float, str]:
-    """``(lo, hi, word)``: the 95 % band of a mean NEES over ``n`` runs and the consistency word
-    (``consistent``, ``overconfident``, ``conservative``; ``—`` without a finite NEES)."""
-    if not (n > 0 and np.isfinite(mean)):
-        return math.nan, math.nan, DASH
-    lo, hi = nees_band(NEES_DOF, int(n))
-    word = "overconfident" if mean > hi else "conservative" if mean < lo else "consistent"
-    return lo, hi, word
+def _track_rmse(sums: pd.DataFrame, col: str) -> np.ndarray:
+    """Eq 50 per (track, filter) row of :func:`_sums` from its error sums (NaN: every run diverged)."""
+    return np.array([rmse([e], [n]) for e, n in zip(sums[col], sums["n_samples"])], dtype=float)
 
 
 def track_table(metrics: pd.DataFrame) -> pd.DataFrame:
@@ -287,7 +153,7 @@ def track_table(metrics: pd.DataFrame) -> pd.DataFrame:
     (:data:`HPE_COLUMNS`): ``hpe_rms`` (eq 50 with ``sse_hpe``), ``hpe_final`` and
     ``hpe_final_pct`` (means over the non-diverged runs) and ``distance``; NaN otherwise.
     """
-    _check_metrics(metrics)
+    check_metrics(metrics)
     s = _sums(metrics).reset_index()
     order = {f: i for i, f in enumerate(filters_in_order(metrics))}
     s = s.assign(_o=s["filter"].map(order)).sort_values(["track", "_o"]).drop(columns="_o")
@@ -297,157 +163,23 @@ def track_table(metrics: pd.DataFrame) -> pd.DataFrame:
         {
             "track": s["track"].to_numpy(),
             "filter": s["filter"].astype(str).to_numpy(),
-            "vrmse": _rmse(s["sse_vel"], s["n_samples"]),
-            "mrmse": _rmse(s["sse_att"], s["n_samples"]),
+            "vrmse": _track_rmse(s, "sse_vel"),
+            "mrmse": _track_rmse(s, "sse_att"),
             "nees": s["nees"].to_numpy(dtype=float),
             "diverged": s["diverged"].to_numpy(dtype=int),
             "runs": s["runs"].to_numpy(dtype=int),
             "nees_n": s["nees_n"].to_numpy(dtype=int),
-            "hpe_rms": _rmse(s["sse_hpe"], s["n_samples"]) if hpe else nan,
+            "hpe_rms": _track_rmse(s, "sse_hpe") if hpe else nan,
             "hpe_final": s["hpe_final"].to_numpy(dtype=float) if hpe else nan,
             "hpe_final_pct": s["hpe_final_pct"].to_numpy(dtype=float) if hpe else nan,
             "distance": s["distance"].to_numpy(dtype=float) if hpe else nan,
         }
     )
-    bands = [_band(m, n) for m, n in zip(out["nees"], out["nees_n"])]
+    bands = [nees_check(m, n) for m, n in zip(out["nees"], out["nees_n"])]
     out["nees_lo"] = [b[0] for b in bands]
     out["nees_hi"] = [b[1] for b in bands]
     out["consistency"] = [b[2] for b in bands]
     return out.reset_index(drop=True)
-
-
-def _track_average(per_track: np.ndarray | pd.Series) -> float:
-    """Eq 51: sqrt of the mean over tracks of the squared per-track RMSE (NaN if any is NaN)."""
-    x = np.asarray(per_track, dtype=float)
-    return float(np.sqrt(np.mean(x**2))) if x.size else math.nan
-
-
-def improvement(value: float | np.ndarray, ref: float | np.ndarray) -> float | np.ndarray:
-    """Papers' improvement of the reference over a row, percent: 100 * (value - ref) / value."""
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return 100.0 * (np.asarray(value) - np.asarray(ref)) / np.asarray(value)
-
-
-def _bootstrap_counts(n_runs: int, n_boot: int, rng: np.random.Generator) -> np.ndarray:
-    """(n_boot, n_runs) multiplicities of each run in each with-replacement resample."""
-    idx = rng.integers(0, n_runs, size=(n_boot, n_runs))
-    flat = idx + (np.arange(n_boot, dtype=np.int64) * n_runs)[:, None]
-    return np.bincount(flat.ravel(), minlength=n_boot * n_runs).reshape(n_boot, n_runs).astype(float)
-
-
-def _paired_runs(metrics: pd.DataFrame, track: Any, a: str, b: str) -> tuple[pd.DataFrame, pd.DataFrame]:
-    """Rows of filters ``a`` and ``b`` on ``track`` for the runs diverged in neither, aligned by run."""
-    sub = metrics[metrics["track"] == track]
-    A = sub[sub["filter"] == a].set_index("run")
-    B = sub[sub["filter"] == b].set_index("run")
-    common = A.index.intersection(B.index).sort_values()
-    keep = ~(A.loc[common, "diverged"].to_numpy(bool) | B.loc[common, "diverged"].to_numpy(bool))
-    runs = common[keep]
-    return A.loc[runs], B.loc[runs]
-
-
-def _keys(metrics: pd.DataFrame, keys: Sequence[str] | None) -> list[str]:
-    """The RMS metric keys asked for (default VRMSE, MRMSE), checked against :data:`_RMS_METRICS`."""
-    keys = list(_METRICS) if keys is None else list(keys)
-    unknown = [k for k in keys if k not in _RMS_METRICS]
-    if unknown:
-        raise ValueError(f"unknown metric key(s) {unknown}; known: {list(_RMS_METRICS)}")
-    return keys
-
-
-def _shared_tracks(metrics: pd.DataFrame, a: str, b: str) -> list:
-    return sorted(set(metrics.loc[metrics["filter"] == a, "track"])
-                  & set(metrics.loc[metrics["filter"] == b, "track"]))
-
-
-def paired_run_counts(metrics: pd.DataFrame, a: str, b: str) -> dict[Any, int]:
-    """Per shared track: the number of runs that diverged in neither ``a`` nor ``b`` (the pairs)."""
-    return {track: len(_paired_runs(metrics, track, a, b)[0]) for track in _shared_tracks(metrics, a, b)}
-
-
-def paired_bootstrap(
-    metrics: pd.DataFrame, row: str, ref: str, n_boot: int = 2000, seed: int = 0,
-    keys: Sequence[str] | None = None,
-) -> dict[str, np.ndarray]:
-    """Bootstrap replicates of the improvement of ``ref`` over ``row`` for VRMSE and MRMSE.
-
-    Per track, run indices (of the runs diverged in neither filter) are resampled with
-    replacement; both filters use the same resample (paired). Each replicate recomputes
-    eq 50/52 per track from the resampled error sums and the track average (eq 51) of
-    both filters, then the improvement. The resamples of a track depend only on
-    ``(seed, track)`` and the number of paired runs (not on ``keys``). Returns ``{"vrmse":
-    (n_boot,), "mrmse": (n_boot,)}`` (or the ``keys`` asked for, e.g. ``"hpe"`` for the RMS
-    horizontal position error); all NaN if some shared track has no paired run.
-    """
-    keys = _keys(metrics, keys)
-    tracks = _shared_tracks(metrics, row, ref)
-    nan = {k: np.full(n_boot, np.nan) for k in keys}
-    if not tracks or n_boot < 1:
-        return nan
-    ms: dict[str, dict[str, list[np.ndarray]]] = {k: {"row": [], "ref": []} for k in keys}
-    for track in tracks:
-        A, B = _paired_runs(metrics, track, row, ref)
-        if len(A) == 0:
-            return nan
-        rng = np.random.default_rng([int(seed), int(track)])
-        counts = _bootstrap_counts(len(A), n_boot, rng)
-        for key in keys:
-            sse_col = _RMS_METRICS[key][0]
-            for side, T in (("row", A), ("ref", B)):
-                num = counts @ T[sse_col].to_numpy(float)
-                den = counts @ T["n_samples"].to_numpy(float)
-                ms[key][side].append(num / den)
-    out = {}
-    for key in keys:
-        avg_row = np.sqrt(np.mean(ms[key]["row"], axis=0))
-        avg_ref = np.sqrt(np.mean(ms[key]["ref"], axis=0))
-        out[key] = improvement(avg_row, avg_ref)
-    return out
-
-
-def paired_averages(
-    metrics: pd.DataFrame, a: str, b: str, keys: Sequence[str] | None = None
-) -> dict[str, tuple[float, float]]:
-    """Track averages (eq 51) of ``a`` and ``b`` over the runs diverged in neither: ``{key: (m_a, m_b)}``
-    (NaN when some shared track has no such run, or no track is shared)."""
-    keys = _keys(metrics, keys)
-    tracks = _shared_tracks(metrics, a, b)
-    pairs = [_paired_runs(metrics, track, a, b) for track in tracks]
-    out = {}
-    for key in keys:
-        sse_col = _RMS_METRICS[key][0]
-        ms: dict[str, list[float]] = {"a": [], "b": []}
-        for A, B in pairs:
-            for side, T in (("a", A), ("b", B)):
-                n = T["n_samples"].to_numpy(float).sum()
-                ms[side].append(T[sse_col].to_numpy(float).sum() / n if n else np.nan)
-        with np.errstate(all="ignore"):
-            out[key] = ((float(np.sqrt(np.mean(ms["a"]))), float(np.sqrt(np.mean(ms["b"]))))
-                        if tracks else (math.nan, math.nan))
-    return out
-
-
-def paired_improvement(
-    metrics: pd.DataFrame, row: str, ref: str, keys: Sequence[str] | None = None
-) -> dict[str, float]:
-    """Improvement of ``ref`` over ``row`` (percent) for VRMSE and MRMSE (or ``keys``), on the
-    runs that diverged in neither filter: the point estimate that :func:`paired_bootstrap`'s
-    interval belongs to (with no divergence it equals the improvement of the two track averages)."""
-    out = {}
-    for key, (m_row, m_ref) in paired_averages(metrics, row, ref, keys).items():
-        with np.errstate(all="ignore"):
-            out[key] = float(improvement(m_row, m_ref))
-    return out
-
-
-def ci_marks(lo: float, hi: float, pairs_min: int, min_pairs: int = MIN_PAIRED_RUNS) -> tuple[bool, bool, str]:
-    """``(excludes_0, significant, mark)`` of an improvement interval: significant when the interval
-    excludes 0 and every track has at least ``min_pairs`` paired runs; mark ``*`` if significant,
-    ``†`` if the sample is too small for the percentile bootstrap, else ``""``."""
-    excludes = bool(np.isfinite(lo) and np.isfinite(hi) and (lo > 0 or hi < 0))
-    small = pairs_min < min_pairs
-    significant = excludes and not small
-    return excludes, significant, SMALL_MARK if small else SIG_MARK if significant else ""
 
 
 def filter_table(
@@ -468,7 +200,7 @@ def filter_table(
     of :func:`paired_bootstrap`; ``_significant`` = excludes 0 and ``pairs_min >= min_pairs``.
     ``attrs["reference"]`` names the reference filter.
     """
-    _check_metrics(metrics)
+    check_metrics(metrics)
     if n_boot < 0:
         raise NespmError(f"n_boot must be >= 0, got {n_boot}")
     ref = default_reference(metrics, reference)
@@ -478,18 +210,18 @@ def filter_table(
     for name in filters_in_order(metrics):
         t = tt[tt["filter"] == name]
         nees = ok.loc[ok["filter"] == name, "nees"]
-        lo, hi, word = _band(float(nees.mean()), int(nees.count()))
+        lo, hi, word = nees_check(float(nees.mean()), int(nees.count()))
         rows.append(
             {
                 "filter": name,
-                "vrmse": _track_average(t["vrmse"]),
-                "mrmse": _track_average(t["mrmse"]),
+                "vrmse": track_average(t["vrmse"]),
+                "mrmse": track_average(t["mrmse"]),
                 "nees": float(nees.mean()),
                 "nees_n": int(nees.count()),
                 "nees_lo": lo,
                 "nees_hi": hi,
                 "consistency": word,
-                "hpe_rms": _track_average(t["hpe_rms"]),
+                "hpe_rms": track_average(t["hpe_rms"]),
                 "hpe_final": float(np.mean(t["hpe_final"].to_numpy(float))) if len(t) else math.nan,
                 "hpe_final_pct": float(np.mean(t["hpe_final_pct"].to_numpy(float))) if len(t) else math.nan,
                 "diverged": int(t["diverged"].sum()),
@@ -500,7 +232,7 @@ def filter_table(
             }
         )
     table = pd.DataFrame(rows)
-    for key in _METRICS:
+    for key in METRICS:
         table[f"{key}_imprv"] = np.nan
         table[f"{key}_ci_lo"] = np.nan
         table[f"{key}_ci_hi"] = np.nan
@@ -513,16 +245,16 @@ def filter_table(
             table.loc[i, f"{key}_imprv"] = v
         boot = paired_bootstrap(metrics, name, ref, n_boot=n_boot, seed=seed)
         for key, reps in boot.items():
-            if np.all(np.isfinite(reps)) and reps.size:
-                lo, hi = np.percentile(reps, [2.5, 97.5])
+            lo, hi = percentile_ci(reps)
+            if np.isfinite(lo):
                 table.loc[i, [f"{key}_ci_lo", f"{key}_ci_hi"]] = [lo, hi]
-    for key in _METRICS:
+    for key in METRICS:
         lo, hi = table[f"{key}_ci_lo"], table[f"{key}_ci_hi"]
         table[f"{key}_ci_excludes_0"] = ((lo > 0) | (hi < 0)).to_numpy(bool)
         table[f"{key}_significant"] = (table[f"{key}_ci_excludes_0"]
                                        & (table["pairs_min"] >= min_pairs)).to_numpy(bool)
     columns = ["filter"]
-    for key in _METRICS:
+    for key in METRICS:
         columns += [key, f"{key}_imprv", f"{key}_ci_lo", f"{key}_ci_hi", f"{key}_ci_excludes_0",
                     f"{key}_significant"]
     columns += ["nees", "nees_n", "nees_lo", "nees_hi", "consistency", "hpe_rms", "hpe_final",
@@ -547,7 +279,7 @@ def horizontal_table(metrics: pd.DataFrame) -> pd.DataFrame | None:
         t = tt[tt["filter"] == name]
         rows.append({"track": None, "filter": name, "distance": float(t["distance"].mean()),
                      "hpe_final": float(t["hpe_final"].mean(skipna=False)),
-                     "hpe_rms": _track_average(t["hpe_rms"]),
+                     "hpe_rms": track_average(t["hpe_rms"]),
                      "hpe_final_pct": float(t["hpe_final_pct"].mean(skipna=False)),
                      "diverged": int(t["diverged"].sum()), "runs": int(t["runs"].sum())})
     per_track = tt[["track", "filter"] + cols].to_dict("records")
@@ -556,32 +288,14 @@ def horizontal_table(metrics: pd.DataFrame) -> pd.DataFrame | None:
     return out
 
 
-def published_tables(filters: Sequence[str], scenario: str | None, min_filters: int = 1) -> list[dict[str, Any]]:
-    """The entries of :data:`PUBLISHED` for ``scenario`` that have rows for at least
-    ``min_filters`` of ``filters`` (the report shows those with at least two)."""
-    return [
-        entry
-        for entry in PUBLISHED.values()
-        if entry["scenario"] == scenario and len(set(entry["values"]) & set(filters)) >= min_filters
-    ]
-
-
-# ----------------------------------------------------------------------------- summary
-
 _SUMMARY_NAMES: dict[str, str] = {
     "vrmse": "VRMSE",
     "mrmse": "MRMSE",
     "hpe": "Horizontal position error (RMS over the epochs)",
 }
+
+
 _OWN_COLUMN: dict[str, str] = {"vrmse": "vrmse", "mrmse": "mrmse", "hpe": "hpe_rms"}
-
-
-def _ci(reps: np.ndarray) -> tuple[float, float]:
-    """2.5 / 97.5 % percentiles, NaN unless every replicate is finite."""
-    if reps.size and np.all(np.isfinite(reps)):
-        lo, hi = np.percentile(reps, [2.5, 97.5])
-        return float(lo), float(hi)
-    return math.nan, math.nan
 
 
 def compare_filters(
@@ -612,10 +326,10 @@ def compare_filters(
     (``pairs_min < min_pairs``) or ``undefined`` (no paired point). A metric with a single
     usable filter gets one row with ``other`` None and verdict ``only filter``.
     """
-    _check_metrics(metrics)
+    check_metrics(metrics)
     if keys is None:
-        keys = list(_METRICS) + (["hpe"] if has_hpe(metrics) else [])
-    keys = _keys(metrics, keys)
+        keys = list(METRICS) + (["hpe"] if has_hpe(metrics) else [])
+    keys = metric_keys(metrics, keys)
     filters = filters_in_order(metrics)
     own_table = filter_table(metrics, None, n_boot=0, min_pairs=min_pairs).set_index("filter")
     pair_avg = {(a, b): paired_averages(metrics, a, b, keys)
@@ -653,7 +367,7 @@ def compare_filters(
                 boot_cache[(other, best)] = paired_bootstrap(metrics, other, best, n_boot=n_boot,
                                                              seed=seed, keys=keys)
             imp = paired_improvement(metrics, other, best, [key])[key]
-            lo, hi = _ci(boot_cache[(other, best)][key])
+            lo, hi = percentile_ci(boot_cache[(other, best)][key])
             counts = paired_run_counts(metrics, other, best)
             pairs_min = min(counts.values()) if counts else 0
             excludes, significant, _ = ci_marks(lo, hi, pairs_min, min_pairs)
@@ -697,8 +411,8 @@ def _comparison_words(r: Any, practical_pct: float, min_pairs: int) -> str:
     head = f"`{r.best}` vs `{r.other}`"
     if r.verdict == "undefined":
         return f"{head}: undefined (on some track no run was kept by both)"
-    mark = SMALL_MARK if r.pairs_min < min_pairs else SIG_MARK if r.significant else ""
-    num = _fmt_imprv(r.imprv, r.ci_lo, r.ci_hi, mark)
+    mark = interval_mark(r.significant, r.pairs_min, min_pairs)
+    num = fmt_imprv(r.imprv, r.ci_lo, r.ci_hi, mark)
     side = "lower error" if r.imprv > 0 else "higher error" if r.imprv < 0 else "equal error"
     p = f"{practical_pct:g} %"
     if r.verdict == "too few runs":
@@ -718,7 +432,7 @@ def _comparison_words(r: Any, practical_pct: float, min_pairs: int) -> str:
     return f"{head}: {num} {side}; {why}"
 
 
-def _headline(comps: pd.DataFrame) -> str:
+def verdict_headline(comps: pd.DataFrame) -> str:
     """The verdict of one metric's comparisons in a few words."""
     best = comps["best"].iloc[0]
     v = set(comps["verdict"])
@@ -772,15 +486,15 @@ def summary_md(
         if first["best"] is None:
             lines.append(f"- **{name}**: undefined (every run diverged on some track).")
             continue
-        value = f"`{first['best']}` {_fmt(first['best_value'])} {units[key]}"
+        value = f"`{first['best']}` {fmt(first['best_value'])} {units[key]}"
         if first["verdict"] == "only filter":
             lines.append(f"- **{name}**: only {value}; nothing to compare.")
             continue
         words = "; ".join(_comparison_words(r, practical_pct, min_pairs) for r in c.itertuples(index=False))
-        lines.append(f"- **{name}** — {_headline(c)}. Lowest: {value}. {words}.")
+        lines.append(f"- **{name}** — {verdict_headline(c)}. Lowest: {value}. {words}.")
         if key == "hpe":
             finals = ", ".join(
-                f"`{r.filter}` {_fmt(r.hpe_final, '.3g')} m ({_fmt(r.hpe_final_pct, '.3g')} % of distance)"
+                f"`{r.filter}` {fmt(r.hpe_final, '.3g')} m ({fmt(r.hpe_final_pct, '.3g')} % of distance)"
                 if np.isfinite(r.hpe_final) else f"`{r.filter}` {DASH}"
                 for r in table.itertuples(index=False))
             lines.append(f"  Final horizontal error (mean over runs, then tracks): {finals}.")
@@ -804,134 +518,6 @@ def summary_md(
             f"`{SMALL_MARK}` and no difference is called significant. Use more `--runs`."
         )
     return "\n".join(lines)
-
-
-# ----------------------------------------------------------------------------- formatting
-
-
-def _fmt(x: Any, spec: str = ".4g") -> str:
-    """Format a number, or an em dash for None/NaN."""
-    if x is None or (isinstance(x, (float, np.floating)) and not np.isfinite(x)):
-        return DASH
-    return format(x, spec)
-
-
-def _pct(x: float) -> str:
-    """One decimal like the papers (21.3), more where that would print 0.0 or -0.0."""
-    if abs(x) >= 0.05 or x == 0.0:
-        return f"{x:.1f}"
-    return f"{x:.2g}" if abs(x) >= 1e-4 else f"{x:.1e}"
-
-
-def _fmt_pct(x: Any) -> str:
-    """Improvement in percent, e.g. ``21.3 %`` (small values keep two significant digits)."""
-    return DASH if x is None or not np.isfinite(x) else f"{_pct(x)} %"
-
-
-_MAX_DECIMALS = 10
-
-
-def _decimals(point: float, lo: float, hi: float) -> int:
-    """Decimals for an interval and its point: two significant digits of the interval width
-    (at least one decimal, as the papers), more until distinct values print distinctly."""
-    vals = [v for v in (point, lo, hi) if v is not None and np.isfinite(v)]
-    width = abs(hi - lo) if np.isfinite(lo) and np.isfinite(hi) else 0.0
-    d = max(1, math.ceil(-math.log10(width)) + 1) if width > 0 else 1
-    while d < _MAX_DECIMALS:
-        text = {v: _fixed(v, d) for v in vals}
-        if len(set(text.values())) == len(set(vals)):
-            break
-        d += 1
-    return min(d, _MAX_DECIMALS)
-
-
-def _fixed(x: float, d: int) -> str:
-    """``x`` with ``d`` decimals, without a minus sign on a value that prints as zero."""
-    t = f"{x:.{d}f}"
-    return t[1:] if t.startswith("-") and float(t) == 0.0 else t
-
-
-def _fmt_imprv(point: float, lo: float, hi: float, mark: str = "") -> str:
-    """``point % [lo, hi]`` (+ `` mark``) with the decimals of :func:`_decimals`, e.g.
-    ``-0.0076 % [-0.0091, -0.0061] *``; just the point without a finite interval."""
-    if point is None or not np.isfinite(point):
-        return DASH
-    if not (np.isfinite(lo) and np.isfinite(hi)):
-        return _fmt_pct(point)
-    d = _decimals(point, lo, hi)
-    return f"{_fixed(point, d)} % [{_fixed(lo, d)}, {_fixed(hi, d)}]" + (f" {mark}" if mark else "")
-
-
-def _imprv_cells(point: float, lo: float, hi: float, mark: str = "") -> tuple[str, str]:
-    """The main table's two cells ``point %`` and ``[lo, hi] mark`` with shared decimals."""
-    if point is None or not np.isfinite(point):
-        return DASH, DASH
-    if not (np.isfinite(lo) and np.isfinite(hi)):
-        return _fmt_pct(point), DASH
-    d = _decimals(point, lo, hi)
-    return f"{_fixed(point, d)} %", f"[{_fixed(lo, d)}, {_fixed(hi, d)}]" + (f" {mark}" if mark else "")
-
-
-def _fmt_ci(lo: float, hi: float, excludes_0: bool | str) -> str:
-    """``[lo, hi] %`` with the decimals of :func:`_decimals` and a trailing mark: ``*`` when
-    ``excludes_0`` is True, or the given mark string (``*``, ``†`` or ``""``)."""
-    if not (np.isfinite(lo) and np.isfinite(hi)):
-        return DASH
-    mark = excludes_0 if isinstance(excludes_0, str) else (SIG_MARK if excludes_0 else "")
-    d = _decimals(math.nan, lo, hi)
-    return f"[{_fixed(lo, d)}, {_fixed(hi, d)}] %" + (f" {mark}" if mark else "")
-
-
-def _md_table(headers: Sequence[str], rows: Iterable[Sequence[str]]) -> str:
-    """A GitHub-flavoured markdown table."""
-    lines = ["| " + " | ".join(headers) + " |", "|" + "|".join(" --- " for _ in headers) + "|"]
-    lines += ["| " + " | ".join(str(c) for c in r) + " |" for r in rows]
-    return "\n".join(lines)
-
-
-def _unique_text(values: Iterable[Any]) -> str:
-    """Distinct values joined by commas, in order of appearance."""
-    return ", ".join(str(v) for v in pd.unique(pd.Series(list(values))))
-
-
-def _runs_per_track(metrics: pd.DataFrame) -> str:
-    """Distinct run indices per track: one number, or ``min–max`` when tracks differ."""
-    n = metrics.groupby("track")["run"].nunique()
-    return str(int(n.min())) if n.min() == n.max() else f"{int(n.min())}–{int(n.max())}"
-
-
-def _scenario(metrics: pd.DataFrame, manifest: dict) -> str | None:
-    """The single scenario of the results (metrics column, else manifest option), or None."""
-    if "scenario" in metrics.columns:
-        vals = pd.unique(metrics["scenario"].dropna())
-        return str(vals[0]) if len(vals) == 1 else None
-    return (manifest.get("options") or {}).get("scenario")
-
-
-def _header_line(metrics: pd.DataFrame, manifest: dict) -> str:
-    """The run summary line: tracks, runs per track, filters, scenario, schedule, seed, data, time."""
-    options = manifest.get("options") or {}
-
-    def field(col: str) -> str:
-        if col in metrics.columns:
-            return _unique_text(metrics[col])
-        return str(options.get(col, manifest.get(col, DASH)))
-
-    seed = manifest.get("seed", None)
-    seed_text = str(seed) if seed is not None else field("seed")
-    wall = manifest.get("wall_seconds")
-    wall_text = f"{float(wall):.1f} s" if isinstance(wall, (int, float)) else DASH
-    parts = [
-        f"tracks {', '.join(str(t) for t in sorted(pd.unique(metrics['track'])))}",
-        f"runs per track {_runs_per_track(metrics)}",
-        f"filters {', '.join(filters_in_order(metrics))}",
-        f"scenario {field('scenario')}",
-        f"schedule {field('schedule')}",
-        f"seed {seed_text}",
-        f"data dir {manifest.get('data_dir') or DASH}",
-        f"wall time {wall_text}",
-    ]
-    return "**Run:** " + "; ".join(parts) + "."
 
 
 def _definitions(ref: str, n_boot: int, seed: int, practical_pct: float = PRACTICAL_PCT,
@@ -985,13 +571,9 @@ def _definitions(ref: str, n_boot: int, seed: int, practical_pct: float = PRACTI
 """
 
 
-def _mark(excludes_0: bool, pairs_min: int, min_pairs: int) -> str:
-    return SMALL_MARK if pairs_min < min_pairs else SIG_MARK if excludes_0 else ""
-
-
 def _nees_cells(nees: float, lo: float, hi: float, word: str) -> list[str]:
     band = DASH if not np.isfinite(lo) else f"[{lo:.2f}, {hi:.2f}]"
-    return [_fmt(nees, ".2f"), band, word]
+    return [fmt(nees, ".2f"), band, word]
 
 
 def _main_table(table: pd.DataFrame) -> str:
@@ -1006,15 +588,15 @@ def _main_table(table: pd.DataFrame) -> str:
     rows = []
     for r in table.itertuples(index=False):
         cells = [r.filter + (" (reference)" if r.is_reference else "")]
-        for key in _METRICS:
-            mark = _mark(getattr(r, f"{key}_ci_excludes_0"), r.pairs_min, min_pairs)
-            cells += [_fmt(getattr(r, key)),
-                      *_imprv_cells(getattr(r, f"{key}_imprv"), getattr(r, f"{key}_ci_lo"),
+        for key in METRICS:
+            mark = interval_mark(getattr(r, f"{key}_ci_excludes_0"), r.pairs_min, min_pairs)
+            cells += [fmt(getattr(r, key)),
+                      *imprv_cells(getattr(r, f"{key}_imprv"), getattr(r, f"{key}_ci_lo"),
                                     getattr(r, f"{key}_ci_hi"), mark)]
         cells += _nees_cells(r.nees, r.nees_lo, r.nees_hi, r.consistency)
         cells.append(f"{r.diverged} / {r.runs}")
         rows.append(cells)
-    return _md_table(headers, rows)
+    return md_table(headers, rows)
 
 
 def _track_md(tt: pd.DataFrame) -> str:
@@ -1022,11 +604,11 @@ def _track_md(tt: pd.DataFrame) -> str:
     headers = ["Track", "Method", "VRMSE [m/s]", "MRMSE [rad]", "mean NEES", "95 % NEES band",
                "consistency", "diverged"]
     rows = [
-        [str(r.track), r.filter, _fmt(r.vrmse), _fmt(r.mrmse),
+        [str(r.track), r.filter, fmt(r.vrmse), fmt(r.mrmse),
          *_nees_cells(r.nees, r.nees_lo, r.nees_hi, r.consistency), f"{r.diverged} / {r.runs}"]
         for r in tt.itertuples(index=False)
     ]
-    return _md_table(headers, rows)
+    return md_table(headers, rows)
 
 
 def _horizontal_md(metrics: pd.DataFrame) -> str:
@@ -1040,14 +622,14 @@ def _horizontal_md(metrics: pd.DataFrame) -> str:
                "final HPE [% of distance]", "diverged"]
     rows = [
         ["average" if r.track is None else str(r.track),
-         r.filter, _fmt(r.distance, ".1f"), _fmt(r.hpe_final, ".4g"), _fmt(r.hpe_rms, ".4g"),
-         _fmt(r.hpe_final_pct, ".3g"), f"{r.diverged} / {r.runs}"]
+         r.filter, fmt(r.distance, ".1f"), fmt(r.hpe_final, ".4g"), fmt(r.hpe_rms, ".4g"),
+         fmt(r.hpe_final_pct, ".3g"), f"{r.diverged} / {r.runs}"]
         for r in ht.itertuples(index=False)
     ]
     return ("Final HPE and its % of distance: mean over the non-diverged runs (per track), then over "
             "tracks; RMS HPE: eq 50 with `sse_hpe` per track and eq 51 over tracks; distance: the "
             "truth's horizontal distance travelled (mean over tracks on the average rows).\n\n"
-            + _md_table(headers, rows))
+            + md_table(headers, rows))
 
 
 def _published_note(filters: Sequence[str], scenario: str | None, shown: Sequence[dict]) -> str:
@@ -1096,23 +678,23 @@ def _published_md(metrics: pd.DataFrame, table: pd.DataFrame, scenario: str | No
             imp = paired_improvement(metrics, name, ref) if paired else None
             counts = paired_run_counts(metrics, name, ref) if paired else {}
             pairs_min = min(counts.values()) if counts else 0
-            for key in _METRICS:
+            for key in METRICS:
                 mine = getattr(r, key) if r is not None else None
-                cells += [_fmt(mine), _fmt(pub[key])]
+                cells += [fmt(mine), fmt(pub[key])]
                 if name == ref:
                     cells += [DASH, DASH]
                     continue
                 if boot is not None:
-                    lo, hi = _ci(boot[key])
+                    lo, hi = percentile_ci(boot[key])
                     _, _, mark = ci_marks(lo, hi, pairs_min, min_pairs)
-                    cells.append(_fmt_imprv(imp[key], lo, hi, mark))
+                    cells.append(fmt_imprv(imp[key], lo, hi, mark))
                 else:
                     cells.append(DASH)
-                cells.append(_fmt_pct(float(improvement(pub[key], pub_ref[key]))))
+                cells.append(fmt_pct(float(improvement(pub[key], pub_ref[key]))))
             rows.append(cells)
         parts.append(
             f"**{entry['source']}** (scenario `{entry['scenario']}`; Imprv. of {ref})\n\n"
-            + _md_table(["Method", "VRMSE ours [m/s]", "VRMSE published [m/s]", "Imprv. ours [95 % CI]",
+            + md_table(["Method", "VRMSE ours [m/s]", "VRMSE published [m/s]", "Imprv. ours [95 % CI]",
                          "Imprv. published", "MRMSE ours [rad]", "MRMSE published [rad]",
                          "Imprv. ours [95 % CI]", "Imprv. published"], rows)
         )
@@ -1135,7 +717,7 @@ def render_report(
 ) -> str:
     """The full markdown text of ``report.md``: header, Summary (:func:`summary_md` of
     :func:`compare_filters` with ``practical_pct``), Definitions, tables, figures."""
-    scenario = _scenario(metrics, manifest)
+    scenario = scenario_of(metrics, manifest)
     ref = table.attrs["reference"]
     diverged = ", ".join(f"{r.filter} {r.diverged}" for r in table.itertuples(index=False))
     comps = compare_filters(metrics, n_boot=n_boot, seed=seed, practical_pct=practical_pct,
@@ -1150,7 +732,7 @@ def render_report(
     return "\n\n".join(
         [
             "# nespm Monte Carlo report",
-            _header_line(metrics, manifest),
+            header_line(metrics, manifest),
             "## Summary\n\n" + summary_md(metrics, table, comps, practical_pct, min_pairs),
             _definitions(ref, n_boot, seed, practical_pct, min_pairs).rstrip(),
             "## Track-averaged results (eq 51)\n\n" + _main_table(table),
@@ -1163,46 +745,6 @@ def render_report(
             "update (outage); and the true vs mean estimated horizontal track.\n\n" + fig_text,
         ]
     ) + "\n"
-
-
-# ----------------------------------------------------------------------------- figures
-
-
-def save_figure(fig, path: Path, dpi: int = FIG_DPI) -> Path:
-    """Lay out, write ``path`` (PNG) and close ``fig``; return ``path``. Every report figure ends here."""
-    import matplotlib.pyplot as plt
-
-    fig.tight_layout()
-    fig.savefig(path, dpi=dpi)
-    plt.close(fig)
-    return Path(path)
-
-
-def _outage_spans(t: np.ndarray, dvl_used: np.ndarray) -> list[tuple[float, float]]:
-    """Time spans of consecutive epochs with t > 0 and no DVL update (half-epoch padded)."""
-    mask = (~dvl_used) & (t > 0)
-    spans = []
-    i, n = 0, len(t)
-    while i < n:
-        if not mask[i]:
-            i += 1
-            continue
-        j = i
-        while j + 1 < n and mask[j + 1]:
-            j += 1
-        lo = 0.5 * (t[i - 1] + t[i]) if i > 0 else t[i]
-        hi = 0.5 * (t[j] + t[j + 1]) if j + 1 < n else t[j]
-        spans.append((float(lo), float(hi)))
-        i = j + 1
-    return spans
-
-
-def _colors(filters: Sequence[str]) -> dict[str, Any]:
-    """One tab10 colour per filter, stable across figures."""
-    import matplotlib
-
-    cmap = matplotlib.colormaps["tab10"]
-    return {f: cmap(i % 10) for i, f in enumerate(filters)}
 
 
 def _error_figure(
@@ -1225,7 +767,7 @@ def _error_figure(
         ax.plot(t, m, color=colors[f], lw=1.4, label=f)
         ax.fill_between(t, np.clip(m - s, 0.0, None), m + s, color=colors[f], alpha=0.2, lw=0)
     grid = ep.groupby("t", sort=True)["dvl_used"].any()
-    for k, (lo, hi) in enumerate(_outage_spans(grid.index.to_numpy(float), grid.to_numpy(bool))):
+    for k, (lo, hi) in enumerate(outage_spans(grid.index.to_numpy(float), grid.to_numpy(bool))):
         ax.axvspan(lo, hi, color="0.6", alpha=0.3, lw=0, label="DVL outage" if k == 0 else None)
     ax.set_xlabel("time since first epoch [s]")
     ax.set_ylabel(label)
@@ -1277,7 +819,7 @@ def plot_track_figures(
     fig_dir.mkdir(parents=True, exist_ok=True)
     order = filters_in_order(metrics)
     filters = order + [f for f in (str(x) for x in pd.unique(epochs["filter"])) if f not in order]
-    colors = _colors(filters)
+    colors = filter_colors(filters)
     runs = metrics.groupby("track")["run"].nunique()
     paths: list[Path] = []
     for track in sorted(pd.unique(epochs["track"])):
@@ -1301,60 +843,27 @@ def plot_track_figures(
     return paths
 
 
-# ----------------------------------------------------------------------------- entry point
-
-
-def _write_atomic(path: Path, text: str) -> None:
-    """Write text to ``path`` through a temporary file and a rename."""
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
-def write_report(out_dir: Path, reference: str | None = None, n_boot: int = 2000,
-                 practical_pct: float = PRACTICAL_PCT) -> Path:
-    """Write ``out_dir/report.md`` and ``out_dir/figures/*.png``; return the report path.
+def write_mc_report(out_dir: Path, reference: str | None = None, n_boot: int = 2000,
+                    practical_pct: float = PRACTICAL_PCT) -> Path:
+    """Write ``out_dir/report.md`` and ``out_dir/figures/*.png`` of a Monte Carlo folder; return the
+    report path.
 
     Figures are skipped when ``epochs.parquet`` is absent. The bootstrap seed is 0.
+    ``reference`` is the filter whose improvement over each row is shown (:func:`default_reference`);
     ``practical_pct`` [%] (default :data:`PRACTICAL_PCT`) is the smallest |improvement| the
-    Summary calls practically meaningful. A sweep folder (metrics with a ``param`` column) goes
-    to :func:`sweep_report.write_sweep_report` with ``reference`` as its baseline.
+    Summary calls practically meaningful.
     """
-    if not (np.isfinite(practical_pct) and practical_pct >= 0):
-        raise NespmError(f"--practical must be a percentage >= 0, got {practical_pct}")
+    check_practical_pct(practical_pct)
     out_dir = Path(out_dir)
-    try:
-        experiment = json.loads((out_dir / "manifest.json").read_text()).get("experiment")
-    except (OSError, ValueError, AttributeError):
-        experiment = None  # load_results reports a missing or unreadable manifest
-    if experiment == "gp-ukf":
-        from nespm_cli.reports.gp_ukf import write_gp_report
-
-        return write_gp_report(out_dir, n_boot=n_boot)  # --baseline does not apply
-    try:  # schema only; an unreadable file is reported by load_results below
-        import pyarrow.parquet as pq
-
-        is_sweep = "param" in pq.read_schema(out_dir / "metrics.parquet").names
-    except Exception:
-        is_sweep = False
-    if is_sweep:
-        from nespm_cli.reports.sweep import write_sweep_report
-
-        return write_sweep_report(out_dir, reference, n_boot=n_boot, practical_pct=practical_pct)
     metrics, epochs, manifest = load_results(out_dir)
     seed = 0
     table = filter_table(metrics, reference, n_boot=n_boot, seed=seed)
     tt = track_table(metrics)
     figures: list[Path] = []
     if epochs is not None and not epochs.empty:
-        figures = plot_track_figures(epochs, metrics, out_dir / "figures", _scenario(metrics, manifest))
+        figures = plot_track_figures(epochs, metrics, out_dir / "figures", scenario_of(metrics, manifest))
     text = render_report(metrics, manifest, table, tt, figures, out_dir, n_boot, seed,
                          practical_pct=practical_pct)
     path = out_dir / "report.md"
-    _write_atomic(path, text)
+    write_atomic(path, text)
     return path

@@ -8,9 +8,10 @@ For each swept value and filter the report gives the track-averaged VRMSE and MR
 (anukf.md eqs 50-52), the mean NEES and the divergence rate, each with a 95 % interval, and
 the improvement of each filter over a baseline filter with a paired bootstrap interval; a
 summary per value names the best filter from head-to-head paired comparisons
-(:func:`report.compare_filters`). The sums, the paired bootstrap, the formatting and the
-markdown helpers are those of :mod:`nespm_cli.reports.mc`; the improvement table and the
-improvement figure both read :func:`improvement_points`.
+(:func:`nespm_cli.reports.mc.compare_filters`). The equations and the bootstraps are those of
+:mod:`nespm_cli.reports.stats`, the formatting and markdown those of
+:mod:`nespm_cli.reports.markdown`; the improvement table and the improvement figure both read
+:func:`improvement_points`.
 """
 from __future__ import annotations
 
@@ -21,36 +22,38 @@ from typing import Any, Sequence
 import numpy as np
 import pandas as pd
 
-from nespm_cli.reports import mc as _rep
 from nespm_cli.errors import NespmError
 from nespm_cli.experiments.metrics import nees_band
-from nespm_cli.reports.mc import (
-    save_figure,
-    DASH,
+from nespm_cli.reports.figures import filter_colors, save_figure
+from nespm_cli.reports.markdown import DASH, SIG_MARK, SMALL_MARK, fmt, fmt_imprv, header_line, md_table
+from nespm_cli.reports.mc import compare_filters, filter_table, verdict_headline
+from nespm_cli.reports.results import (
     METRICS_COLUMNS,
-    MIN_PAIRED_RUNS,
-    PRACTICAL_PCT,
-    SIG_MARK,
-    SMALL_MARK,
-    ci_marks,
-    compare_filters,
-    _fmt_imprv,
-    _headline,
-    paired_run_counts,
-    _bootstrap_counts,
-    _check_metrics,
-    _fmt,
-    _header_line,
-    _md_table,
-    _METRICS,
-    _require_columns,
-    _runs_per_track,
-    _scenario,
-    _write_atomic,
-    filter_table,
+    check_metrics,
     filters_in_order,
+    read_results_folder,
+    require_columns,
+    runs_per_track,
+    scenario_of,
+    unique_text,
+    write_atomic,
+)
+from nespm_cli.reports.stats import (
+    METRICS,
+    MIN_PAIRED_RUNS,
+    NEES_DOF,
+    PRACTICAL_PCT,
+    ci_marks,
+    interval_mark,
     paired_bootstrap,
     paired_improvement,
+    paired_run_counts,
+    percentile_ci,
+    resample_counts,
+    rmse,
+    track_average,
+    track_rng,
+    wilson_interval,
 )
 
 __all__ = [
@@ -73,11 +76,9 @@ __all__ = [
 ]
 
 DEFAULT_BASELINE = "ekf"
-NEES_DOF = 6
-Z95 = 1.959963984540054  # two-sided 95 % normal quantile
 SWEEP_COLUMNS: tuple[str, ...] = ("param", "value")
 
-# metric key -> (display name, unit, y-axis label); VRMSE/MRMSE from report._METRICS
+# metric key -> (display name, unit, y-axis label); VRMSE/MRMSE as stats.METRICS
 _ALL_METRICS: dict[str, tuple[str, str, str]] = {
     "vrmse": ("VRMSE", "m/s", "VRMSE [m/s]"),
     "mrmse": ("MRMSE", "rad", "MRMSE [rad]"),
@@ -91,8 +92,8 @@ _ALL_METRICS: dict[str, tuple[str, str, str]] = {
 
 def check_sweep_metrics(metrics: pd.DataFrame, where: object = "metrics") -> None:
     """Validate a sweep metrics table: columns, one parameter, finite values and, per
-    value, the (track, filter, run) uniqueness of :func:`report._check_metrics`."""
-    _require_columns(metrics, SWEEP_COLUMNS + METRICS_COLUMNS, where)
+    value, the (track, filter, run) uniqueness of :func:`results.check_metrics`."""
+    require_columns(metrics, SWEEP_COLUMNS + METRICS_COLUMNS, where)
     if metrics.empty:
         raise NespmError(f"{where}: no rows")
     params = [str(p) for p in pd.unique(metrics["param"])]
@@ -102,12 +103,12 @@ def check_sweep_metrics(metrics: pd.DataFrame, where: object = "metrics") -> Non
     if not np.all(np.isfinite(values)):
         raise NespmError(f"{where}: non-finite swept value")
     for v, sub in metrics.groupby("value", sort=True):
-        _check_metrics(sub, f"{where} (value {v:g})")
+        check_metrics(sub, f"{where} (value {v:g})")
 
 
 def load_sweep(out_dir: Path) -> tuple[pd.DataFrame, dict]:
     """Read and validate ``metrics.parquet`` and ``manifest.json`` (optional) of a sweep folder."""
-    metrics, manifest = _rep.read_results_folder(Path(out_dir), "sweep")
+    metrics, manifest = read_results_folder(Path(out_dir), "sweep")
     check_sweep_metrics(metrics, Path(out_dir) / "metrics.parquet")
     return metrics, manifest
 
@@ -146,22 +147,6 @@ def default_baseline(metrics: pd.DataFrame, baseline: str | None = None) -> str:
 # ----------------------------------------------------------------------------- statistics
 
 
-def wilson_interval(k: int, n: int, z: float = Z95) -> tuple[float, float]:
-    """Wilson score interval of a binomial proportion ``k / n`` (NaN, NaN when n == 0)."""
-    if n <= 0:
-        return math.nan, math.nan
-    p = k / n
-    den = 1.0 + z * z / n
-    centre = (p + z * z / (2 * n)) / den
-    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / den
-    lo, hi = max(0.0, centre - half), min(1.0, centre + half)
-    if k == 0:
-        lo = 0.0
-    if k == n:
-        hi = 1.0
-    return lo, hi
-
-
 def use_log_x(values: Sequence[float]) -> bool:
     """Log x-axis when every value is positive and max / min > 100."""
     v = np.asarray([x for x in values if np.isfinite(x)], dtype=float)
@@ -182,17 +167,17 @@ def filter_bootstrap(
 
     ``metrics`` holds one swept value. Per track, the non-diverged runs of ``filt`` are
     resampled with replacement (vectorized multiplicities, as in
-    :func:`report.paired_bootstrap`, with the same ``(seed, track)`` streams); eqs 50-52
+    :func:`stats.paired_bootstrap`, with the same ``(seed, track)`` streams); eqs 50-52
     are recomputed per track and averaged over tracks (eq 51); the NEES is the mean over the
     resampled runs of all tracks. VRMSE/MRMSE replicates are NaN when some track has no
     non-diverged run; NEES replicates are NaN when no run has a finite NEES (``ins``).
     """
-    keys = list(_METRICS) + ["nees"]
+    keys = list(METRICS) + ["nees"]
     out = {k: np.full(max(n_boot, 0), np.nan) for k in keys}
     d = metrics[metrics["filter"] == filt]
     if d.empty or n_boot < 1:
         return out
-    ratios: dict[str, list[np.ndarray]] = {k: [] for k in _METRICS}
+    per_track: dict[str, list[np.ndarray]] = {k: [] for k in METRICS}
     complete = True
     nees_sum = np.zeros(n_boot)
     nees_cnt = np.zeros(n_boot)
@@ -201,36 +186,26 @@ def filter_bootstrap(
         if len(t) == 0:
             complete = False
             continue
-        rng = np.random.default_rng([int(seed), int(track)])
-        counts = _bootstrap_counts(len(t), n_boot, rng)
-        den = counts @ t["n_samples"].to_numpy(float)
-        for key, (sse_col, _, _) in _METRICS.items():
-            ratios[key].append((counts @ t[sse_col].to_numpy(float)) / den)
+        counts = resample_counts(len(t), n_boot, track_rng(seed, track))
+        for key, (sse_col, _, _) in METRICS.items():
+            per_track[key].append(rmse(t[sse_col], t["n_samples"], counts))
         nees = t["nees"].to_numpy(float)
         fin = np.isfinite(nees)
         nees_sum += counts[:, fin] @ nees[fin]
         nees_cnt += counts[:, fin].sum(axis=1)
     if complete:
-        for key in _METRICS:
-            out[key] = np.sqrt(np.mean(ratios[key], axis=0))
+        for key in METRICS:
+            out[key] = track_average(per_track[key])
     with np.errstate(divide="ignore", invalid="ignore"):
         out["nees"] = np.where(nees_cnt > 0, nees_sum / np.where(nees_cnt > 0, nees_cnt, 1), np.nan)
     return out
-
-
-def _ci(reps: np.ndarray) -> tuple[float, float]:
-    """2.5 / 97.5 % percentiles, NaN unless every replicate is finite."""
-    if reps.size and np.all(np.isfinite(reps)):
-        lo, hi = np.percentile(reps, [2.5, 97.5])
-        return float(lo), float(hi)
-    return math.nan, math.nan
 
 
 def sweep_table(metrics: pd.DataFrame, n_boot: int = 2000, seed: int = 0) -> pd.DataFrame:
     """One row per (value, filter), values ascending, filters in order of appearance.
 
     Columns: ``value``, ``filter``; ``vrmse``, ``mrmse`` (track average, eqs 50-52, over the
-    non-diverged runs, as :func:`report.filter_table`) and ``nees`` (mean per-run NEES of the
+    non-diverged runs, as :func:`mc.filter_table`) and ``nees`` (mean per-run NEES of the
     non-diverged runs), each with ``<key>_lo`` / ``<key>_hi`` (95 % bootstrap percentile
     interval, :func:`filter_bootstrap`); ``diverged``, ``runs``, ``div_rate`` =
     diverged / runs with its 95 % Wilson interval ``div_rate_lo`` / ``div_rate_hi``.
@@ -251,7 +226,7 @@ def sweep_table(metrics: pd.DataFrame, n_boot: int = 2000, seed: int = 0) -> pd.
                 boot = filter_bootstrap(sub, f, n_boot=n_boot, seed=seed)
                 for key in ("vrmse", "mrmse", "nees"):
                     row[key] = float(r[key])
-                    row[f"{key}_lo"], row[f"{key}_hi"] = _ci(boot[key])
+                    row[f"{key}_lo"], row[f"{key}_hi"] = percentile_ci(boot[key])
                 k, n = int(r["diverged"]), int(r["runs"])
             else:
                 for key in ("vrmse", "mrmse", "nees"):
@@ -276,7 +251,7 @@ def improvement_table(
     ``100 · (metric_baseline − metric_filter) / metric_baseline`` (positive = the filter is
     better) for VRMSE and MRMSE over the runs that diverged in neither filter (so a filter
     is not credited for the runs its baseline lost); ``<key>_ci_lo`` / ``<key>_ci_hi`` is the 95 % paired
-    bootstrap interval of :func:`report.paired_bootstrap` (runs diverged in neither filter,
+    bootstrap interval of :func:`stats.paired_bootstrap` (runs diverged in neither filter,
     the same resample for both) and ``<key>_ci_excludes_0`` flags an interval without 0;
     ``pairs_min`` is the fewest paired runs on a track and ``<key>_significant`` = excludes 0
     and ``pairs_min >= min_pairs``. ``attrs["baseline"]`` names the baseline. This table is
@@ -294,16 +269,16 @@ def improvement_table(
             paired = paired_improvement(sub, base, f)  # on the runs diverged in neither, as the interval
             counts = paired_run_counts(sub, base, f)
             row["pairs_min"] = min(counts.values()) if counts else 0
-            for key in _METRICS:
+            for key in METRICS:
                 row[f"{key}_imprv"] = paired[key]
-                lo, hi = _ci(boot[key])
+                lo, hi = percentile_ci(boot[key])
                 row[f"{key}_ci_lo"], row[f"{key}_ci_hi"] = lo, hi
                 excludes, significant, _ = ci_marks(lo, hi, row["pairs_min"], min_pairs)
                 row[f"{key}_ci_excludes_0"] = excludes
                 row[f"{key}_significant"] = significant
             rows.append(row)
     cols = ["value", "filter", "pairs_min"] + [
-        f"{k}_{s}" for k in _METRICS for s in ("imprv", "ci_lo", "ci_hi", "ci_excludes_0", "significant")
+        f"{k}_{s}" for k in METRICS for s in ("imprv", "ci_lo", "ci_hi", "ci_excludes_0", "significant")
     ]
     out = pd.DataFrame(rows, columns=cols)
     out.attrs["baseline"] = base
@@ -333,7 +308,7 @@ def summary_rows(
     metrics: pd.DataFrame, n_boot: int = 2000, seed: int = 0, practical_pct: float = PRACTICAL_PCT,
     min_pairs: int = MIN_PAIRED_RUNS,
 ) -> pd.DataFrame:
-    """:func:`report.compare_filters` per swept value (column ``value`` first)."""
+    """:func:`mc.compare_filters` per swept value (column ``value`` first)."""
     parts = []
     for v in sweep_values(metrics):
         sub = metrics[metrics["value"] == v].drop(columns=["param", "value"])
@@ -356,10 +331,10 @@ def _protocol(metrics: pd.DataFrame, manifest: dict) -> str:
     options = manifest.get("options") or {}
     parts = []
     if "schedule" in metrics.columns:
-        parts.append(f"schedule {_rep._unique_text(metrics['schedule'])}")
+        parts.append(f"schedule {unique_text(metrics['schedule'])}")
     elif options.get("schedule"):
         parts.append(f"schedule {options['schedule']}")
-    scen = _scenario(metrics, manifest)
+    scen = scenario_of(metrics, manifest)
     if scen:
         parts.append(f"scenario {scen}")
     if options.get("dvl"):
@@ -372,7 +347,7 @@ def _protocol(metrics: pd.DataFrame, manifest: dict) -> str:
 def _subtitle(metrics: pd.DataFrame, manifest: dict) -> str:
     tracks = ", ".join(str(t) for t in sorted(pd.unique(metrics["track"])))
     s = "track" if metrics["track"].nunique() == 1 else "tracks"
-    text = f"{s} {tracks} · {_runs_per_track(metrics)} runs per track"
+    text = f"{s} {tracks} · {runs_per_track(metrics)} runs per track"
     proto = _protocol(metrics, manifest)
     return text + (f" · {proto}" if proto else "")
 
@@ -438,7 +413,7 @@ def _metric_figure(
         ax.axhline(NEES_DOF, color="0.3", ls="--", lw=1.0)
         plotted += [np.array([blo, bhi])]
         logy = use_log_y(np.concatenate([np.ravel(p) for p in plotted]))
-    elif key in _METRICS:
+    elif key in METRICS:
         pts = table.loc[table["filter"].isin(filters), key].to_numpy(float)
         logy = use_log_y(pts)
     if key == "div_rate":
@@ -464,8 +439,8 @@ def _improvement_figure(
     values = sorted(pd.unique(imp["value"])) if not imp.empty else []
     base = imp.attrs.get("baseline", "baseline")
     fig, axes = plt.subplots(1, 2, figsize=(13, 5.2), sharex=True)
-    for ax, key in zip(axes, _METRICS):
-        name = _METRICS[key][1]
+    for ax, key in zip(axes, METRICS):
+        name = METRICS[key][1]
         ax.axhline(0.0, color="k", lw=1.0)
         marked = False
         for f in filters:
@@ -507,7 +482,7 @@ def plot_sweep_figures(
     fig_dir = Path(fig_dir)
     fig_dir.mkdir(parents=True, exist_ok=True)
     filters = filters_in_order(metrics)
-    colors = _rep._colors(filters)
+    colors = filter_colors(filters)
     param = _param(metrics)
     xlabel = _param_label(param)
     sub = _subtitle(metrics, manifest)
@@ -537,8 +512,8 @@ def _cell(v: float, lo: float, hi: float, spec: str = ".4g") -> str:
     if not np.isfinite(v):
         return DASH
     if np.isfinite(lo) and np.isfinite(hi):
-        return f"{_fmt(v, spec)} [{_fmt(lo, spec)}, {_fmt(hi, spec)}]"
-    return _fmt(v, spec)
+        return f"{fmt(v, spec)} [{fmt(lo, spec)}, {fmt(hi, spec)}]"
+    return fmt(v, spec)
 
 
 def _metric_md(table: pd.DataFrame, key: str, filters: Sequence[str], xlabel: str) -> str:
@@ -556,7 +531,7 @@ def _metric_md(table: pd.DataFrame, key: str, filters: Sequence[str], xlabel: st
                 spec = ".2f" if key == "nees" and abs(r[key]) < 100 else ".4g"
                 cells.append(_cell(r[key], r[f"{key}_lo"], r[f"{key}_hi"], spec))
         rows.append(cells)
-    return _md_table([xlabel] + list(filters), rows)
+    return md_table([xlabel] + list(filters), rows)
 
 
 def _improvement_md(imp: pd.DataFrame, key: str, filters: Sequence[str], xlabel: str) -> str:
@@ -568,9 +543,9 @@ def _improvement_md(imp: pd.DataFrame, key: str, filters: Sequence[str], xlabel:
         cells = [f"{v:g}"]
         for f in filters:
             r = cols[f].loc[v]
-            cells.append(_fmt_imprv(r["imprv"], r["ci_lo"], r["ci_hi"], r["mark"]))
+            cells.append(fmt_imprv(r["imprv"], r["ci_lo"], r["ci_hi"], r["mark"]))
         rows.append(cells)
-    return _md_table([xlabel] + list(filters), rows)
+    return md_table([xlabel] + list(filters), rows)
 
 
 _SHORT_VERDICT = {
@@ -607,11 +582,11 @@ def _summary_md(comps: pd.DataFrame, practical_pct: float, min_pairs: int) -> st
                 continue
             cells = []
             for r in c.itertuples(index=False):
-                mark = SMALL_MARK if r.pairs_min < min_pairs else SIG_MARK if r.significant else ""
-                cells.append(f"vs `{r.other}` {_fmt_imprv(r.imprv, r.ci_lo, r.ci_hi, mark)} "
+                mark = interval_mark(r.significant, r.pairs_min, min_pairs)
+                cells.append(f"vs `{r.other}` {fmt_imprv(r.imprv, r.ci_lo, r.ci_hi, mark)} "
                              f"{_SHORT_VERDICT[r.verdict]}")
-            rows.append([f"{v:g}", names[key], _headline(c), "; ".join(cells)])
-    return intro + "\n\n" + _md_table(["value", "metric", "verdict", "best vs each other filter"], rows)
+            rows.append([f"{v:g}", names[key], verdict_headline(c), "; ".join(cells)])
+    return intro + "\n\n" + md_table(["value", "metric", "verdict", "best vs each other filter"], rows)
 
 
 def render_sweep_report(
@@ -687,7 +662,7 @@ def render_sweep_report(
     sections = [
         f"# nespm sweep report: {param}",
         header,
-        _header_line(metrics, manifest),
+        header_line(metrics, manifest),
         "## Summary\n\n" + _summary_md(comps, practical_pct, min_pairs),
         definitions.rstrip(),
         "## Track-averaged VRMSE [m/s] (eqs 50–51)\n\n"
@@ -720,7 +695,7 @@ def write_sweep_report(out_dir: Path, baseline: str | None = None, n_boot: int =
                        practical_pct: float = PRACTICAL_PCT) -> Path:
     """Write ``out_dir/report.md`` and ``out_dir/figures/sweep_*.png`` for a sweep folder;
     return the report path. The bootstrap seed is 0; ``practical_pct`` as in
-    :func:`report.write_report`."""
+    :func:`dispatch.write_report`."""
     out_dir = Path(out_dir)
     metrics, manifest = load_sweep(out_dir)
     if n_boot < 0:
@@ -733,5 +708,5 @@ def write_sweep_report(out_dir: Path, baseline: str | None = None, n_boot: int =
     text = render_sweep_report(metrics, manifest, table, imp, figures, out_dir, n_boot, seed,
                                practical_pct=practical_pct)
     path = out_dir / "report.md"
-    _write_atomic(path, text)
+    write_atomic(path, text)
     return path

@@ -5,7 +5,7 @@ from pathlib import Path
 
 import numpy as np
 
-from nespm_cli.reports.mc import save_figure
+from nespm_cli.reports.figures import save_figure
 
 
 def plot_history(hists: dict, path, tests: dict | None = None) -> Path:

@@ -1,0 +1,54 @@
+"""``nespm report``: write the report of a results folder with the module of its experiment.
+
+The manifest's ``experiment`` picks the module: ``gp-ukf`` -> :mod:`nespm_cli.reports.gp_ukf`;
+otherwise a ``metrics.parquet`` with a ``param`` column is a sweep folder
+(:mod:`nespm_cli.reports.sweep`) and anything else an ordinary Monte Carlo folder
+(:mod:`nespm_cli.reports.mc`, which reports a missing or unreadable folder).
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from nespm_cli.reports.gp_ukf import write_gp_report
+from nespm_cli.reports.mc import write_mc_report
+from nespm_cli.reports.stats import PRACTICAL_PCT, check_practical_pct
+from nespm_cli.reports.sweep import write_sweep_report
+
+__all__ = ["PRACTICAL_PCT", "experiment_of", "write_report"]
+
+
+def experiment_of(out_dir: Path) -> str:
+    """``"gp-ukf"``, ``"sweep"`` or ``"mc"``: which report a results folder gets."""
+    out_dir = Path(out_dir)
+    try:
+        experiment = json.loads((out_dir / "manifest.json").read_text()).get("experiment")
+    except (OSError, ValueError, AttributeError):
+        experiment = None  # the mc loader reports a missing or unreadable manifest
+    if experiment == "gp-ukf":
+        return "gp-ukf"
+    try:  # schema only; an unreadable file is reported by the mc loader
+        import pyarrow.parquet as pq
+
+        is_sweep = "param" in pq.read_schema(out_dir / "metrics.parquet").names
+    except Exception:
+        is_sweep = False
+    return "sweep" if is_sweep else "mc"
+
+
+def write_report(out_dir: Path, reference: str | None = None, n_boot: int = 2000,
+                 practical_pct: float = PRACTICAL_PCT) -> Path:
+    """Write ``out_dir/report.md`` and its figures; return the report path.
+
+    ``reference`` is the mc report's reference filter and the sweep report's baseline (it does
+    not apply to a GP-UKF folder); ``practical_pct`` [%] (default :data:`PRACTICAL_PCT`) is the
+    smallest |improvement| the Summary calls practically meaningful. The bootstrap seed is 0.
+    """
+    check_practical_pct(practical_pct)
+    out_dir = Path(out_dir)
+    kind = experiment_of(out_dir)
+    if kind == "gp-ukf":
+        return write_gp_report(out_dir, n_boot=n_boot)  # --baseline does not apply
+    if kind == "sweep":
+        return write_sweep_report(out_dir, reference, n_boot=n_boot, practical_pct=practical_pct)
+    return write_mc_report(out_dir, reference, n_boot=n_boot, practical_pct=practical_pct)

@@ -1,0 +1,120 @@
+"""Markdown of the reports: tables, number / percent / interval formatting, the run header line."""
+from __future__ import annotations
+
+import math
+from typing import Any, Iterable, Sequence
+
+import numpy as np
+import pandas as pd
+
+from nespm_cli.reports.results import filters_in_order, runs_per_track, unique_text
+
+DASH = "—"
+SIG_MARK = "*"
+SMALL_MARK = "†"
+
+
+def fmt(x: Any, spec: str = ".4g") -> str:
+    """Format a number, or an em dash for None/NaN."""
+    if x is None or (isinstance(x, (float, np.floating)) and not np.isfinite(x)):
+        return DASH
+    return format(x, spec)
+
+
+def pct(x: float) -> str:
+    """One decimal like the papers (21.3), more where that would print 0.0 or -0.0."""
+    if abs(x) >= 0.05 or x == 0.0:
+        return f"{x:.1f}"
+    return f"{x:.2g}" if abs(x) >= 1e-4 else f"{x:.1e}"
+
+
+def fmt_pct(x: Any) -> str:
+    """Improvement in percent, e.g. ``21.3 %`` (small values keep two significant digits)."""
+    return DASH if x is None or not np.isfinite(x) else f"{pct(x)} %"
+
+
+MAX_DECIMALS = 10
+
+
+def decimals(point: float, lo: float, hi: float) -> int:
+    """Decimals for an interval and its point: two significant digits of the interval width
+    (at least one decimal, as the papers), more until distinct values print distinctly."""
+    vals = [v for v in (point, lo, hi) if v is not None and np.isfinite(v)]
+    width = abs(hi - lo) if np.isfinite(lo) and np.isfinite(hi) else 0.0
+    d = max(1, math.ceil(-math.log10(width)) + 1) if width > 0 else 1
+    while d < MAX_DECIMALS:
+        text = {v: fixed(v, d) for v in vals}
+        if len(set(text.values())) == len(set(vals)):
+            break
+        d += 1
+    return min(d, MAX_DECIMALS)
+
+
+def fixed(x: float, d: int) -> str:
+    """``x`` with ``d`` decimals, without a minus sign on a value that prints as zero."""
+    t = f"{x:.{d}f}"
+    return t[1:] if t.startswith("-") and float(t) == 0.0 else t
+
+
+def fmt_imprv(point: float, lo: float, hi: float, mark: str = "") -> str:
+    """``point % [lo, hi]`` (+ `` mark``) with the decimals of :func:`decimals`, e.g.
+    ``-0.0076 % [-0.0091, -0.0061] *``; just the point without a finite interval."""
+    if point is None or not np.isfinite(point):
+        return DASH
+    if not (np.isfinite(lo) and np.isfinite(hi)):
+        return fmt_pct(point)
+    d = decimals(point, lo, hi)
+    return f"{fixed(point, d)} % [{fixed(lo, d)}, {fixed(hi, d)}]" + (f" {mark}" if mark else "")
+
+
+def imprv_cells(point: float, lo: float, hi: float, mark: str = "") -> tuple[str, str]:
+    """The main table's two cells ``point %`` and ``[lo, hi] mark`` with shared decimals."""
+    if point is None or not np.isfinite(point):
+        return DASH, DASH
+    if not (np.isfinite(lo) and np.isfinite(hi)):
+        return fmt_pct(point), DASH
+    d = decimals(point, lo, hi)
+    return f"{fixed(point, d)} %", f"[{fixed(lo, d)}, {fixed(hi, d)}]" + (f" {mark}" if mark else "")
+
+
+def fmt_ci(lo: float, hi: float, excludes_0: bool | str) -> str:
+    """``[lo, hi] %`` with the decimals of :func:`decimals` and a trailing mark: ``*`` when
+    ``excludes_0`` is True, or the given mark string (``*``, ``†`` or ``""``)."""
+    if not (np.isfinite(lo) and np.isfinite(hi)):
+        return DASH
+    mark = excludes_0 if isinstance(excludes_0, str) else (SIG_MARK if excludes_0 else "")
+    d = decimals(math.nan, lo, hi)
+    return f"[{fixed(lo, d)}, {fixed(hi, d)}] %" + (f" {mark}" if mark else "")
+
+
+def md_table(headers: Sequence[str], rows: Iterable[Sequence[str]]) -> str:
+    """A GitHub-flavoured markdown table."""
+    lines = ["| " + " | ".join(headers) + " |", "|" + "|".join(" --- " for _ in headers) + "|"]
+    lines += ["| " + " | ".join(str(c) for c in r) + " |" for r in rows]
+    return "\n".join(lines)
+
+
+def header_line(metrics: pd.DataFrame, manifest: dict) -> str:
+    """The run summary line: tracks, runs per track, filters, scenario, schedule, seed, data, time."""
+    options = manifest.get("options") or {}
+
+    def field(col: str) -> str:
+        if col in metrics.columns:
+            return unique_text(metrics[col])
+        return str(options.get(col, manifest.get(col, DASH)))
+
+    seed = manifest.get("seed", None)
+    seed_text = str(seed) if seed is not None else field("seed")
+    wall = manifest.get("wall_seconds")
+    wall_text = f"{float(wall):.1f} s" if isinstance(wall, (int, float)) else DASH
+    parts = [
+        f"tracks {', '.join(str(t) for t in sorted(pd.unique(metrics['track'])))}",
+        f"runs per track {runs_per_track(metrics)}",
+        f"filters {', '.join(filters_in_order(metrics))}",
+        f"scenario {field('scenario')}",
+        f"schedule {field('schedule')}",
+        f"seed {seed_text}",
+        f"data dir {manifest.get('data_dir') or DASH}",
+        f"wall time {wall_text}",
+    ]
+    return "**Run:** " + "; ".join(parts) + "."

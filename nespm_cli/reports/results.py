@@ -1,0 +1,148 @@
+"""Reading a results folder (``docs/results-schema.md``): ``manifest.json``, ``metrics.parquet``,
+``epochs.parquet``; column checks; facts of the results (filters, scenario, runs per track);
+writing ``report.md`` atomically."""
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from pathlib import Path
+from typing import Any, Iterable
+
+import pandas as pd
+
+from nespm_cli.errors import NespmError
+
+
+METRICS_COLUMNS: tuple[str, ...] = (
+    "track", "filter", "run", "sse_vel", "sse_att", "n_samples", "nees", "diverged",
+)
+
+
+EPOCHS_COLUMNS: tuple[str, ...] = (
+    "track", "filter", "t", "vel_err_mean", "vel_err_std", "att_err_mean", "att_err_std",
+    "north_err_mean", "east_err_mean", "north_true", "east_true", "dvl_used",
+)
+
+
+#: metrics.parquet columns of the horizontal position error (absent in folders written before them).
+HPE_COLUMNS: tuple[str, ...] = ("sse_hpe", "hpe_final", "hpe_rms", "hpe_final_pct", "distance")
+
+
+def read_results_folder(out_dir: Path, command: str = "mc",
+                        experiment: str | None = None) -> tuple[pd.DataFrame, dict]:
+    """Read ``manifest.json`` (optional) and ``metrics.parquet`` (required, unvalidated) of a
+    results folder written by ``nespm <command>``; one-line :class:`NespmError` otherwise.
+
+    With ``experiment``, the manifest must exist and name it (checked before the metrics).
+    """
+    out_dir = Path(out_dir)
+    if not out_dir.is_dir():
+        raise NespmError(f"results folder not found: {out_dir}")
+    manifest_path = out_dir / "manifest.json"
+    manifest: dict = {}
+    if manifest_path.is_file():
+        try:
+            manifest = json.loads(manifest_path.read_text())
+        except (OSError, ValueError) as exc:
+            raise NespmError(f"{manifest_path}: not valid JSON ({one_line(exc)})") from exc
+        if not isinstance(manifest, dict):
+            raise NespmError(f"{manifest_path}: expected a JSON object")
+    if experiment is not None and manifest.get("experiment") != experiment:
+        raise NespmError(f"{manifest_path}: not a {experiment.upper()} experiment folder "
+                         f"(experiment = {manifest.get('experiment')!r}); run `nespm {command} --out {out_dir}`")
+    metrics_path = out_dir / "metrics.parquet"
+    if not metrics_path.is_file():
+        raise NespmError(f"{metrics_path} not found: run `nespm {command} ... --out {out_dir}` first")
+    return read_parquet(metrics_path), manifest
+
+
+def load_results(out_dir: Path) -> tuple[pd.DataFrame, pd.DataFrame | None, dict]:
+    """Read ``metrics.parquet`` (required), ``epochs.parquet`` and ``manifest.json``.
+
+    Returns ``(metrics, epochs or None, manifest or {})``. Raises :class:`NespmError`
+    for a missing folder, a missing/unreadable metrics file or missing columns.
+    """
+    out_dir = Path(out_dir)
+    metrics, manifest = read_results_folder(out_dir, "mc")
+    check_metrics(metrics, out_dir / "metrics.parquet")
+    epochs_path = out_dir / "epochs.parquet"
+    epochs = read_parquet(epochs_path) if epochs_path.is_file() else None
+    if epochs is not None:
+        require_columns(epochs, EPOCHS_COLUMNS, epochs_path)
+    return metrics, epochs, manifest
+
+
+def read_parquet(path: Path) -> pd.DataFrame:
+    """Read one Parquet file, turning reader errors into a one-line NespmError."""
+    try:
+        return pd.read_parquet(path)
+    except Exception as exc:  # pyarrow raises many types for a damaged file
+        raise NespmError(f"{path}: cannot read Parquet ({one_line(exc)})") from exc
+
+
+def one_line(exc: BaseException) -> str:
+    """First line of an exception message."""
+    text = str(exc).strip()
+    return text.splitlines()[0] if text else type(exc).__name__
+
+
+def require_columns(df: pd.DataFrame, columns: Iterable[str], where: object) -> None:
+    """Raise NespmError naming the columns of ``columns`` that ``df`` lacks."""
+    missing = [c for c in columns if c not in df.columns]
+    if missing:
+        raise NespmError(f"{where}: missing column(s) {', '.join(missing)}")
+
+
+def check_metrics(metrics: pd.DataFrame, where: object = "metrics") -> None:
+    """Validate the columns, non-emptiness and (track, filter, run) uniqueness."""
+    require_columns(metrics, METRICS_COLUMNS, where)
+    if metrics.empty:
+        raise NespmError(f"{where}: no rows")
+    dup = metrics.duplicated(["track", "filter", "run"])
+    if dup.any():
+        row = metrics.loc[dup].iloc[0]
+        raise NespmError(
+            f"{where}: duplicate row for track {row['track']}, filter {row['filter']}, run {row['run']}"
+        )
+
+
+def filters_in_order(metrics: pd.DataFrame) -> list[str]:
+    """Filter names in their order of first appearance."""
+    return [str(f) for f in pd.unique(metrics["filter"])]
+
+
+def has_hpe(metrics: pd.DataFrame) -> bool:
+    """Whether ``metrics`` holds the horizontal-position columns (:data:`HPE_COLUMNS`)."""
+    return all(c in metrics.columns for c in HPE_COLUMNS)
+
+
+def unique_text(values: Iterable[Any]) -> str:
+    """Distinct values joined by commas, in order of appearance."""
+    return ", ".join(str(v) for v in pd.unique(pd.Series(list(values))))
+
+
+def runs_per_track(metrics: pd.DataFrame) -> str:
+    """Distinct run indices per track: one number, or ``min–max`` when tracks differ."""
+    n = metrics.groupby("track")["run"].nunique()
+    return str(int(n.min())) if n.min() == n.max() else f"{int(n.min())}–{int(n.max())}"
+
+
+def scenario_of(metrics: pd.DataFrame, manifest: dict) -> str | None:
+    """The single scenario of the results (metrics column, else manifest option), or None."""
+    if "scenario" in metrics.columns:
+        vals = pd.unique(metrics["scenario"].dropna())
+        return str(vals[0]) if len(vals) == 1 else None
+    return (manifest.get("options") or {}).get("scenario")
+
+
+def write_atomic(path: Path, text: str) -> None:
+    """Write text to ``path`` through a temporary file and a rename."""
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            fh.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
