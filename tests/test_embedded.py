@@ -10,7 +10,8 @@ from nespm_cli.data import embedded
 from nespm_cli.nav.earth import radii
 from nespm_cli.data.embedded import EMBEDDED_TRACKS, L_DVL, embedded_track
 from nespm_cli.errors import NespmError
-from nespm_cli.data.tracks import ENV_DATA_DIR, body_rate_fd, dvl_lever_arm_fit, load_track, track_summary
+from nespm_cli.nav.dvl import body_rate_from_attitude
+from nespm_cli.data.tracks import ENV_DATA_DIR, dvl_lever_arm_fit, load_track, track_summary
 
 ALL = pytest.mark.parametrize("number", EMBEDDED_TRACKS)
 FIELDS = ("t", "pos", "v_n", "euler", "dvl")
@@ -137,7 +138,7 @@ def test_attitude_consistent_with_velocity(number: int) -> None:
 def test_dvl_noise_level(number: int) -> None:
     tr = embedded_track(number)
     C = tr.C_bn
-    w = body_rate_fd(tr.t, C)
+    w = body_rate_from_attitude(tr.t, C)
     resid = tr.dvl - np.einsum("nji,nj->ni", C, tr.v_n) - np.cross(w, L_DVL)
     std = resid.std(axis=0)
     assert np.all((std >= 0.015) & (std <= 0.03)), std
@@ -154,5 +155,5 @@ def test_body_rate_matches_attitude() -> None:
     """The analytic body rate used for the DVL agrees with the finite-difference one."""
     tr = embedded_track(1)
     k = embedded._kinematics(embedded._SPECS[1], np.asarray(tr.t))
-    w_fd = body_rate_fd(tr.t, tr.C_bn)
+    w_fd = body_rate_from_attitude(tr.t, tr.C_bn)
     assert np.abs(k["w_b"][1:-1] - w_fd[1:-1]).max() < 3e-3

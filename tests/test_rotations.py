@@ -423,3 +423,15 @@ def test_orthonormalize_restores_rotation():
     np.testing.assert_allclose(np.linalg.det(R), 1.0, atol=1e-14)
     assert np.abs(R - C).max() < 1e-5
     np.testing.assert_allclose(rot.orthonormalize(C), C, rtol=0, atol=1e-15)
+
+
+def test_wrap_angle_range_and_single_home() -> None:
+    from nespm_cli.nav.rotations import wrap_angle
+    from nespm_cli.vehicles import sensors
+
+    assert sensors.wrap_angle is wrap_angle  # re-exported, not re-implemented
+    a = np.array([-np.pi, np.pi, 3 * np.pi, -3 * np.pi, 0.0, 7.0, -7.0, 2 * np.pi])
+    w = wrap_angle(a)
+    assert np.all((w > -np.pi) & (w <= np.pi))
+    np.testing.assert_allclose(w[:4], np.pi, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(w[4:], [0.0, 7.0 - 2 * np.pi, -7.0 + 2 * np.pi, 0.0], rtol=0, atol=1e-15)

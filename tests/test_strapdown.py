@@ -59,11 +59,11 @@ def test_cross_matches_numpy_and_broadcasts():
     np.testing.assert_allclose(cross(a, b), (skew(a) @ b[..., None])[..., 0], rtol=0, atol=1e-15)
 
 
-def test_internal_rates_match_earth_module():
+def test_transport_rates_match_earth_module():
     r = np.random.default_rng(2)
     pos, v, _ = random_states(r, (7, 25))
     R_N, R_E = earth.radii(pos[..., 0])
-    w_ie, w_en = strapdown._rates(pos[..., 0], pos[..., 2], v, R_N, R_E)
+    w_ie, w_en = earth.transport_rates(pos[..., 0], pos[..., 2], v, R_N, R_E)
     np.testing.assert_allclose(w_ie, earth.w_ie_n(pos), rtol=0, atol=1e-20)
     np.testing.assert_allclose(w_en, earth.w_en_n(pos, v), rtol=1e-14, atol=1e-24)
 

@@ -15,6 +15,7 @@ import pytest
 from nespm_cli.data.embedded import embedded_track
 from nespm_cli.errors import NespmError
 from nespm_cli.nav.rotations import euler_to_dcm
+from nespm_cli.nav.dvl import body_rate_from_attitude
 from nespm_cli.data.tracks import (
     DVL_COLUMNS,
     ENV_DATA_DIR,
@@ -22,7 +23,6 @@ from nespm_cli.data.tracks import (
     IMU_COLUMNS,
     Track,
     available_tracks,
-    body_rate_fd,
     dvl_lever_arm_fit,
     load_track,
     load_tracks,
@@ -150,6 +150,25 @@ def test_write_akit_round_trip_with_imu(tmp_path: Path) -> None:
     back = load_track(1, tmp_path)
     assert back.imu is not None and back.imu.shape == imu.shape
     assert np.max(np.abs(back.imu - imu)) <= 1e-15
+
+
+def test_write_akit_is_atomic_and_leaves_no_temporaries(tmp_path: Path) -> None:
+    from nespm_cli.data.atomic import write_atomic
+
+    folder = write_akit(embedded_track(3), tmp_path)
+    assert sorted(p.name for p in folder.iterdir()) == ["DVL_trajectory3.csv", "GT_trajectory3.csv"]
+    # a failing writer leaves the old file untouched and no temporary behind
+    target = folder / "GT_trajectory3.csv"
+    before = target.read_text()
+
+    def boom(tmp: Path) -> None:
+        tmp.write_text("partial")
+        raise OSError("disk full")
+
+    with pytest.raises(OSError, match="disk full"):
+        write_atomic(target, boom)
+    assert target.read_text() == before
+    assert sorted(p.name for p in folder.iterdir()) == ["DVL_trajectory3.csv", "GT_trajectory3.csv"]
 
 
 def test_track_arrays_read_only(tmp_path: Path) -> None:
@@ -373,13 +392,13 @@ def test_ragged_csv_is_one_line_error(tmp_path: Path) -> None:
 # ----------------------------------------------------------------------------- analysis
 
 
-def test_body_rate_fd_constant_rate() -> None:
+def test_body_rate_from_attitude_constant_rate() -> None:
     t = np.arange(50) * 0.7
     w_true = np.array([0.01, -0.02, 0.15])
     from nespm_cli.nav.rotations import exp_so3
 
     C = exp_so3(t[:, None] * w_true)  # constant body rate: C(t) = exp(t [w x])
-    np.testing.assert_allclose(body_rate_fd(t, C), np.broadcast_to(w_true, (50, 3)), atol=1e-12)
+    np.testing.assert_allclose(body_rate_from_attitude(t, C), np.broadcast_to(w_true, (50, 3)), atol=1e-12)
 
 
 def test_lever_arm_fit_recovers_embedded() -> None:

@@ -15,7 +15,8 @@ from nespm_cli.nav.synthesis import from_recorded
 from nespm_cli.data.tracks import load_track
 from nespm_cli.vehicles import MEASUREMENT_NAMES, SensorSuite, simulate_runs, to_track, write_tracks
 from nespm_cli.vehicles.guidance import Helix
-from nespm_cli.vehicles.sensors import measure, quantize, true_measurement, wrap_angle
+from nespm_cli.nav.rotations import wrap_angle
+from nespm_cli.vehicles.sensors import measure, quantize, true_measurement
 from nespm_cli.vehicles.simulate import LAT0, LON0
 
 SETTLE = 100.0  # [s] settling time before the path-following bounds apply

@@ -26,9 +26,10 @@ from functools import lru_cache
 
 import numpy as np
 
-from nespm_cli.nav.earth import radii
+from nespm_cli.nav.dvl import dvl_velocity
+from nespm_cli.nav.earth import lat_rate, lon_rate, radii
 from nespm_cli.errors import NespmError
-from nespm_cli.nav.rotations import euler_to_dcm
+from nespm_cli.nav.rotations import euler_to_dcm, wrap_angle
 from nespm_cli.data.track import Track
 
 EMBEDDED_TRACKS = (1, 2, 3, 4, 5, 6)
@@ -128,11 +129,6 @@ _SPECS: dict[int, _Spec] = {
 }
 
 
-def _wrap(angle: np.ndarray) -> np.ndarray:
-    """Wrap to (-pi, pi]."""
-    return np.pi - np.mod(np.pi - angle, 2.0 * np.pi)
-
-
 def _kinematics(spec: _Spec, t: np.ndarray) -> dict[str, np.ndarray]:
     """Velocity, attitude and body rate at times ``t`` (K,) [s] from the analytic profiles."""
     rate = _turns(spec.turns)
@@ -156,7 +152,15 @@ def _kinematics(spec: _Spec, t: np.ndarray) -> dict[str, np.ndarray]:
 
 
 def _integrate_position(number: int, t: np.ndarray, spec: _Spec) -> np.ndarray:
-    """``[lat, lon, alt]`` (K, 3) on the fine grid ``t`` by trapezoid integration of v_n."""
+    """``[lat, lon, alt]`` (K, 3) on the fine grid ``t`` by trapezoid integration of v_n.
+
+    Same rates as the navigation cycle (:func:`earth.lat_rate`, :func:`earth.lon_rate`, eqs
+    29-30) but a different scheme from :func:`synthesis.integrate_position`, on purpose: this
+    is the *truth generator*, so it integrates the exact ODE (radii at each sample, the plain
+    trapezoid ``cumtrapz`` of the rate) rather than the filter's eq 29 reading (R_N at L_k
+    for both terms), and the altitude is the analytic ``-depth`` rather than integrated.
+    Changing it would change every embedded track.
+    """
     k = _kinematics(spec, t)
     vN, vE = k["v_n"][:, 0], k["v_n"][:, 1]
     h = -k["depth"]
@@ -170,9 +174,9 @@ def _integrate_position(number: int, t: np.ndarray, spec: _Spec) -> np.ndarray:
     lat = np.full_like(t, lat0)
     for _ in range(3):  # fixed point on R_N(lat): converges to ~1e-15 rad in 2-3 passes
         R_N, R_E = radii(lat)
-        lat = lat0 + cumtrapz(vN / (R_N + h))
+        lat = lat0 + cumtrapz(lat_rate(vN, h, R_N))
     R_N, R_E = radii(lat)
-    lon = lon0 + cumtrapz(vE / ((R_E + h) * np.cos(lat)))
+    lon = lon0 + cumtrapz(lon_rate(vE, lat, h, R_E))
     return np.stack([lat, lon, h], axis=-1)
 
 
@@ -194,9 +198,8 @@ def embedded_track(number: int) -> Track:
     t = np.arange(N_EPOCHS) * DT
     k = _kinematics(spec, t)
     C_bn = euler_to_dcm(k["euler"])
-    v_b = np.einsum("nji,nj->ni", C_bn, k["v_n"])
     rng = np.random.default_rng(1000 + number)
-    dvl = v_b + np.cross(k["w_b"], L_DVL) + rng.normal(0.0, DVL_NOISE, size=(N_EPOCHS, 3))
+    dvl = dvl_velocity(C_bn, k["v_n"], k["w_b"], L_DVL) + rng.normal(0.0, DVL_NOISE, size=(N_EPOCHS, 3))
     euler = k["euler"].copy()
-    euler[:, 2] = _wrap(euler[:, 2])
+    euler[:, 2] = wrap_angle(euler[:, 2])
     return Track(number=number, t=t, pos=pos, v_n=k["v_n"], euler=euler, dvl=dvl, imu=None, source="embedded")

@@ -26,7 +26,9 @@ import pandas as pd
 
 from nespm_cli.data.track import Track
 from nespm_cli.errors import NespmError
-from nespm_cli.nav.rotations import log_so3, skew
+from nespm_cli.data.atomic import write_atomic
+from nespm_cli.nav.dvl import body_rate_from_attitude
+from nespm_cli.nav.rotations import skew
 
 ENV_DATA_DIR = "NESPM_DATA_DIR"
 GT_COLUMNS = (
@@ -171,7 +173,8 @@ def load_tracks(numbers: Iterable[int] | None, data_dir: str | Path | None = Non
 def write_akit(track: Track, folder: str | Path) -> Path:
     """Write ``track`` as ``folder/TrajectoryN/{GT,DVL[,IMU]}_trajectoryN.csv``; return that folder.
 
-    Full precision (``%.17g``), exact headers, so :func:`load_track` reads back the same floats.
+    Full precision (``%.17g``), exact headers, so :func:`load_track` reads back the same floats;
+    each file is written atomically (:func:`nespm_cli.data.atomic.write_atomic`).
     """
     tdir = Path(folder) / f"Trajectory{track.number}"
     tdir.mkdir(parents=True, exist_ok=True)
@@ -184,9 +187,8 @@ def write_akit(track: Track, folder: str | Path) -> Path:
 
 
 def _write_csv(path: Path, data: np.ndarray, columns: tuple[str, ...]) -> None:
-    pd.DataFrame(np.asarray(data, dtype=float), columns=list(columns)).to_csv(
-        path, index=False, float_format="%.17g"
-    )
+    frame = pd.DataFrame(np.asarray(data, dtype=float), columns=list(columns))
+    write_atomic(path, lambda tmp: frame.to_csv(tmp, index=False, float_format="%.17g"))
 
 
 def _fmt_numbers(numbers: list[int]) -> str:
@@ -287,31 +289,15 @@ def _check_speed(path: Path, v: np.ndarray, cols: tuple[str, ...]) -> None:
 # ----------------------------------------------------------------------------- analysis
 
 
-def body_rate_fd(t: np.ndarray, C_bn: np.ndarray) -> np.ndarray:
-    """Body rate w_nb^b [rad/s] (N, 3) from an attitude sequence by finite differences.
-
-    Interior epochs: ``log(C_{k-1}^T C_{k+1}) / (t_{k+1} - t_{k-1})`` (central); the first and last
-    epochs use the one-sided difference. ``t`` (N,) [s], ``C_bn`` (N, 3, 3) body -> NED, N >= 2.
-    """
-    t = np.asarray(t, dtype=float)
-    C_bn = np.asarray(C_bn, dtype=float)
-    CT = np.swapaxes(C_bn, -1, -2)
-    w = np.empty((len(t), 3))
-    w[1:-1] = log_so3(CT[:-2] @ C_bn[2:]) / (t[2:] - t[:-2])[:, None]
-    w[0] = log_so3(CT[0] @ C_bn[1]) / (t[1] - t[0])
-    w[-1] = log_so3(CT[-2] @ C_bn[-1]) / (t[-1] - t[-2])
-    return w
-
-
 def dvl_lever_arm_fit(track: Track) -> tuple[np.ndarray, np.ndarray]:
     """Least-squares DVL lever arm ``l`` (3,) [m, body] and residual (N, 3) [m/s].
 
-    Model: ``dvl ≈ C_bn^T v_n + w_nb^b x l`` with ``w_nb^b`` from :func:`body_rate_fd` on the GT
+    Model: ``dvl ≈ C_bn^T v_n + w_nb^b x l`` with ``w_nb^b`` from :func:`nav.dvl.body_rate_from_attitude` on the GT
     attitude. The residual is ``dvl - C_bn^T v_n - w x l``. On a straight track (no rotation)
     ``l`` is not observable and the minimum-norm solution is returned.
     """
     C = track.C_bn
-    w = body_rate_fd(track.t, C)
+    w = body_rate_from_attitude(track.t, C)
     r0 = np.asarray(track.dvl) - np.einsum("nji,nj->ni", C, track.v_n)
     A = skew(w)  # w x l = [w x] l
     lever, *_ = np.linalg.lstsq(A.reshape(-1, 3), r0.reshape(-1), rcond=None)
@@ -330,7 +316,7 @@ def lever_arm_std(track: Track, resid: np.ndarray) -> np.ndarray:
     residual's lag-1 autocorrelation ``rho`` (largest over the axes): the 1 Hz residuals are
     far from white, and the white-noise formula would understate the std 2-4x.
     """
-    w = body_rate_fd(track.t, track.C_bn)
+    w = body_rate_from_attitude(track.t, track.C_bn)
     A = skew(w).reshape(-1, 3)
     resid = np.asarray(resid, dtype=float)
     dof = max(A.shape[0] - 3, 1)

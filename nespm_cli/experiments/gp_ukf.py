@@ -43,7 +43,8 @@ from nespm_cli.filters.gp_ukf import DeviationModel, GPUKFModels, gp_ukf, ideal_
 from nespm_cli.learn.gp import GPModel, theta_default
 from nespm_cli.vehicles import STATE_NAMES, Remus100, SensorSuite, simulate_runs
 from nespm_cli.vehicles.remus100 import IPSI, saturate
-from nespm_cli.vehicles.sensors import I_PSI_MEAS, MEASURED_STATES, wrap_angle
+from nespm_cli.nav.rotations import wrap_angle
+from nespm_cli.vehicles.sensors import I_PSI_MEAS, MEASURED_STATES
 
 EXPERIMENT = "gp-ukf"
 #: GP-h inputs: "own" = each measurement's GP takes the one state it measures; "state" = every

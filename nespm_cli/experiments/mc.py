@@ -23,12 +23,12 @@ from nespm_cli.data.corruption import CorruptionConfig, draw, dvl_noise, imu_err
 from nespm_cli.filters.adaptive import BIAS_MODES
 from nespm_cli.learn.noise_model import WINDOW, load_weights, predict_interval_std
 from nespm_cli.errors import NespmError
+from nespm_cli.nav.dvl import body_rate_at_epochs, dvl_velocity
 from nespm_cli.nav.earth import ned_offset
 from nespm_cli.data.embedded import embedded_track
 from nespm_cli.filters import ADAPTIVE, FILTERS, FilterConfig, initial_nav, run_filter
 from nespm_cli.experiments.metrics import epoch_errors, run_metrics
 from nespm_cli.experiments.store import ResultsFolder, Task, chunk_firsts, run_blocks, write_parquet_atomic
-from nespm_cli.nav.rotations import log_so3
 from nespm_cli.nav.synthesis import ImuTruth, from_recorded, synthesize
 from nespm_cli.data.tracks import Track, available_tracks, load_track, resolve_data_dir
 
@@ -144,16 +144,6 @@ def filter_config(spec: Spec) -> FilterConfig:
     return dataclasses.replace(spec.filter_config, dvl_std=r, lever_arm=tuple(spec.dvl_lever_arm))
 
 
-def body_rate_truth(truth: ImuTruth) -> np.ndarray:
-    """True w_nb^b (N, 3) at each epoch from the last IMU step before it (eq 31)."""
-    e = truth.epoch_index
-    j = np.maximum(e - 1, 0)
-    C0, C1 = truth.C_bn[j], truth.C_bn[j + 1]
-    w = log_so3(np.swapaxes(C0, -1, -2) @ C1) / truth.dt[j][:, None]
-    w[e == 0] = w[1] if len(w) > 1 else 0.0
-    return w
-
-
 def simulate(spec: Spec, number: int, runs: np.ndarray, filters=None, clean: bool = False,
              progress: Callable[[int], None] | None = None):
     """Run ``filters`` on the realizations ``runs`` of track ``number``.
@@ -170,7 +160,7 @@ def simulate(spec: Spec, number: int, runs: np.ndarray, filters=None, clean: boo
     lever = np.asarray(spec.dvl_lever_arm, dtype=float)
     C_t, v_t, p_t = truth.C_bn[e], truth.v_n[e], truth.pos[e]
     if spec.dvl == "synthetic":
-        dvl = (np.swapaxes(C_t, -1, -2) @ v_t[..., None])[..., 0] + np.cross(body_rate_truth(truth), lever)
+        dvl = dvl_velocity(C_t, v_t, body_rate_at_epochs(truth.C_bn, truth.dt, truth.epoch_index), lever)
         dvl = np.broadcast_to(dvl, (R,) + dvl.shape)
         if not clean:
             dvl = dvl + dvl_noise(real, len(e))

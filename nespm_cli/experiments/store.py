@@ -11,14 +11,11 @@ the progress display, running the chunks where the backend says, collecting timi
 from __future__ import annotations
 
 import json
-import os
 import platform
 import shutil
-import socket
 import subprocess
 import sys
 import time
-import uuid
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
@@ -28,33 +25,19 @@ import numpy as np
 import pandas as pd
 
 from nespm_cli import __version__
+from nespm_cli.data.atomic import write_atomic, write_text_atomic
 from nespm_cli.errors import NespmError
 from nespm_cli.experiments.progress import PROGRESS_DIR, Poller, Progress
 
 
-# --- atomic files ------------------------------------------------------------------------
-
-def write_atomic(path: Path, write: Callable[[Path], object]) -> None:
-    """Call ``write(tmp)`` on a temporary file beside ``path``, then rename it onto ``path``.
-
-    The temporary name holds host, process and a random part, so workers of several hosts
-    writing into one shared folder never collide; a failed write leaves no temporary behind.
-    """
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.{socket.gethostname()}.{os.getpid()}.{uuid.uuid4().hex[:8]}.tmp")
-    try:
-        write(tmp)
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
-
+# --- atomic files (nespm_cli.data.atomic) ---------------------------------------------------
 
 def write_parquet_atomic(df: pd.DataFrame, path: Path) -> None:
     write_atomic(path, lambda tmp: df.to_parquet(tmp, index=False))
 
 
 def write_json_atomic(obj, path: Path) -> None:
-    write_atomic(path, lambda tmp: tmp.write_text(json.dumps(obj, indent=2)))
+    write_text_atomic(path, json.dumps(obj, indent=2))
 
 
 # --- provenance --------------------------------------------------------------------------

@@ -1,4 +1,4 @@
-"""WGS-84 earth model: radii of curvature, normal gravity, earth rate, transport rate.
+"""WGS-84 earth model: radii of curvature, normal gravity, earth and transport rates, position rates.
 
 Positions are ``pos = [lat, lon, h]`` (..., 3) with latitude and longitude in rad and
 ``h`` the ellipsoidal height in m, positive up (below the sea surface it is negative).
@@ -46,25 +46,63 @@ def gravity_n(pos: np.ndarray) -> np.ndarray:
     return np.stack([g_north, np.zeros_like(g_down), g_down], axis=-1)
 
 
+def transport_rates(
+    lat: np.ndarray, h: np.ndarray, v_n: np.ndarray, R_N: np.ndarray, R_E: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Earth rate ``w_ie^n`` and transport rate ``w_en^n`` [rad/s] (..., 3) in NED.
+
+    The one implementation used by the navigation cycle (ukf-nespm.md eqs 25, 26 and 32)
+    and the filters. ``lat``, ``h`` (...,) [rad, m], ``v_n`` (..., 3) [m/s] and the radii
+    ``R_N``, ``R_E`` (...,) [m] precomputed by :func:`radii` (callers reuse them).
+
+    * ``w_ie^n = Omega [cos L, 0, -sin L]`` (Groves eq 5.41);
+    * ``w_en^n = [v_E/(R_E+h), -v_N/(R_N+h), -v_E tan L/(R_E+h)]`` (Groves eq 5.44), with
+      ``tan L`` evaluated as ``sin L / cos L``.
+
+    Both outputs have the broadcast batch shape of ``lat`` and ``v_n``.
+    """
+    cl, sl = np.cos(lat), np.sin(lat)
+    zero = np.zeros_like(lat * v_n[..., 0])
+    w_ie = np.stack([OMEGA_IE * cl + zero, zero, -OMEGA_IE * sl + zero], axis=-1)
+    vN, vE = v_n[..., 0], v_n[..., 1]
+    w_en = np.stack([vE / (R_E + h), -vN / (R_N + h), -vE * sl / cl / (R_E + h)], axis=-1)
+    return w_ie, w_en
+
+
 def w_ie_n(pos: np.ndarray) -> np.ndarray:
-    """Earth rate w_ie^n [rad/s] in NED (..., 3): ``Omega [cos L, 0, -sin L]``."""
+    """Earth rate w_ie^n [rad/s] in NED (..., 3): ``Omega [cos L, 0, -sin L]`` (see :func:`transport_rates`)."""
     lat = pos[..., 0]
-    return np.stack(
-        [OMEGA_IE * np.cos(lat), np.zeros_like(lat), -OMEGA_IE * np.sin(lat)], axis=-1
-    )
+    return transport_rates(lat, pos[..., 2], np.zeros(lat.shape + (3,)), *radii(lat))[0]
 
 
 def w_en_n(pos: np.ndarray, v_n: np.ndarray) -> np.ndarray:
     """Transport rate w_en^n [rad/s] in NED (..., 3) for velocity ``v_n`` (..., 3) [m/s].
 
-    Groves eq 5.44: ``[v_E/(R_E+h), -v_N/(R_N+h), -v_E tan L/(R_E+h)]``.
+    Groves eq 5.44 (see :func:`transport_rates`).
     """
-    lat, h = pos[..., 0], pos[..., 2]
-    R_N, R_E = radii(lat)
-    vN, vE = v_n[..., 0], v_n[..., 1]
-    return np.stack(
-        [vE / (R_E + h), -vN / (R_N + h), -vE * np.tan(lat) / (R_E + h)], axis=-1
-    )
+    lat = pos[..., 0]
+    return transport_rates(lat, pos[..., 2], v_n, *radii(lat))[1]
+
+
+# ---------------------------------------------------------------- position rates, eqs 28-30
+# The right-hand sides of ukf-nespm.md eqs 28-30, shared by every position integrator
+# (strapdown.update_position, synthesis.integrate_position, data.embedded). The integrators
+# differ only in which radii they pass (see their docstrings) and in the trapezoid layout.
+
+
+def height_rate(v_D: np.ndarray) -> np.ndarray:
+    """``dh/dt = -v_D`` [m/s] (eq 28; ``h`` positive up)."""
+    return -v_D
+
+
+def lat_rate(v_N: np.ndarray, h: np.ndarray, R_N: np.ndarray) -> np.ndarray:
+    """``dL/dt = v_N / (R_N + h)`` [rad/s] (eq 29)."""
+    return v_N / (R_N + h)
+
+
+def lon_rate(v_E: np.ndarray, lat: np.ndarray, h: np.ndarray, R_E: np.ndarray) -> np.ndarray:
+    """``dlambda/dt = v_E / ((R_E + h) cos L)`` [rad/s] (eq 30 with the 1/cos L it omits; Groves eq 5.56)."""
+    return v_E / ((R_E + h) * np.cos(lat))
 
 
 def d_w_en_d_v(pos: np.ndarray) -> np.ndarray:

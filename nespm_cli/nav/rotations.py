@@ -157,3 +157,13 @@ def orthonormalize(C: np.ndarray) -> np.ndarray:
     """Nearest rotation matrix (polar factor via SVD) of ``C`` (..., 3, 3)."""
     U, _, Vt = np.linalg.svd(C)
     return U @ Vt
+
+
+def wrap_angle(a: np.ndarray) -> np.ndarray:
+    """Angle(s) [rad] wrapped to (-pi, pi] (the yaw range of docs/conventions.md).
+
+    The one wrapping function: ``mod(a + pi, 2 pi) - pi``, with -pi mapped to pi.
+    """
+    a = np.asarray(a, dtype=float)
+    w = np.mod(a + np.pi, 2.0 * np.pi) - np.pi
+    return np.where(w == -np.pi, np.pi, w)

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from nespm_cli.nav.earth import OMEGA_IE, gravity_n, radii
+from nespm_cli.nav.earth import gravity_n, height_rate, lat_rate, lon_rate, radii, transport_rates
 from nespm_cli.nav.rotations import exp_so3, log_so3
 
 
@@ -36,34 +36,26 @@ def _vec(C: np.ndarray, x: np.ndarray) -> np.ndarray:
     return (C @ x[..., None])[..., 0]
 
 
-def _rates(lat: np.ndarray, h: np.ndarray, v_n: np.ndarray, R_N: np.ndarray, R_E: np.ndarray):
-    """Earth rate w_ie^n and transport rate w_en^n (..., 3) from precomputed radii."""
-    cl, sl = np.cos(lat), np.sin(lat)
-    zero = np.zeros_like(lat * v_n[..., 0])
-    w_ie = np.stack([OMEGA_IE * cl + zero, zero, -OMEGA_IE * sl + zero], axis=-1)
-    vN, vE = v_n[..., 0], v_n[..., 1]
-    w_en = np.stack([vE / (R_E + h), -vN / (R_N + h), -vE * sl / cl / (R_E + h)], axis=-1)
-    return w_ie, w_en
-
-
 def update_position(
     pos: np.ndarray, v_n: np.ndarray, v_n_next: np.ndarray, dt: float | np.ndarray
 ) -> np.ndarray:
-    """Position update of eqs 28-30 (trapezoid in velocity) -> ``pos`` at k+1 (..., 3).
+    """One step of eqs 28-30 (trapezoid in the position rates) -> ``pos`` at k+1 (..., 3).
 
-    Eq 29 uses the meridian radius at L_k for both terms (L_{k+1} is not known yet);
-    eq 30 is printed without the 1/cos L factor: we use the correct form
-    ``dlon/dt = v_E / ((R_E + h) cos L)`` (Groves eq 5.56). Longitude does not feed back
-    into velocity or attitude, so this choice has no effect on VRMSE/MRMSE.
+    The rates are :func:`earth.height_rate`, :func:`earth.lat_rate`, :func:`earth.lon_rate`
+    (shared with :func:`synthesis.integrate_position`, which is this same recursion solved
+    over a whole grid at once). Eq 29 uses the meridian radius at L_k for both terms
+    (L_{k+1} is not known yet); eq 30 is printed without the 1/cos L factor: we use the
+    correct form ``dlon/dt = v_E / ((R_E + h) cos L)`` (Groves eq 5.56). Longitude does not
+    feed back into velocity or attitude, so this choice has no effect on VRMSE/MRMSE.
     """
     lat, lon, h = pos[..., 0], pos[..., 1], pos[..., 2]
     R_N, R_E = radii(lat)
     half = 0.5 * np.asarray(dt)
-    h1 = h - (v_n_next[..., 2] + v_n[..., 2]) * half  # eq 28
-    lat1 = lat + (v_n[..., 0] / (R_N + h) + v_n_next[..., 0] / (R_N + h1)) * half  # eq 29
+    h1 = h + (height_rate(v_n_next[..., 2]) + height_rate(v_n[..., 2])) * half  # eq 28
+    lat1 = lat + (lat_rate(v_n[..., 0], h, R_N) + lat_rate(v_n_next[..., 0], h1, R_N)) * half  # eq 29
     _, R_E1 = radii(lat1)
     lon1 = lon + (
-        v_n[..., 1] / ((R_E + h) * np.cos(lat)) + v_n_next[..., 1] / ((R_E1 + h1) * np.cos(lat1))
+        lon_rate(v_n[..., 1], lat, h, R_E) + lon_rate(v_n_next[..., 1], lat1, h1, R_E1)
     ) * half  # eq 30 (with cos L)
     return np.stack([lat1, lon1, h1], axis=-1)
 
@@ -92,7 +84,7 @@ def na_cycle(
     dt = np.asarray(dt, dtype=float)
     lat, h = pos[..., 0], pos[..., 2]
     R_N, R_E = radii(lat)
-    w_ie, w_en = _rates(lat, h, v_n, R_N, R_E)
+    w_ie, w_en = transport_rates(lat, h, v_n, R_N, R_E)
     # eq 25: intermediate body rate relative to NED, with the step-k transport/earth rates
     w_nb_star = w_ib_b - _mT_vec(C_bn, w_ie + w_en)
     # eq 24: mid-step attitude used to resolve the specific force
@@ -104,7 +96,7 @@ def na_cycle(
     pos_next = update_position(pos, v_n, v_next, dt)
     # eq 32: body rate relative to NED with the updated position and velocity
     R_N1, R_E1 = radii(pos_next[..., 0])
-    w_ie1, w_en1 = _rates(pos_next[..., 0], pos_next[..., 2], v_next, R_N1, R_E1)
+    w_ie1, w_en1 = transport_rates(pos_next[..., 0], pos_next[..., 2], v_next, R_N1, R_E1)
     w_nb = w_ib_b - _mT_vec(C_bn, w_ie1 + w_en1)
     # eq 31: attitude
     C_next = C_bn @ exp_so3(w_nb * dt[..., None])
@@ -133,10 +125,10 @@ def na_cycle_inverse(
     # eq 31 inverted: w_nb = log(C_k^T C_{k+1}) / dt
     w_nb = log_so3(np.swapaxes(C_bn, -1, -2) @ C_bn_next) / dt[..., None]
     R_N1, R_E1 = radii(pos_next[..., 0])
-    w_ie1, w_en1 = _rates(pos_next[..., 0], pos_next[..., 2], v_n_next, R_N1, R_E1)
+    w_ie1, w_en1 = transport_rates(pos_next[..., 0], pos_next[..., 2], v_n_next, R_N1, R_E1)
     w_ib_b = w_nb + _mT_vec(C_bn, w_ie1 + w_en1)  # eq 32 inverted
     R_N, R_E = radii(pos[..., 0])
-    w_ie, w_en = _rates(pos[..., 0], pos[..., 2], v_n, R_N, R_E)
+    w_ie, w_en = transport_rates(pos[..., 0], pos[..., 2], v_n, R_N, R_E)
     w_nb_star = w_ib_b - _mT_vec(C_bn, w_ie + w_en)  # eq 25
     C_star = C_bn @ exp_so3(w_nb_star * (0.5 * dt)[..., None])  # eq 24
     v_dot = (v_n_next - v_n) / dt[..., None]  # eq 27 inverted

@@ -16,7 +16,7 @@ import numpy as np
 from scipy.interpolate import CubicSpline
 from scipy.spatial.transform import Rotation, RotationSpline
 
-from nespm_cli.nav.earth import radii
+from nespm_cli.nav.earth import height_rate, lat_rate, lon_rate, radii
 from nespm_cli.errors import NespmError
 from nespm_cli.nav.rotations import euler_to_dcm
 from nespm_cli.nav.strapdown import na_cycle_inverse
@@ -54,19 +54,23 @@ class ImuTruth:
 def integrate_position(pos0: np.ndarray, v_n: np.ndarray, dt: np.ndarray, iters: int = 4) -> np.ndarray:
     """Integrate eqs 28-30 from ``pos0`` (3,) over velocities ``v_n`` (M+1, 3) -> (M+1, 3).
 
-    The recursion only depends on L_k through the slowly varying radii, so it is solved
-    by a vectorized fixed-point iteration on cumulative sums (converged to round-off in
-    about three passes) rather than a loop over 40,000 samples.
+    This is :func:`strapdown.update_position` applied step after step (same rates
+    :func:`earth.height_rate`, :func:`earth.lat_rate`, :func:`earth.lon_rate`, same reading
+    of eq 29 with R_N at L_k for both trapezoid terms), kept as a separate function because
+    a Python loop over 40,000 samples is slow: the recursion only depends on L_k through
+    the slowly varying radii, so it is solved by a vectorized fixed-point iteration on
+    cumulative sums (converged to round-off in about three passes).
     """
     half = 0.5 * dt
-    h = pos0[2] - np.concatenate([[0.0], np.cumsum((v_n[1:, 2] + v_n[:-1, 2]) * half)])
+    rate_h = height_rate(v_n[:, 2])
+    h = pos0[2] + np.concatenate([[0.0], np.cumsum((rate_h[1:] + rate_h[:-1]) * half)])
     lat = np.full(len(v_n), pos0[0])
     for _ in range(iters):
         R_N, _ = radii(lat[:-1])
-        dlat = (v_n[:-1, 0] / (R_N + h[:-1]) + v_n[1:, 0] / (R_N + h[1:])) * half
+        dlat = (lat_rate(v_n[:-1, 0], h[:-1], R_N) + lat_rate(v_n[1:, 0], h[1:], R_N)) * half
         lat = pos0[0] + np.concatenate([[0.0], np.cumsum(dlat)])
     _, R_E = radii(lat)
-    rate = v_n[:, 1] / ((R_E + h) * np.cos(lat))
+    rate = lon_rate(v_n[:, 1], lat, h, R_E)
     lon = pos0[1] + np.concatenate([[0.0], np.cumsum((rate[:-1] + rate[1:]) * half)])
     return np.stack([lat, lon, h], axis=-1)
 

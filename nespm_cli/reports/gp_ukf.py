@@ -23,7 +23,8 @@ import pandas as pd
 from nespm_cli.errors import NespmError
 from nespm_cli.reports.figures import save_figure
 from nespm_cli.reports.markdown import DASH, md_table
-from nespm_cli.reports.results import read_parquet, read_results_folder, require_columns, write_atomic
+from nespm_cli.data.atomic import write_text_atomic
+from nespm_cli.reports.results import read_parquet, read_results_folder, require_columns
 from nespm_cli.reports.stats import percentile_ci, resample_counts
 from nespm_cli.experiments.gp_ukf import EXPERIMENT, FILTERS, STATE_UNITS
 from nespm_cli.vehicles import STATE_NAMES, SensorSuite
@@ -414,5 +415,5 @@ def write_gp_report(out_dir: str | Path, n_boot: int = 2000) -> Path:
         figures = plot_figures(epochs, metrics, out_dir / "figures")
     text = render_gp_report(metrics, manifest, figures, out_dir, n_boot)
     path = out_dir / "report.md"
-    write_atomic(path, text)
+    write_text_atomic(path, text)
     return path

@@ -32,6 +32,7 @@ from typing import Any, Sequence
 import numpy as np
 import pandas as pd
 
+from nespm_cli.data.atomic import write_text_atomic
 from nespm_cli.errors import NespmError
 from nespm_cli.reports.figures import filter_colors, outage_spans, save_figure
 from nespm_cli.reports.markdown import (
@@ -52,7 +53,6 @@ from nespm_cli.reports.results import (
     has_hpe,
     load_results,
     scenario_of,
-    write_atomic,
 )
 from nespm_cli.reports.stats import (
     METRICS,
@@ -865,5 +865,5 @@ def write_mc_report(out_dir: Path, reference: str | None = None, n_boot: int = 2
     text = render_report(metrics, manifest, table, tt, figures, out_dir, n_boot, seed,
                          practical_pct=practical_pct)
     path = out_dir / "report.md"
-    write_atomic(path, text)
+    write_text_atomic(path, text)
     return path

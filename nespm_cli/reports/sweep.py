@@ -22,6 +22,7 @@ from typing import Any, Sequence
 import numpy as np
 import pandas as pd
 
+from nespm_cli.data.atomic import write_text_atomic
 from nespm_cli.errors import NespmError
 from nespm_cli.experiments.metrics import nees_band
 from nespm_cli.reports.figures import filter_colors, save_figure
@@ -36,7 +37,6 @@ from nespm_cli.reports.results import (
     runs_per_track,
     scenario_of,
     unique_text,
-    write_atomic,
 )
 from nespm_cli.reports.stats import (
     METRICS,
@@ -708,5 +708,5 @@ def write_sweep_report(out_dir: Path, baseline: str | None = None, n_boot: int =
     text = render_sweep_report(metrics, manifest, table, imp, figures, out_dir, n_boot, seed,
                                practical_pct=practical_pct)
     path = out_dir / "report.md"
-    write_atomic(path, text)
+    write_text_atomic(path, text)
     return path

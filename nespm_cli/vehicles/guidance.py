@@ -39,7 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from nespm_cli.vehicles.remus100 import IDR, IDS, IRPM, Remus100Params
-from nespm_cli.vehicles.sensors import wrap_angle
+from nespm_cli.nav.rotations import wrap_angle
 
 # measured-vector indices (sensors.MEASUREMENT_NAMES)
 _MU, _MV, _MW, _MP, _MQ, _MR, _MZ, _MTH, _MPSI, _MPHI = range(10)

@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from nespm_cli.nav.rotations import wrap_angle
 from nespm_cli.vehicles.remus100 import IP, IPHI, IPSI, IQ, IR, ITHETA, IU, IV, IW, IZ
 
 MEASUREMENT_NAMES = ("u", "v", "w", "p", "q", "r", "Z", "theta", "psi", "phi")
@@ -99,13 +100,6 @@ class SensorSuite:
     def noiseless(self) -> "SensorSuite":
         """The same ranges and bits with zero noise (quantisation only)."""
         return SensorSuite(tuple(Channel(c.sensor, 0.0, c.lo, c.hi) for c in self.channels), self.bits)
-
-
-def wrap_angle(a: np.ndarray) -> np.ndarray:
-    """Angle(s) wrapped to (-pi, pi]."""
-    a = np.asarray(a, dtype=float)
-    w = np.mod(a + np.pi, 2.0 * np.pi) - np.pi
-    return np.where(w == -np.pi, np.pi, w)
 
 
 def true_measurement(x: np.ndarray) -> np.ndarray:

@@ -31,7 +31,8 @@ from nespm_cli.nav.synthesis import integrate_position
 from nespm_cli.data.tracks import Track, write_akit
 from nespm_cli.vehicles.guidance import GuidanceGains, GuidanceState, Helix, control_step
 from nespm_cli.vehicles.remus100 import IPHI, IPSI, ITHETA, IU, IW, IX, IZ, Remus100, Remus100Params
-from nespm_cli.vehicles.sensors import SensorSuite, draw_noise, measure, wrap_angle
+from nespm_cli.nav.rotations import wrap_angle
+from nespm_cli.vehicles.sensors import SensorSuite, draw_noise, measure
 
 SENSOR_STREAM = 0  # spawn_key stream of the sensor noise
 #: default geodetic origin of the local NED frame (the helix axis at the surface): off Haifa,
