@@ -10,7 +10,7 @@ import json
 import sys
 import time
 from pathlib import Path
-from typing import Optional, Tuple
+from typing import List, Optional, Tuple
 
 import numpy as np
 import typer
@@ -77,6 +77,7 @@ def _spec(**kw):
     from nespm_cli.experiments.mc import Spec, couple_filter
 
     corr = _corruption(kw)
+    kw["filter_plugins"] = tuple(kw.get("filter_plugins") or ())
     fields = {k: kw.pop(k) for k in FILTER_FIELDS}
     fcfg = couple_filter(FilterConfig(**{**fields, "q_clip": tuple(fields["q_clip"])}), corr)
     return Spec(corruption=corr, filter_config=fcfg, **kw)
@@ -111,6 +112,7 @@ _COMMON = [  # the options that define an experiment: the realizations, the data
     ("acc_bias_rw", float, default(FilterConfig, "acc_bias_rw"), "--acc-bias-rw", "Filter accelerometer bias random walk [m/s^2/sqrt(s)]."),
     ("gyro_bias_rw", float, default(FilterConfig, "gyro_bias_rw"), "--gyro-bias-rw", "Filter gyro bias random walk [rad/s/sqrt(s)]."),
     ("alpha", float, default(FilterConfig, "alpha"), "--alpha", "UKF sigma-point spread alpha (beta = 2, kappa = 0)."),
+    ("filter_plugins", Optional[List[str]], None, "--filter-plugin", "A Python file (or module) defining your own filters with nespm_cli.filters.registry.register; repeatable; then name them in --filters (docs/plugins.md)."),
     ("weights", Optional[str], default(Spec, "weights"), "--weights", "ProcessNet weights (.npz from 'nespm train') for anekf/anukf/anukf-nespm; default: the packaged ones (embedded tracks 1-4)."),
     ("tau", Optional[float], default(FilterConfig, "tau"), "--tau", "Adaptive Q, eqs 44/46: q = std^2 * tau [s]; default: the IMU step."),
     ("tau_a", Optional[float], default(FilterConfig, "tau_a"), "--tau-a", "Adaptive Q, eq 45: q_v = q_a * tau_a [s]; default: the time-update span."),
@@ -422,6 +424,9 @@ def gp_ukf_cmd(
                f"-> {out}/metrics.parquet; next: nespm report {out}")
 
 
+_REPEATED = ("--filter-plugin",)  # options given once per value
+
+
 def _expand_config(argv: list[str]) -> list[str]:
     """Replace ``--config FILE`` by the options in the TOML file, placed before the rest
     of the command line so that explicit options override the file."""
@@ -446,6 +451,8 @@ def _expand_config(argv: list[str]) -> list[str]:
         flag = "--" + key.replace("_", "-")
         if isinstance(val, bool):
             opts += [flag] if val else []
+        elif isinstance(val, list) and flag in _REPEATED:
+            opts += [x for v in val for x in (flag, str(v))]
         elif isinstance(val, list):
             opts += [flag] + [str(v) for v in val]
         else:

@@ -26,7 +26,8 @@ from nespm_cli.errors import NespmError
 from nespm_cli.nav.dvl import body_rate_at_epochs, dvl_velocity
 from nespm_cli.nav.earth import ned_offset
 from nespm_cli.data.embedded import embedded_track
-from nespm_cli.filters import ADAPTIVE, FILTERS, FilterConfig, initial_nav, run_filter
+from nespm_cli.filters import FilterConfig, initial_nav, run_filter
+from nespm_cli.filters.registry import discover_plugins, filter_names, get_filter, load_plugin
 from nespm_cli.experiments.metrics import epoch_errors, run_metrics
 from nespm_cli.experiments.store import ResultsFolder, Task, chunk_firsts, run_blocks, write_parquet_atomic
 from nespm_cli.nav.synthesis import ImuTruth, from_recorded, synthesize
@@ -53,6 +54,7 @@ class Spec:
     outage_start: float = 180.0
     outage_length: float = 20.0
     weights: str | None = None  # ProcessNet file of the adaptive filters; None: the packaged default
+    filter_plugins: tuple = ()  # user filter files or modules (docs/plugins.md), loaded before the filters run
     corruption: CorruptionConfig = field(default_factory=CorruptionConfig)
     filter_config: FilterConfig = field(default_factory=FilterConfig)
 
@@ -69,9 +71,10 @@ def validate(spec: Spec) -> Spec:
         raise NespmError(f"--runs must be at least 1, got {spec.runs}")
     if spec.chunk_size < 1:
         raise NespmError(f"--chunk-size must be at least 1, got {spec.chunk_size}")
+    spec = load_filters(spec)
     for f in spec.filters:
-        if f not in FILTERS:
-            raise NespmError(f"--filters: unknown filter {f!r}; choose from {', '.join(FILTERS)}")
+        if f not in filter_names():
+            raise NespmError(f"--filters: unknown filter {f!r}; choose from {', '.join(filter_names())}")
     if len(set(spec.filters)) != len(spec.filters) or not spec.filters:
         raise NespmError("--filters: give each filter once, at least one")
     if spec.scenario not in SCENARIOS:
@@ -91,7 +94,7 @@ def validate(spec: Spec) -> Spec:
     lo, hi = fc.q_clip
     if not (np.isfinite(lo) and np.isfinite(hi) and 0 < lo <= 1 <= hi):
         raise NespmError(f"--q-clip must satisfy 0 < low <= 1 <= high, got {lo:g} {hi:g}")
-    adaptive = any(f in ADAPTIVE for f in spec.filters)
+    adaptive = any(needs_noise_std(f) for f in spec.filters)
     if adaptive:
         load_weights(spec.weights)  # a missing or foreign file fails now, in one line
     d = resolve_data_dir(spec.data_dir)
@@ -119,6 +122,24 @@ def validate(spec: Spec) -> Spec:
                 )
     spec = dataclasses.replace(spec, data_dir=str(d) if d is not None else None)
     return dataclasses.replace(spec, filter_config=filter_config(spec))  # what the filters use, recorded as such
+
+
+def load_filters(spec: Spec) -> Spec:
+    """Import the spec's filter plugins and the installed ``nespm.filters`` entry points (in the
+    parent and again in every worker; idempotent); return the spec with plugin files as
+    absolute paths (module names stay as given)."""
+    discover_plugins()
+    plugins = []
+    for p in spec.filter_plugins:
+        load_plugin(p)
+        path = Path(str(p)).expanduser()
+        plugins.append(str(path.resolve()) if path.is_file() else str(p))
+    return dataclasses.replace(spec, filter_plugins=tuple(plugins))
+
+
+def needs_noise_std(name: str) -> bool:
+    """Whether filter ``name`` takes the ProcessNet noise std (the adaptive filters)."""
+    return bool(get_filter(name).needs_noise_std)
 
 
 @lru_cache(maxsize=16)
@@ -179,7 +200,8 @@ def simulate(spec: Spec, number: int, runs: np.ndarray, filters=None, clean: boo
     results = {}
     names = list(filters or spec.filters)
     noise_std, net_seconds = None, 0.0
-    if any(n in ADAPTIVE for n in names):  # one network pass per chunk, shared by the adaptive filters
+    adaptive = [n for n in names if needs_noise_std(n)]
+    if adaptive:  # one network pass per chunk, shared by the adaptive filters
         t0 = time.perf_counter()
         noise_std = predict_interval_std(f, w, e, spec.weights)
         net_seconds = time.perf_counter() - t0
@@ -187,9 +209,9 @@ def simulate(spec: Spec, number: int, runs: np.ndarray, filters=None, clean: boo
         t0 = time.perf_counter()
         step = None if progress is None else (lambda k, base=i * (len(e) - 1): progress(base + k))
         out = run_filter(name, cfg, f, w, truth.dt, e, dvl, mask, nav0,
-                         noise_std if name in ADAPTIVE else None, progress=step)
-        if name in ADAPTIVE:
-            t0 -= net_seconds / sum(n in ADAPTIVE for n in names)  # the shared network pass, split
+                         noise_std if name in adaptive else None, progress=step)
+        if name in adaptive:
+            t0 -= net_seconds / len(adaptive)  # the shared network pass, split
         err = epoch_errors(out, v_t, C_t, p_t)
         results[name] = (out, err, time.perf_counter() - t0)
     return results, truth, real
@@ -241,6 +263,7 @@ def run_chunk(cell: Cell, number: int, first: int, out_dir: str, last: int | Non
     from nespm_cli.experiments.progress import epoch_reporter
 
     spec, tag, extra = cell.spec, cell.tag, dict(cell.columns)
+    load_filters(spec)  # a worker process imports the user's filters before it runs them
     chunks = Path(out_dir) / "chunks"
     if last is None:
         last = min(first + spec.chunk_size, spec.runs)

@@ -23,13 +23,15 @@ def run_single(spec: Spec, track: int, filt: str, run: int, clean: bool = False,
     ``out`` (optional): per-epoch time series as Parquet (CSV if it ends in .csv) with
     true and estimated velocity and attitude, errors, covariance diagonal and biases.
     """
-    from nespm_cli.filters import FILTERS
+    from nespm_cli.experiments.mc import load_filters
+    from nespm_cli.filters.registry import filter_names
     from nespm_cli.data.tracks import available_tracks, resolve_data_dir
 
     if run < 0:
         raise NespmError(f"--run must be >= 0, got {run}")
-    if filt not in FILTERS:
-        raise NespmError(f"--filter: unknown filter {filt!r}; choose from {', '.join(FILTERS)}")
+    spec = load_filters(spec)
+    if filt not in filter_names():
+        raise NespmError(f"--filter: unknown filter {filt!r}; choose from {', '.join(filter_names())}")
     have = available_tracks(resolve_data_dir(spec.data_dir))
     if track not in have:
         raise NespmError(f"--track: no track {track}; available: {', '.join(map(str, have))}")

@@ -16,9 +16,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from nespm_cli.nav.earth import d_w_en_d_v, radii
+from nespm_cli.nav.earth import d_w_en_d_v, radii, transport_rates
 from nespm_cli.nav.rotations import attitude_plus, exp_so3, exp_so3_minus_identity, skew
-from nespm_cli.nav.strapdown import _rates, cross
+from nespm_cli.nav.strapdown import cross
 
 N_STATES = 12
 DV, DPSI, BA, BG = slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12)
@@ -131,7 +131,7 @@ def system_matrix(pos: np.ndarray, v_n: np.ndarray, C_bn: np.ndarray, f_b: np.nd
     """
     lat, h = pos[..., 0], pos[..., 2]
     R_N, R_E = radii(lat)
-    w_ie, w_en = _rates(lat, h, v_n, R_N, R_E)
+    w_ie, w_en = transport_rates(lat, h, v_n, R_N, R_E)
     J = d_w_en_d_v(pos)
     f_n = (C_bn @ f_b[..., None])[..., 0]
     F = np.zeros(v_n.shape[:-1] + (N_STATES, N_STATES))

@@ -1,0 +1,38 @@
+"""``ekf``: linearised error-state Kalman filter.
+
+Time update: Φ = Π (I + F dt) accumulated at the IMU rate over the span, ``P ← Φ P Φᵀ + Q``.
+Measurement update: the measurement's Jacobian H (DVL: eq 33 at x = 0), Joseph form.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from nespm_cli.filters.protocol import ErrorStateFilter
+from nespm_cli.filters.registry import register
+
+
+@register("ekf")
+class EKF(ErrorStateFilter):
+    """Closed-loop error-state EKF (state mean zero between steps)."""
+
+    def propagate(self, j0: int, j1: int, k: int = 0) -> None:
+        span = self.span(j0, j1)
+        Q = self.process_noise(span, k)
+        Phi = self.transition(j0, j1)
+        self.P = Phi @ self.P @ np.swapaxes(Phi, -1, -2) + Q
+        self.symmetrize()
+
+    def update(self, measurement, j_last: int) -> None:
+        nav = self.nav
+        nu = measurement.innovation(nav)
+        Rm = measurement.R
+        H = measurement.H(nav)
+        PHt = self.P @ np.swapaxes(H, -1, -2)
+        S = H @ PHt + Rm
+        K = np.linalg.solve(S, np.swapaxes(PHt, -1, -2))
+        K = np.swapaxes(K, -1, -2)
+        x = (K @ nu[..., None])[..., 0]
+        IKH = self.eye - K @ H
+        self.P = IKH @ self.P @ np.swapaxes(IKH, -1, -2) + K @ Rm @ np.swapaxes(K, -1, -2)
+        self.symmetrize()
+        self.feedback(x)

@@ -1,0 +1,220 @@
+"""The filter protocol: what :func:`nespm_cli.filters.engine.run_filter` asks of a filter.
+
+Shapes carry the batch axis first: R Monte Carlo runs, M IMU steps, N GT (DVL) epochs, n = 12
+error states ``x = [dv (0:3) m/s, dpsi (3:6) rad, b_a (6:9) m/s², b_g (9:12) rad/s]``
+(:mod:`nespm_cli.filters.model`: ``nav ⊕ x = truth``; closed loop, so x = 0 between calls).
+
+Who calls what, when (one filter object per ``run_filter`` call, i.e. per filter and chunk of runs)::
+
+    filt = cls(cfg, nav0, imu, noise_std)         # once; nav0 copied, P = cfg.p0() per run
+    record(filt.state(), filt.covariance())       # epoch 0
+    for k in range(N - 1):                        # DVL interval k: IMU steps [j0, j1)
+        filt.propagate(j0, j1, k)                 # cfg.time_update == "dvl": one span
+        # (time_update == "imu": filt.propagate(j, j + 1, k) for j in range(j0, j1))
+        if cls.has_covariance and dvl_mask[k + 1]:
+            filt.update(DvlMeasurement(...), j1 - 1)
+        filt.check()
+        record(filt.state(), filt.covariance())   # epoch k + 1
+    diverged = filt.diverged
+
+A filter is a subclass of :class:`Filter` (the bare interface) — usually of
+:class:`ErrorStateFilter`, which holds the shared closed-loop machinery (navigation solution,
+covariance, divergence mask, strapdown + transition matrix over a span, fixed or adaptive Q,
+feedback, divergence check) — registered under a name with
+:func:`nespm_cli.filters.registry.register`.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from nespm_cli.errors import NespmError
+from nespm_cli.filters.adaptive import adaptive_q
+from nespm_cli.filters.measurements import Measurement
+from nespm_cli.filters.model import N_STATES, FilterConfig, NavState, feedback, process_noise, system_matrix
+from nespm_cli.filters.unscented import UTWeights, safe_cholesky
+from nespm_cli.nav.strapdown import na_cycle
+
+
+@dataclass
+class ImuData:
+    """The corrupted IMU of R runs: ``f`` (R, M, 3) specific force [m/s²], ``w`` (R, M, 3)
+    angular rate [rad/s], ``dt`` (M,) step durations [s]; step j goes from sample j to j+1."""
+
+    f: np.ndarray
+    w: np.ndarray
+    dt: np.ndarray
+
+
+class Filter:
+    """The batched filter interface (all methods act on every run of the batch at once).
+
+    Class attributes:
+        name: the registered name (set by :func:`~nespm_cli.filters.registry.register`).
+        has_covariance: False for a filter with no covariance and no measurement update
+            (``ins``): ``run_filter`` then records NaN covariance and never calls ``update``.
+        needs_noise_std: True if the filter needs the ProcessNet noise std (``noise_std``).
+        adaptive_of: name of the non-adaptive twin of an adaptive filter, else None.
+    """
+
+    name: str = ""
+    has_covariance: bool = True
+    needs_noise_std: bool = False
+    adaptive_of: str | None = None
+
+    def __init__(self, cfg: FilterConfig, nav0: NavState, imu: ImuData,
+                 noise_std: tuple[np.ndarray, np.ndarray] | None = None):
+        """``cfg`` the tuning; ``nav0`` the initial solution of the R runs (not modified);
+        ``imu`` the inputs; ``noise_std`` ``(std_a, std_g)`` each (R, N-1, 3) per-sample std
+        [m/s², rad/s] of each DVL interval (adaptive filters), else None."""
+        raise NotImplementedError
+
+    def propagate(self, j0: int, j1: int, k: int) -> None:
+        """Time update over IMU steps ``[j0, j1)`` (one span, all inside DVL interval ``k``)."""
+        raise NotImplementedError
+
+    def update(self, measurement: Measurement, j_last: int) -> None:
+        """Measurement update with ``measurement`` (:mod:`nespm_cli.filters.measurements`);
+        ``j_last`` the last IMU step of the interval (``j1 - 1``)."""
+        raise NotImplementedError
+
+    def check(self) -> None:
+        """Flag diverged runs in :attr:`diverged` and sanitize them so the batch goes on."""
+        raise NotImplementedError
+
+    def state(self) -> NavState:
+        """The current navigation solution (R,) — the filter's own object: read, do not modify."""
+        raise NotImplementedError
+
+    def covariance(self) -> np.ndarray | None:
+        """The error-state covariance (R, 12, 12) [SI units squared], or None without one."""
+        raise NotImplementedError
+
+    @property
+    def diverged(self) -> np.ndarray:
+        """(R,) bool: runs flagged diverged so far (the same array object throughout)."""
+        raise NotImplementedError
+
+    @property
+    def noise_std(self):
+        """The noise std the filter used (``(std_a, std_g)``) or None; copied into the output."""
+        return None
+
+
+class ErrorStateFilter(Filter):
+    """Closed-loop 12-state error-state filter base: subclasses implement ``propagate`` and ``update``.
+
+    Attributes available to subclasses: ``cfg``; ``nav`` (:class:`NavState`, R runs);
+    ``P`` (R, 12, 12); ``bad`` (R,) divergence mask; ``f``, ``w`` (R, M, 3), ``dt`` (M,)
+    the IMU; ``R`` the number of runs; ``ut`` the scaled-UT weights of ``cfg``; ``lever`` (3,)
+    [m]; ``dt_imu`` the median IMU step [s]; ``eye`` I₁₂.
+    """
+
+    def __init__(self, cfg: FilterConfig, nav0: NavState, imu: ImuData, noise_std=None):
+        if self.needs_noise_std and noise_std is None:
+            raise NespmError(f"filter {self.name} needs the network noise std (noise_std)")
+        self._noise_std = noise_std if self.needs_noise_std else None
+        self.cfg = cfg
+        self.f, self.w, self.dt = imu.f, imu.w, imu.dt
+        self.nav = nav0.copy()
+        R = nav0.v_n.shape[0]
+        self.R = R
+        self.P = np.broadcast_to(cfg.p0(), (R, N_STATES, N_STATES)).copy()
+        self.bad = np.zeros(R, dtype=bool)
+        self.ut = UTWeights(N_STATES, cfg.alpha, cfg.beta, cfg.kappa)
+        self.lever = np.asarray(cfg.lever_arm, dtype=float)
+        self.dt_imu = float(np.median(imu.dt))
+        self.eye = np.eye(N_STATES)
+
+    # --- interface -------------------------------------------------------------------------
+    def state(self) -> NavState:
+        return self.nav
+
+    def covariance(self) -> np.ndarray | None:
+        return self.P if self.has_covariance else None
+
+    @property
+    def diverged(self) -> np.ndarray:
+        return self.bad
+
+    @property
+    def noise_std(self):
+        return self._noise_std
+
+    # --- helpers for subclasses --------------------------------------------------------------
+    def imu(self, j: int) -> tuple[np.ndarray, np.ndarray]:
+        """Bias-compensated IMU of step j: ``(f, w)`` each (R, 3)."""
+        nav = self.nav
+        return self.f[:, j] - nav.b_a, self.w[:, j] - nav.b_g
+
+    def span(self, j0: int, j1: int) -> float:
+        """Duration of steps ``[j0, j1)`` [s]."""
+        return float(self.dt[j0:j1].sum())
+
+    def process_noise(self, span: float, k: int) -> np.ndarray:
+        """Discrete Q (12, 12) or (R, 12, 12) of a time update of ``span`` s in DVL interval ``k``.
+
+        Fixed (``cfg``); adaptive filters (``needs_noise_std``) use the network std of interval
+        ``k`` through :func:`nespm_cli.filters.adaptive.adaptive_q` (anukf.md eqs 43-48),
+        evaluated at the current attitude (call it before moving the solution).
+        """
+        if self._noise_std is None:
+            return process_noise(self.cfg, self.dt_imu, span)
+        std_a, std_g = self._noise_std
+        return adaptive_q(std_a[:, k], std_g[:, k], self.nav.C_bn, self.cfg, self.dt_imu, span)
+
+    def strapdown(self, j0: int, j1: int) -> None:
+        """Move the navigation solution through steps ``[j0, j1)`` (free inertial)."""
+        for j in range(j0, j1):
+            f, w = self.imu(j)
+            n = self.nav
+            n.pos, n.v_n, n.C_bn = na_cycle(n.pos, n.v_n, n.C_bn, f, w, self.dt[j])
+
+    def transition(self, j0: int, j1: int) -> np.ndarray:
+        """Move the solution through steps ``[j0, j1)`` and return Φ = Π (I + F dt) (R, 12, 12),
+        F evaluated on the solution before each step (:func:`nespm_cli.filters.model.system_matrix`)."""
+        Phi = np.broadcast_to(self.eye, self.P.shape).copy()
+        for j in range(j0, j1):
+            f, w = self.imu(j)
+            n = self.nav
+            F = system_matrix(n.pos, n.v_n, n.C_bn, f)
+            Phi = (self.eye + F * self.dt[j]) @ Phi
+            n.pos, n.v_n, n.C_bn = na_cycle(n.pos, n.v_n, n.C_bn, f, w, self.dt[j])
+        return Phi
+
+    def cholesky(self, P: np.ndarray | None = None) -> np.ndarray:
+        """Batched Cholesky factor (R, 12, 12) of ``P`` (default ``self.P``); failing runs are flagged."""
+        return safe_cholesky(self.P if P is None else P, self.bad)
+
+    def feedback(self, x: np.ndarray) -> None:
+        """Close the loop: ``nav ⊕ x`` (x (R, 12)), biases into the compensation."""
+        feedback(self.nav, x)
+
+    def symmetrize(self) -> None:
+        """``P ← (P + Pᵀ) / 2``."""
+        self.P = 0.5 * (self.P + np.swapaxes(self.P, -1, -2))
+
+    def check(self) -> None:
+        """Flag runs whose solution or covariance is non-finite or implausible; sanitize them."""
+        nav = self.nav
+        speed = np.linalg.norm(nav.v_n, axis=-1)
+        bad_now = ~np.isfinite(speed) | ~np.isfinite(nav.C_bn).all(axis=(-2, -1))
+        if self.has_covariance:  # free inertial is allowed to drift: only a non-finite solution fails it
+            bad_now |= speed > self.cfg.vel_limit
+            bad_now |= ~np.isfinite(self.P).all(axis=(-2, -1))
+            bad_now |= (np.einsum("...ii->...i", self.P) < 0).any(axis=-1)
+        new = bad_now & ~self.bad
+        self.bad |= bad_now
+        if self.bad.any():
+            b = self.bad
+            nav.v_n[b] = 0.0
+            nav.C_bn[b] = np.eye(3)
+            nav.pos[b] = np.where(np.isfinite(nav.pos[b]), nav.pos[b], 0.0)
+            nav.b_a[b] = 0.0
+            nav.b_g[b] = 0.0
+            if new.any() and self.has_covariance:
+                self.P[new] = self.cfg.p0()
+
+
+__all__ = ["ErrorStateFilter", "Filter", "ImuData", "Measurement"]
