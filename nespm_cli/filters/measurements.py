@@ -20,8 +20,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from nespm_cli.nav.dvl import dvl_velocity
 from nespm_cli.filters.model import NavState, dvl_H, dvl_h, dvl_innovation
-from nespm_cli.nav.strapdown import cross
 
 
 class Measurement:
@@ -77,8 +77,7 @@ class DvlMeasurement(Measurement):
         return dvl_innovation(nav, self.z, self.w_nb, self.lever)
 
     def predict(self, nav: NavState) -> np.ndarray:
-        Ct = np.swapaxes(nav.C_bn, -1, -2)
-        return (Ct @ nav.v_n[..., None])[..., 0] + cross(self.w_nb, np.broadcast_to(self.lever, self.w_nb.shape))
+        return dvl_velocity(nav.C_bn, nav.v_n, self.w_nb, self.lever)
 
     def h(self, X: np.ndarray, nav: NavState) -> np.ndarray:
         return dvl_h(X, nav, self.lever)

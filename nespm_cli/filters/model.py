@@ -16,6 +16,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from nespm_cli.data.corruption import NOMINAL_ACC_NOISE, NOMINAL_GYRO_NOISE
+from nespm_cli.learn.processnet import VALIDITY_CLIP
+from nespm_cli.nav.dvl import dvl_velocity
 from nespm_cli.nav.earth import d_w_en_d_v, radii, transport_rates
 from nespm_cli.nav.rotations import attitude_plus, exp_so3, exp_so3_minus_identity, skew
 from nespm_cli.nav.strapdown import cross
@@ -49,8 +52,8 @@ class FilterConfig:
     p0_att_deg: tuple = (0.01, 0.01, 0.01)
     p0_acc_bias: float = 0.3
     p0_gyro_bias: float = 7.3e-5
-    acc_noise: float = 0.03  # m/s^2 per IMU sample
-    gyro_noise: float = 7.3e-6  # rad/s per IMU sample
+    acc_noise: float = NOMINAL_ACC_NOISE  # m/s^2 per IMU sample
+    gyro_noise: float = NOMINAL_GYRO_NOISE  # rad/s per IMU sample
     acc_bias_rw: float = 1e-3  # m/s^2/sqrt(s)
     gyro_bias_rw: float = 1e-6  # rad/s/sqrt(s)
     dvl_std: float = 0.02  # m/s
@@ -65,7 +68,7 @@ class FilterConfig:
     tau_a: float | None = None  # eq 45 [s]; None: the time-update span
     tau_g: float | None = None  # eq 47 [s]; None: the time-update span
     adaptive_bias: str = "nominal"  # bias blocks of eq 43: nominal, scaled (x (σ̂/σ)²) or paper
-    q_clip: tuple = (0.25, 24.0)  # validity bounds on the network std, x nominal std
+    q_clip: tuple = VALIDITY_CLIP  # validity bounds on the network std, x nominal std
 
     def p0(self) -> np.ndarray:
         """Initial covariance (12, 12); an overflowing std gives inf (the run then diverges)."""
@@ -154,8 +157,7 @@ def process_noise(cfg: FilterConfig, dt_imu: float, span: float) -> np.ndarray:
 
 def dvl_innovation(nav: NavState, dvl_b: np.ndarray, w_nb_b: np.ndarray, lever_arm: np.ndarray) -> np.ndarray:
     """Measured minus predicted body velocity at x = 0 (B, 3): dvl − C^T v − w_nb × l."""
-    pred = (np.swapaxes(nav.C_bn, -1, -2) @ nav.v_n[..., None])[..., 0] + cross(w_nb_b, np.broadcast_to(lever_arm, w_nb_b.shape))
-    return dvl_b - pred
+    return dvl_b - dvl_velocity(nav.C_bn, nav.v_n, w_nb_b, lever_arm)
 
 
 def dvl_h(x: np.ndarray, nav: NavState, lever_arm: np.ndarray) -> np.ndarray:

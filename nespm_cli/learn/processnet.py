@@ -69,6 +69,8 @@ PARAM_NAMES = ("W1", "b1", "W2", "b2", "W3", "b3", "W4", "b4", "W5", "b5")
 
 # Base white-noise std per 100 Hz sample of the corruption protocol (corruption.py) and the
 # input difference order chosen per sensor (see training.py for the measurements).
+#: validity bounds of a network std, as multiples of the nominal std (anukf.md III-D)
+VALIDITY_CLIP = (0.25, 24.0)
 SENSOR_BASE_STD = {"acc": NOMINAL_ACC_NOISE, "gyro": NOMINAL_GYRO_NOISE}  # m/s^2, rad/s
 SENSOR_DIFF_ORDER = {"acc": 1, "gyro": 2}
 

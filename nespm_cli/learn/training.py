@@ -56,7 +56,7 @@ from scipy.stats import spearmanr
 
 from nespm_cli.data.corruption import CorruptionConfig, draw, imu_errors, segment_index
 from nespm_cli.errors import NespmError
-from nespm_cli.learn.processnet import Adam, Normalizer, ProcessNet, load_nets, mse_loss, save_nets
+from nespm_cli.learn.processnet import VALIDITY_CLIP, Adam, Normalizer, ProcessNet, load_nets, mse_loss, save_nets
 from nespm_cli.nav.synthesis import synthesize
 from nespm_cli.data.tracks import load_track
 
@@ -66,7 +66,7 @@ DEFAULT_EPOCHS = 12
 DEFAULT_TEST_RUNS = 8
 # predict_noise_std clips the outputs to [lo, hi] x the base std (anukf.md III-D: "positive,
 # not too small, not too large"); the protocol's factors are 1-6.
-DEFAULT_CLIP = (0.25, 24.0)
+DEFAULT_CLIP = VALIDITY_CLIP
 
 
 # ----------------------------------------------------------------------------- data
