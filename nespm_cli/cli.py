@@ -390,9 +390,10 @@ def simulate(
     t0 = time.perf_counter()
     res = simulate_runs(runs, duration_s=duration, seed=seed)
     paths = write_tracks(res, out, first_number=first_number, dvl=dvl)
-    xt = np.abs(res.cross_track[:, res.t >= min(100.0, duration / 2)])
+    settle = min(100.0, duration / 2)
+    xt = np.abs(res.cross_track[:, res.t >= settle])
     typer.echo(f"{len(paths)} tracks ({first_number}-{first_number + len(paths) - 1}) in {time.perf_counter() - t0:.1f} s "
-               f"-> {out}; max cross-track error after 100 s {xt.max():.2f} m; next: nespm tracks --data-dir {out}")
+               f"-> {out}; max cross-track error after {settle:g} s {xt.max():.2f} m; next: nespm tracks --data-dir {out}")
 
 
 @app.command("gp-ukf")
