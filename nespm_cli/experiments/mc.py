@@ -272,7 +272,7 @@ def run_chunk(cell: Cell, number: int, first: int, out_dir: str, last: int | Non
     timings = {}
     if not todo:
         return timings
-    n_epochs = track_epochs(spec, number)
+    n_epochs = len(prepared(number, spec.data_dir, spec.imu)[1].epoch_index)  # cached; simulate reuses it
     report = epoch_reporter(chunks, chunk_key(cell, number, first), len(todo) * (n_epochs - 1))
     results, truth, _ = simulate(spec, number, runs, todo, progress=report)
     e = truth.epoch_index
@@ -398,9 +398,8 @@ def run_cells(cells: list[Cell], options: dict, out_dir: str | Path, jobs: int =
     def missing(c: Cell, n: int, f0: int) -> list[str]:
         return [f for f in c.spec.filters if not folder.done(_chunk_name("metrics", n, f, f0, c.tag))]
 
-    todo = [Task(chunk_key(c, n, f0), (_absolute(c), n, f0, str(out.resolve()), f1),
-                 len(missing(c, n, f0)) * (track_epochs(c.spec, n) - 1))
-            for c, n, f0, f1 in tasks if missing(c, n, f0)]
+    todo = [Task(chunk_key(c, n, f0), (_absolute(c), n, f0, str(out.resolve()), f1), k * (track_epochs(c.spec, n) - 1))
+            for c, n, f0, f1 in tasks for k in [len(missing(c, n, f0))] if k]
     folder.run(run_chunk_keyed, todo, jobs, backend, scheduler, label, progress)
     metrics, epochs = assemble(out, tuple(k for k, _ in cells[0].columns))
     epochs = add_true_track(epochs, first)

@@ -70,8 +70,7 @@ def epoch_errors(out, v_true: np.ndarray, C_true: np.ndarray, pos_true: np.ndarr
                 sol = (np.linalg.pinv(out.P6) @ e[..., None])[..., 0]
         nees = (e * sol).sum(axis=-1)
     ne = ned_offset(out.pos, pos_true)[..., :2]
-    hpe = np.hypot(ne[..., 0], ne[..., 1])
-    return EpochErrors(vel, att, nees, ne, hpe, distance_travelled(pos_true))
+    return EpochErrors(vel, att, nees, ne, dist=distance_travelled(pos_true))  # hpe derived from ne
 
 
 def run_metrics(err: EpochErrors, diverged: np.ndarray) -> dict[str, np.ndarray]:
