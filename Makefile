@@ -8,7 +8,7 @@ RUNS   ?= 100
 JOBS   ?= 2
 DATA_OPT := $(if $(DATA),--data-dir $(DATA),)
 
-.PHONY: setup run test smoke table1 table2 anukf-table1 anukf-table2 nespm-table1 weights sweep-misalignment gp-ukf bench clean
+.PHONY: setup run test smoke table1 table2 anukf-table1 anukf-table2 nespm-table1 weights sweep-misalignment gp-ukf bench clean check-data recorded-table1 recorded-table2
 
 setup: $(VENV)/.installed
 
@@ -70,3 +70,19 @@ bench: setup
 
 clean:
 	rm -rf $(VENV) *.egg-info
+
+# Recorded IMU (docs/checking-data.md): check the folder against its GT, then run the tables'
+# protocol on the recorded IMU with the corrections the check justifies.
+IMU_DATA ?= ../shared/data/snapir-akit-imu
+RUNS_OPT := $(if $(filter-out 100,$(RUNS)),--runs $(RUNS),)
+
+check-data: setup
+	$(NESPM) check --data-dir $(IMU_DATA) --out results/check
+
+results/check/corrections.json: | setup
+	$(NESPM) check --data-dir $(IMU_DATA) --out results/check
+
+recorded-table1 recorded-table2: setup results/check/corrections.json
+	$(NESPM) mc --config experiments/$@.toml --jobs $(JOBS) --data-dir $(IMU_DATA) $(RUNS_OPT) \
+		--corrections results/check/corrections.json --out results/$@
+	$(NESPM) report results/$@

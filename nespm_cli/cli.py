@@ -104,6 +104,11 @@ _COMMON = [  # the options that define an experiment: the realizations, the data
     *_CORRUPTION,
     ("scenario", str, default(Spec, "scenario"), "--scenario", "nominal, or outage: no DVL for --outage-length s from --outage-start s."),
     ("imu", str, default(Spec, "imu"), "--imu", "synthetic (inverse strapdown of GT: exact truth) or recorded (IMU_trajectoryN.csv)."),
+    ("imu_axes", str, default(Spec, "imu_axes"), "--imu-axes", "Recorded IMU axis mapping: corrected body axis i is the i-th signed recorded axis, e.g. x,-y,z (nespm check finds it)."),
+    ("imu_time_offset", float, default(Spec, "imu_time_offset"), "--imu-time-offset", "Recorded IMU stamp minus GT time [s]; subtracted from the IMU stamps (nespm check measures it)."),
+    ("dvl_time_offset", float, default(Spec, "dvl_time_offset"), "--dvl-time-offset", "DVL stamp minus GT time [s]; the DVL is re-sampled at the GT epochs from its shifted stamps."),
+    ("window", Optional[str], default(Spec, "window"), "--window", "START:END [s, GT file time]: use only these GT epochs of every track (e.g. 20:400)."),
+    ("corrections", Optional[str], default(Spec, "corrections"), "--corrections", "Per-track corrections (imu_axes, offsets, window) from the corrections.json that 'nespm check' writes; an option given explicitly overrides it for every track."),
     ("dvl", str, default(Spec, "dvl"), "--dvl", "recorded (the track's DVL file) or synthetic (C_n^b v + w_nb x l + N(0, dvl-noise^2))."),
     ("dvl_lever_arm", Tuple[float, float, float], default(Spec, "dvl_lever_arm"), "--dvl-lever-arm", "DVL lever arm X Y Z [m, body] in the measurement model (and in synthetic DVL)."),
     ("dvl_r_std", Optional[float], default(Spec, "dvl_r_std"), "--dvl-r-std", "Filter DVL std [m/s] (default 0.02 with synthetic DVL, 0.1 with recorded)."),
@@ -193,6 +198,33 @@ def tracks(data_dir: Optional[str] = DATA_DIR,
     Console(width=None if sys.stdout.isatty() else 200).print(table)
     for w in warnings:
         typer.echo(f"warning: {w}")
+
+
+@app.command()
+def check(
+    data_dir: Optional[str] = DATA_DIR,
+    tracks_: Optional[str] = typer.Option(None, "--tracks", help="Tracks to check (default: all)."),
+    out: str = typer.Option("results/check", "--out", help="Folder for check.md, check.json, corrections.json and figures."),
+    no_figures: bool = typer.Option(False, "--no-figures", help="Skip the figures (faster)."),
+    no_progress: bool = typer.Option(False, "--no-progress", help="Do not say which track is being checked."),
+) -> None:
+    """Check a track folder against its ground truth: recorded IMU (axes, time offset, windowed
+    biases, attitude drift) and DVL (lever arm, scale, misalignment, time offset); a verdict per
+    track and the options that apply the corrections (docs/checking-data.md)."""
+    from nespm_cli.experiments.check import check_folder
+    from nespm_cli.experiments.progress import Status
+    from nespm_cli.reports.check import summary_table, write_check_report
+
+    numbers = _tracks(tracks_) if tracks_ else None
+    with Status("nespm check", enabled=not no_progress) as status:
+        result = check_folder(data_dir, numbers, status=status)
+        status("writing the report")
+        path = write_check_report(result, out, figures=not no_figures)
+    typer.echo(summary_table(result))
+    for r in result["tracks"]:
+        for f in r["findings"]:
+            typer.echo(f"track {r['track']}: {f}")
+    typer.echo(f"wrote {path} and {Path(out) / 'corrections.json'} (use: --corrections {Path(out) / 'corrections.json'})")
 
 
 @app.command()

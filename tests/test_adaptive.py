@@ -103,8 +103,13 @@ def test_interval_windows_are_the_steps_of_each_dvl_interval():
     assert W.shape == (2, 5, 100, 3)
     for k in range(5):
         assert np.array_equal(W[:, k], x[:, e[k]:e[k + 1]])
-    with pytest.raises(NespmError, match="exactly 100 IMU steps per DVL interval; interval 2"):
+    with pytest.raises(NespmError, match="at least 100 IMU steps per DVL interval; interval 2"):
         interval_windows(x, np.array([0, 100, 200, 290, 390]))
+    # a recorded IMU's 101-102 steps per interval: the window is the last 100 before the epoch
+    e2 = np.array([0, 101, 203, 303, 405])
+    W2 = interval_windows(x, e2)
+    for k in range(4):
+        assert np.array_equal(W2[:, k], x[:, e2[k + 1] - 100:e2[k + 1]])
 
 
 @pytest.fixture(scope="module")

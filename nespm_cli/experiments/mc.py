@@ -30,6 +30,7 @@ from nespm_cli.filters import FilterConfig, initial_nav, run_filter
 from nespm_cli.filters.registry import discover_plugins, filter_names, get_filter, load_plugin
 from nespm_cli.experiments.metrics import epoch_errors, run_metrics
 from nespm_cli.experiments.store import ResultsFolder, Task, chunk_firsts, run_blocks, write_parquet_atomic
+from nespm_cli.data.corrections import IDENTITY_AXES, Corrections, apply_corrections, resolve
 from nespm_cli.nav.synthesis import ImuTruth, from_recorded, synthesize
 from nespm_cli.data.tracks import Track, available_tracks, load_track, resolve_data_dir
 
@@ -53,6 +54,12 @@ class Spec:
     dvl_r_std: float | None = None  # None: 0.02 synthetic, 0.1 recorded
     outage_start: float = 180.0
     outage_length: float = 20.0
+    imu_axes: str = IDENTITY_AXES  # recorded IMU axis mapping (data/corrections.py)
+    imu_time_offset: float = 0.0  # [s] recorded IMU stamp minus GT time
+    dvl_time_offset: float = 0.0  # [s] DVL stamp minus GT time
+    window: str | None = None  # "START:END" [s] of the GT file time to use
+    corrections: str | None = None  # corrections.json (nespm check): per-track values of the four above
+    track_corrections: tuple = ()  # resolved by validate: ((track, Corrections), ...), what the runs use
     weights: str | None = None  # ProcessNet file of the adaptive filters; None: the packaged default
     filter_plugins: tuple = ()  # user filter files or modules (docs/plugins.md), loaded before the filters run
     corruption: CorruptionConfig = field(default_factory=CorruptionConfig)
@@ -103,13 +110,18 @@ def validate(spec: Spec) -> Spec:
         if n not in have:
             where = d if d is not None else "the embedded default"
             raise NespmError(f"--tracks: no track {n} in {where}; available: {', '.join(map(str, have))}")
-    durations = {n: load_track(n, d).duration for n in spec.tracks}  # validates every file up front
+    for n in spec.tracks:
+        load_track(n, d)  # validates every file up front
+    spec = dataclasses.replace(spec, data_dir=str(d) if d is not None else None)
+    spec = dataclasses.replace(spec, track_corrections=resolve_corrections(spec))
+    durations = {n: prepared(n, spec.data_dir, spec.imu, corrections_for(spec, n))[0].duration
+                 for n in spec.tracks}
     if adaptive and spec.imu == "recorded":  # one network window per DVL interval
         for n in spec.tracks:
-            steps = np.diff(prepared(n, str(d) if d is not None else None, spec.imu)[1].epoch_index)
-            if not np.all(steps == WINDOW):
+            steps = np.diff(prepared(n, spec.data_dir, spec.imu, corrections_for(spec, n))[1].epoch_index)
+            if not np.all(steps >= WINDOW):
                 raise NespmError(f"--imu recorded: track {n} has {int(steps.min())}-{int(steps.max())} IMU steps "
-                                 f"per DVL interval; the adaptive filters need exactly {WINDOW}")
+                                 f"per DVL interval; the adaptive filters need at least {WINDOW}")
     if spec.scenario == "outage":
         if spec.outage_length <= 0 or spec.outage_start <= 0:
             raise NespmError("--outage-start and --outage-length must be positive")
@@ -120,7 +132,6 @@ def validate(spec: Spec) -> Spec:
                     f"--outage-start {spec.outage_start:g} + --outage-length {spec.outage_length:g} s "
                     f"ends past track {n}'s end ({dur:.1f} s)"
                 )
-    spec = dataclasses.replace(spec, data_dir=str(d) if d is not None else None)
     return dataclasses.replace(spec, filter_config=filter_config(spec))  # what the filters use, recorded as such
 
 
@@ -142,12 +153,29 @@ def needs_noise_std(name: str) -> bool:
     return bool(get_filter(name).needs_noise_std)
 
 
+def resolve_corrections(spec: Spec) -> tuple:
+    """``((track, Corrections), ...)`` for every track of ``spec`` (:func:`corrections.resolve`)."""
+    per = resolve(spec.tracks, spec.imu, spec.corrections, spec.imu_axes, spec.imu_time_offset,
+                  spec.dvl_time_offset, spec.window)
+    return tuple(per.items())
+
+
+def corrections_for(spec: Spec, number: int) -> Corrections:
+    """The corrections track ``number`` runs with (resolved by :func:`validate`)."""
+    for n, c in spec.track_corrections:
+        if n == number:
+            return c if isinstance(c, Corrections) else Corrections(**{**c, "window": tuple(c["window"]) if c.get("window") else None})
+    return dict(resolve_corrections(dataclasses.replace(spec, tracks=(number,))))[number]
+
+
 @lru_cache(maxsize=16)
-def prepared(number: int, data_dir: str | None, imu: str) -> tuple[Track, ImuTruth]:
-    """Track and its 100 Hz truth/IMU, computed once per worker process."""
+def prepared(number: int, data_dir: str | None, imu: str,
+             corrections: Corrections = Corrections()) -> tuple[Track, ImuTruth]:
+    """Track (corrected) and its 100 Hz truth/IMU, computed once per worker process."""
     # None is the embedded default here (validate resolved $NESPM_DATA_DIR on the client), never
     # the worker's own $NESPM_DATA_DIR
     track = load_track(number, data_dir) if data_dir is not None else embedded_track(number)
+    track = apply_corrections(track, corrections)
     return track, (synthesize(track) if imu == "synthetic" else from_recorded(track))
 
 
@@ -173,7 +201,7 @@ def simulate(spec: Spec, number: int, runs: np.ndarray, filters=None, clean: boo
     ``progress(done)``, if given, is called with the filter-epochs done so far (filters run one
     after the other, each over the track's N-1 epoch intervals).
     """
-    track, truth = prepared(number, spec.data_dir, spec.imu)
+    track, truth = prepared(number, spec.data_dir, spec.imu, corrections_for(spec, number))
     e = truth.epoch_index
     t_rel = truth.t[e] - truth.t[e[0]]
     R = len(runs)
@@ -272,7 +300,7 @@ def run_chunk(cell: Cell, number: int, first: int, out_dir: str, last: int | Non
     timings = {}
     if not todo:
         return timings
-    n_epochs = len(prepared(number, spec.data_dir, spec.imu)[1].epoch_index)  # cached; simulate reuses it
+    n_epochs = len(prepared(number, spec.data_dir, spec.imu, corrections_for(spec, number))[1].epoch_index)  # cached; simulate reuses it
     report = epoch_reporter(chunks, chunk_key(cell, number, first), len(todo) * (n_epochs - 1))
     results, truth, _ = simulate(spec, number, runs, todo, progress=report)
     e = truth.epoch_index
@@ -321,6 +349,8 @@ def _epochs_of(number: int, data_dir: str | None) -> int:
 
 def track_epochs(spec: Spec, number: int) -> int:
     """Number of GT epochs of track ``number`` (for progress totals; cached per process)."""
+    if spec.track_corrections and not corrections_for(spec, number).is_identity:
+        return len(prepared(number, spec.data_dir, spec.imu, corrections_for(spec, number))[0].t)
     return _epochs_of(number, spec.data_dir)
 
 
@@ -354,7 +384,7 @@ def assemble(out: Path, keys: tuple = ()) -> tuple[pd.DataFrame, pd.DataFrame]:
 def add_true_track(epochs: pd.DataFrame, spec: Spec) -> pd.DataFrame:
     parts = []
     for n, df in epochs.groupby("track", sort=True):
-        _, truth = prepared(int(n), spec.data_dir, spec.imu)
+        _, truth = prepared(int(n), spec.data_dir, spec.imu, corrections_for(spec, int(n)))
         p = truth.pos[truth.epoch_index]
         ne = ned_offset(p, p[0])
         df = df.copy()

@@ -38,25 +38,31 @@ def load_weights(path: str | None):
 
 
 def interval_windows(x: np.ndarray, epoch_index: np.ndarray) -> np.ndarray:
-    """Cut IMU readings into one window per DVL interval.
+    """Cut IMU readings into one window per DVL interval: the :data:`WINDOW` steps that end at
+    the interval's closing epoch.
+
+    With the synthesized IMU every interval has exactly 100 steps, so the window is the whole
+    interval. A recorded IMU on the 400/399 s GT grid has 100.25 samples per interval, plus the
+    step split at the epoch (:func:`nespm_cli.nav.synthesis.recorded_grid`): 101-102 steps, of
+    which the last 100 are the window (the split step's reading then appears twice; 1 % of a
+    window).
 
     Args:
         x: (R, M, 3) readings; step j runs from sample j to j+1.
         epoch_index: (N,) IMU sample index of each epoch.
 
     Returns:
-        (R, N-1, 100, 3): window k holds steps ``epoch_index[k] .. epoch_index[k+1]-1``.
+        (R, N-1, 100, 3): window k holds steps ``epoch_index[k+1]-100 .. epoch_index[k+1]-1``.
     """
     e = np.asarray(epoch_index)
     steps = np.diff(e)
-    if len(e) < 2 or not np.all(steps == WINDOW):
-        bad = int(np.flatnonzero(steps != WINDOW)[0]) if len(e) >= 2 else 0
+    if len(e) < 2 or not np.all(steps >= WINDOW):
+        bad = int(np.flatnonzero(steps < WINDOW)[0]) if len(e) >= 2 else 0
         raise NespmError(
-            f"adaptive filters need exactly {WINDOW} IMU steps per DVL interval; interval {bad} has "
+            f"adaptive filters need at least {WINDOW} IMU steps per DVL interval; interval {bad} has "
             f"{int(steps[bad]) if len(steps) else 0} (use --imu synthetic)")
-    R = x.shape[0]
-    seg = x[:, e[0]:e[-1]]
-    return seg.reshape(R, len(e) - 1, WINDOW, 3)
+    rows = e[1:, None] - WINDOW + np.arange(WINDOW)  # (N-1, WINDOW)
+    return x[:, rows]
 
 
 def predict_interval_std(f_meas: np.ndarray, w_meas: np.ndarray, epoch_index: np.ndarray,

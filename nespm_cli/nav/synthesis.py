@@ -75,6 +75,23 @@ def integrate_position(pos0: np.ndarray, v_n: np.ndarray, dt: np.ndarray, iters:
     return np.stack([lat, lon, h], axis=-1)
 
 
+def truth_on_grid(track, t: np.ndarray, epoch_index: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Truth ``(pos, v_n, C_bn)`` on the sample times ``t`` (M+1,) from the GT of ``track``.
+
+    Velocity: not-a-knot cubic spline; attitude: rotation spline; both exact at the GT epochs
+    (``t[epoch_index] == track.t``). Position: eqs 28-30 integrated from that velocity
+    (:func:`integrate_position`) from the first GT position.
+    """
+    t_gt = np.asarray(track.t, dtype=float)
+    v_n = CubicSpline(t_gt, track.v_n, axis=0, bc_type="not-a-knot")(t)
+    v_n[epoch_index] = track.v_n
+    C_gt = euler_to_dcm(track.euler)
+    C_bn = RotationSpline(t_gt, Rotation.from_matrix(C_gt))(t).as_matrix()
+    C_bn[epoch_index] = C_gt
+    pos = integrate_position(np.asarray(track.pos[0], dtype=float), v_n, np.diff(t))
+    return pos, v_n, C_bn
+
+
 def synthesize(track, substeps: int = 100) -> ImuTruth:
     """Build the 100 Hz truth and the clean IMU of ``track`` (a :class:`tracks.Track`).
 
@@ -88,40 +105,58 @@ def synthesize(track, substeps: int = 100) -> ImuTruth:
     t = np.concatenate([(t_gt[:-1, None] + np.diff(t_gt)[:, None] * frac).ravel(), t_gt[-1:]])
     epoch_index = np.arange(n) * substeps
     t[epoch_index] = t_gt  # exact epochs
-
-    v_n = CubicSpline(t_gt, track.v_n, axis=0, bc_type="not-a-knot")(t)
-    v_n[epoch_index] = track.v_n
-    C_gt = euler_to_dcm(track.euler)
-    C_bn = RotationSpline(t_gt, Rotation.from_matrix(C_gt))(t).as_matrix()
-    C_bn[epoch_index] = C_gt
-
+    pos, v_n, C_bn = truth_on_grid(track, t, epoch_index)
     dt = np.diff(t)
-    pos = integrate_position(np.asarray(track.pos[0], dtype=float), v_n, dt)
     f_b, w_ib_b = na_cycle_inverse(pos[:-1], v_n[:-1], C_bn[:-1], pos[1:], v_n[1:], C_bn[1:], dt)
     return ImuTruth(t, dt, pos, v_n, C_bn, f_b, w_ib_b, epoch_index, exact=True)
+
+
+MERGE_TOL = 1e-6  # [s] an IMU sample this close to a GT epoch is taken to be at the epoch
+
+
+def recorded_grid(t_imu: np.ndarray, t_gt: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The step grid of a recorded IMU between the first and last GT epoch.
+
+    A recorded sample ``i`` holds the mean rate over ``(t_imu[i-1], t_imu[i]]`` (the same
+    convention as the synthesized and simulated IMU files). The grid is the union of the IMU
+    sample times and the GT epochs inside ``[t_gt[0], t_gt[-1]]``; the IMU step that straddles
+    an epoch is split there into two steps with the same reading, so every epoch is a sample
+    of the grid and no measurement is interpolated.
+
+    Returns ``(t, sample, epoch_index)``: grid times (K+1,) [s], the recorded row (K,) whose
+    reading each step takes, and the grid index (N,) of every GT epoch.
+    Requires ``t_imu[0] <= t_gt[0]`` and ``t_gt[-1] <= t_imu[-1]`` (within :data:`MERGE_TOL`).
+    """
+    t_imu = np.asarray(t_imu, dtype=float)
+    t_gt = np.asarray(t_gt, dtype=float)
+    inside = t_imu[(t_imu > t_gt[0] + MERGE_TOL) & (t_imu < t_gt[-1] - MERGE_TOL)]
+    # drop samples within MERGE_TOL of an epoch (the epoch's exact time is kept)
+    j = np.clip(np.searchsorted(t_gt, inside), 1, len(t_gt) - 1)
+    near = np.minimum(np.abs(inside - t_gt[j - 1]), np.abs(inside - t_gt[j])) <= MERGE_TOL
+    t = np.union1d(inside[~near], t_gt)
+    epoch_index = np.searchsorted(t, t_gt)
+    # step [t[k], t[k+1]] takes the first sample stamped at or after its end
+    sample = np.searchsorted(t_imu, t[1:] - MERGE_TOL, side="left")
+    return t, np.minimum(sample, len(t_imu) - 1), epoch_index
 
 
 def from_recorded(track) -> ImuTruth:
     """Use the track's recorded IMU (``track.imu``, (M, 7) ``[t, f, w]``) as the clean IMU.
 
-    Truth is only known at the GT epochs, which are matched to the nearest IMU sample; the
-    100 Hz ``pos/v_n/C_bn`` arrays are NaN except at those samples. Runs start at the
-    first GT epoch.
+    The steps are those of :func:`recorded_grid` (the IMU samples, split at the GT epochs);
+    the truth on them is :func:`truth_on_grid` (splines through the GT, exact at the epochs,
+    where the errors are measured). Runs start at the first GT epoch. Apply the track's
+    corrections (:func:`nespm_cli.data.corrections.apply_corrections`) first.
     """
     if track.imu is None:
         raise NespmError(f"track {track.number}: --imu recorded needs IMU_trajectory{track.number}.csv")
     imu = np.asarray(track.imu, dtype=float)
-    t = imu[:, 0]
-    if t[0] > track.t[0] + 0.02 or t[-1] < track.t[-1] - 0.02:
+    t_imu, t_gt = imu[:, 0], np.asarray(track.t, dtype=float)
+    if t_imu[0] > t_gt[0] + MERGE_TOL or t_imu[-1] < t_gt[-1] - MERGE_TOL:
         raise NespmError(
-            f"track {track.number}: recorded IMU covers {t[0]:.2f}-{t[-1]:.2f} s, GT {track.t[0]:.2f}-{track.t[-1]:.2f} s"
+            f"track {track.number}: recorded IMU covers {t_imu[0]:.3f}-{t_imu[-1]:.3f} s, GT "
+            f"{t_gt[0]:.3f}-{t_gt[-1]:.3f} s (the IMU must cover the GT epochs; see --window)"
         )
-    idx = np.clip(np.searchsorted(t, track.t), 1, len(t) - 1)
-    idx = np.where(np.abs(t[idx - 1] - track.t) < np.abs(t[idx] - track.t), idx - 1, idx)
-    ref = synthesize(track)
-    pos = np.full((len(t), 3), np.nan)
-    vel = np.full((len(t), 3), np.nan)
-    C = np.full((len(t), 3, 3), np.nan)
-    e = ref.epoch_index
-    pos[idx], vel[idx], C[idx] = ref.pos[e], ref.v_n[e], ref.C_bn[e]
-    return ImuTruth(t, np.diff(t), pos, vel, C, imu[1:, 1:4], imu[1:, 4:7], idx, exact=False)
+    t, sample, idx = recorded_grid(t_imu, t_gt)
+    pos, vel, C = truth_on_grid(track, t, idx)
+    return ImuTruth(t, np.diff(t), pos, vel, C, imu[sample, 1:4], imu[sample, 4:7], idx, exact=False)

@@ -1,0 +1,1 @@
+"""Data-consistency checks of a track against its ground truth (``nespm check``)."""

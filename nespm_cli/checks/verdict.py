@@ -1,0 +1,127 @@
+"""One track's consistency check: the IMU and DVL parts, a verdict and the corrections that apply.
+
+:func:`check_track` returns a plain-JSON dict (the ``check.json`` entry of the track):
+
+* ``imu``: None (no IMU file) or the :mod:`imu_gt` results: ``axis_mapping``, ``time_offset``,
+  ``stats`` (per sensor and axis), ``windows``, ``attitude_drift``;
+* ``dvl``: the :mod:`dvl_gt` fit (lever arm, scale factor, misalignment, time offset, residuals);
+* ``corrections``: the :class:`~nespm_cli.data.corrections.Corrections` the data justify, as a
+  dict, and ``options``: the same as command-line options;
+* ``verdict``: ``consistent``, ``consistent after corrections`` or ``inconsistent``, and
+  ``findings``: one sentence per thing found.
+
+Rules (each written once here; docs/checking-data.md explains them):
+
+* axis mapping: corrected when the best signed permutation is not the identity and its cost
+  is below :data:`AXES_RATIO` times the identity's;
+* a time offset (IMU or DVL): corrected when ``|offset| >= OFFSET_MIN_S`` and beyond
+  ``OFFSET_SIGMAS`` of its 1-sigma; an offset at the edge of the search is a finding;
+* windows: inconsistent or unresolved windows (:func:`imu_gt.windows`) that touch the first or
+  last :data:`TRIM_FRACTION` of the track without a gap are cut by a suggested ``window``;
+  any other is a finding, and an inconsistent one makes the verdict ``inconsistent``.
+"""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from nespm_cli.checks import dvl_gt, imu_gt
+from nespm_cli.data.corrections import IDENTITY_AXES, Corrections, apply_corrections
+from nespm_cli.data.track import Track
+
+AXES_RATIO = 0.7
+OFFSET_MIN_S = 0.02
+OFFSET_SIGMAS = 2.0
+TRIM_FRACTION = 0.15
+
+
+def significant(value: float, std: float) -> bool:
+    """Whether a time offset [s] is worth correcting (see the module rules)."""
+    return abs(value) >= OFFSET_MIN_S and abs(value) > OFFSET_SIGMAS * std
+
+
+def imu_part(track: Track) -> dict:
+    """The :mod:`imu_gt` analysis of a track with an IMU, in the order a reader needs it."""
+    g = imu_gt.compare_grid(track)
+    mapping, offset = imu_gt.search(g)
+    A = np.asarray(mapping["matrix"])
+    rf, rw = imu_gt.residual(g, offset["offset_s"], A)
+    stats = imu_gt.axis_stats(g, rf, rw)
+    wins = imu_gt.windows(g, *imu_gt.remove_bias_scale(g, rf, rw, stats))
+    axes = mapping["axes"] if mapping["cost"] < AXES_RATIO * mapping["identity_cost"] else IDENTITY_AXES
+    off = round(offset["offset_s"], 2) if significant(offset["offset_s"], offset["std_s"]) else 0.0
+    drift = imu_gt.attitude_drift(apply_corrections(track, Corrections(imu_axes=axes, imu_time_offset=off)))
+    series = {"t": g["t"][::10].tolist(), "implied_w": g["imp_w"][::10].tolist(),
+              "recorded_w": (g["imp_w"] + rw)[::10].tolist(), "resid_w": rw[::10].tolist(),
+              "implied_f": g["imp_f"][::10].tolist(), "recorded_f": (g["imp_f"] + rf)[::10].tolist()}
+    return {"axis_mapping": mapping, "time_offset": offset, "stats": stats, "windows": wins,
+            "attitude_drift": drift, "series": series, "applied": {"imu_axes": axes, "imu_time_offset": off}}
+
+
+def trim_window(track: Track, wins: list[dict]) -> tuple[tuple | None, list[dict]]:
+    """A ``window`` cutting the inconsistent windows at the track's ends, and the ones left."""
+    t0, t1 = float(track.t[0]), float(track.t[-1])
+    span = t1 - t0
+    bad = [w for w in wins if w["inconsistent"] or w["unresolved"]]
+    start, end = t0, t1
+    for w in sorted(bad, key=lambda w: w["start"]):  # from the front, without a gap
+        if w["start"] <= max(start, t0 + imu_gt.EDGE_S) + imu_gt.WINDOW_STEP_S + 1e-6 and w["end"] <= t0 + TRIM_FRACTION * span + imu_gt.WINDOW_S:
+            start = max(start, w["end"])
+    for w in sorted(bad, key=lambda w: -w["end"]):  # from the back
+        if w["end"] >= min(end, t1 - imu_gt.EDGE_S) - imu_gt.WINDOW_STEP_S - 1e-6 and w["start"] >= t1 - TRIM_FRACTION * span - imu_gt.WINDOW_S:
+            end = min(end, w["start"])
+    left = [w for w in bad if w["start"] >= start - 1e-6 and w["end"] <= end + 1e-6]
+    if start == t0 and end == t1:
+        return None, left
+    # snap to GT epochs inside the cut
+    t = np.asarray(track.t)
+    return (float(t[t >= start - 1e-9][0]), float(t[t <= end + 1e-9][-1])), left
+
+
+def check_track(track: Track) -> dict:
+    """The consistency check of one track (see the module docstring for the keys)."""
+    findings: list[str] = []
+    dvl = dvl_gt.fit_dvl_to_gt(track)
+    corr = Corrections()
+    left: list[dict] = []
+    imu = None
+    if track.imu is None:
+        findings.append("no IMU file: the IMU part needs IMU_trajectoryN.csv")
+    else:
+        imu = imu_part(track)
+        m, o = imu["axis_mapping"], imu["time_offset"]
+        corr = dataclasses.replace(corr, **imu["applied"])
+        if corr.imu_axes != IDENTITY_AXES:
+            findings.append(f"IMU axes {corr.imu_axes} fit {m['identity_cost'] / max(m['cost'], 1e-12):.1f}x "
+                            f"better than the identity (normalised residual {m['cost']:.3g} vs {m['identity_cost']:.3g})")
+        if o["at_edge"]:
+            findings.append(f"IMU time offset at the edge of the +-{imu_gt.OFFSETS[-1]:g} s search: not determined")
+        elif corr.imu_time_offset:
+            findings.append(f"IMU time offset {o['offset_s']:+.2f} +- {o['std_s']:.2f} s")
+        window, left = trim_window(track, imu["windows"])
+        if window is not None:
+            corr = dataclasses.replace(corr, window=window)
+            findings.append(f"IMU and GT disagree (or the GT cannot resolve the motion) at the track's ends: "
+                            f"use {window[0]:g}-{window[1]:g} s")
+        for w in left:
+            what = "the 1 Hz GT cannot resolve the motion" if w["unresolved"] else "IMU and GT disagree"
+            findings.append(f"{what} in {w['start']:.0f}-{w['end']:.0f} s ({'; '.join(w['reasons'])})")
+        left = [w for w in left if w["inconsistent"]]
+        d = imu["attitude_drift"]["final_deg"]
+        findings.append("recorded gyros integrate to " + ", ".join(f"{a:+.2f}" for a in d) +
+                        " deg (N, E, D axes) from the GT over the track")
+    if significant(dvl["time_offset_s"], dvl["time_offset_std_s"]):
+        corr = dataclasses.replace(corr, dvl_time_offset=round(dvl["time_offset_s"], 2))
+        findings.append(f"DVL time offset {dvl['time_offset_s']:+.2f} +- {dvl['time_offset_std_s']:.2f} s")
+    if imu is not None and imu["time_offset"]["at_edge"]:
+        verdict = "inconsistent"
+    elif left:
+        verdict = "inconsistent"
+    elif corr.is_identity:
+        verdict = "consistent"
+    else:
+        verdict = "consistent after corrections"
+    return {"track": int(track.number), "source": track.source, "imu": imu, "dvl": dvl,
+            "corrections": {**dataclasses.asdict(corr), "window": None if corr.window is None else list(corr.window)},
+            "options": corr.options(), "verdict": verdict, "findings": findings}

@@ -1,0 +1,228 @@
+"""Corrections of a recorded track: IMU axis mapping, IMU and DVL time offsets, the window to use.
+
+``nespm check`` estimates them from the data (docs/checking-data.md); ``mc``, ``run``, ``sweep``
+and ``train`` apply them with ``--imu-axes``, ``--imu-time-offset``, ``--dvl-time-offset``,
+``--window`` or per track with ``--corrections FILE`` (the ``corrections.json`` that ``check``
+writes). Conventions (docs/conventions.md, "Recorded data"):
+
+* ``imu_axes = "x,-y,z"``: corrected body axis i is the signed recorded axis named at
+  position i, i.e. ``f_b = A f_recorded`` with ``A`` a signed permutation (:func:`axes_matrix`).
+* a time offset is *stamp minus GT time* [s]: the sample stamped ``s`` was measured at GT time
+  ``s - offset``; the correction subtracts it from the stamps.
+* ``window = (start, end)`` in the GT file's time [s]: only the GT epochs inside it are used.
+  After the offsets, epochs at the ends that the shifted IMU or DVL does not cover are dropped
+  too (at most ``ceil(|offset| / GT step)`` at each end).
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from nespm_cli.data.track import Track
+from nespm_cli.errors import NespmError
+
+IDENTITY_AXES = "x,y,z"
+MAX_TIME_OFFSET = 10.0  # [s] larger offsets are refused as an option mistake (the check searches +-4 s)
+
+
+@dataclass(frozen=True)
+class Corrections:
+    """The corrections of one track (defaults: none)."""
+
+    imu_axes: str = IDENTITY_AXES
+    imu_time_offset: float = 0.0  # [s] IMU stamp minus GT time
+    dvl_time_offset: float = 0.0  # [s] DVL stamp minus GT time
+    window: tuple | None = None  # (start, end) [s] in the GT file's time, or None: the whole track
+
+    @property
+    def is_identity(self) -> bool:
+        """No correction at all (an identity axis mapping, no offsets, no window)."""
+        return not self.options()
+
+    def options(self) -> str:
+        """The command-line options that apply these corrections (empty when there are none)."""
+        out = []
+        if axes_matrix(self.imu_axes).tolist() != np.eye(3).tolist():
+            out.append(f"--imu-axes {self.imu_axes}")
+        if self.imu_time_offset:
+            out.append(f"--imu-time-offset {self.imu_time_offset:g}")
+        if self.dvl_time_offset:
+            out.append(f"--dvl-time-offset {self.dvl_time_offset:g}")
+        if self.window is not None:
+            out.append(f"--window {self.window[0]:g}:{self.window[1]:g}")
+        return " ".join(out)
+
+
+def axes_matrix(text: str) -> np.ndarray:
+    """The signed permutation (3, 3) of an axis mapping like ``"x,-y,z"``: ``f_b = A @ f_recorded``.
+
+    Raises NespmError (one line) unless ``text`` names each of x, y, z once, each optionally
+    with a sign.
+    """
+    parts = [p.strip().lower() for p in str(text).split(",")]
+    A = np.zeros((3, 3))
+    ok = len(parts) == 3
+    for i, p in enumerate(parts if ok else []):
+        sign = -1.0 if p.startswith("-") else 1.0
+        axis = p.lstrip("+-")
+        if axis not in ("x", "y", "z") or len(p) - len(axis) > 1:
+            ok = False
+            break
+        A[i, "xyz".index(axis)] = sign
+    if not ok or not np.allclose(np.abs(A).sum(axis=0), 1.0):
+        raise NespmError(f"--imu-axes {text!r} is not a signed permutation of x,y,z "
+                         "(name each of x, y, z once, optionally with '-', e.g. x,-y,z)")
+    return A
+
+
+def axes_text(A: np.ndarray) -> str:
+    """Inverse of :func:`axes_matrix`: ``"x,-y,z"`` of a signed permutation (3, 3)."""
+    out = []
+    for row in np.asarray(A):
+        j = int(np.argmax(np.abs(row)))
+        out.append(("-" if row[j] < 0 else "") + "xyz"[j])
+    return ",".join(out)
+
+
+def parse_window(text: str | None) -> tuple | None:
+    """``"20:400"`` -> ``(20.0, 400.0)``; None or ``""`` -> None. One-line error otherwise."""
+    if text is None or str(text).strip() == "":
+        return None
+    try:
+        a, b = (float(x) for x in str(text).split(":"))
+    except ValueError:
+        raise NespmError(f"--window {text!r}: expected START:END in seconds of the GT file, e.g. 20:400") from None
+    if not (math.isfinite(a) and math.isfinite(b) and a < b):
+        raise NespmError(f"--window {text!r}: START and END must be finite with START < END")
+    return (a, b)
+
+
+def check_offset(flag: str, value: float) -> float:
+    value = float(value)
+    if not (math.isfinite(value) and abs(value) <= MAX_TIME_OFFSET):
+        raise NespmError(f"{flag} {value:g}: must be a finite number of seconds within +-{MAX_TIME_OFFSET:g}")
+    return value
+
+
+def read_corrections(path: str | Path) -> dict[int, Corrections]:
+    """Per-track corrections from a ``corrections.json`` written by ``nespm check``.
+
+    Format: ``{"tracks": {"5": {"imu_axes": "x,-y,z", "imu_time_offset": -0.03,
+    "dvl_time_offset": 0.0, "window": [20.0, 400.0]}, ...}}`` (every key optional).
+    """
+    p = Path(path)
+    try:
+        raw = json.loads(p.read_text())
+    except OSError as exc:
+        raise NespmError(f"--corrections {p}: cannot read ({exc.strerror})") from None
+    except ValueError as exc:
+        raise NespmError(f"--corrections {p}: not valid JSON ({exc})") from None
+    tracks = raw.get("tracks") if isinstance(raw, dict) else None
+    if not isinstance(tracks, dict):
+        raise NespmError(f"--corrections {p}: expected an object with a 'tracks' object")
+    out = {}
+    known = {f.name for f in dataclasses.fields(Corrections)}
+    for key, val in tracks.items():
+        if not (str(key).isdigit() and isinstance(val, dict)):
+            raise NespmError(f"--corrections {p}: track {key!r}: expected a track number and an object")
+        bad = set(val) - known
+        if bad:
+            raise NespmError(f"--corrections {p}: track {key}: unknown key {sorted(bad)[0]!r} "
+                             f"(known: {', '.join(sorted(known))})")
+        try:
+            c = Corrections(
+                imu_axes=str(val.get("imu_axes", IDENTITY_AXES)),
+                imu_time_offset=check_offset("imu_time_offset", val.get("imu_time_offset", 0.0)),
+                dvl_time_offset=check_offset("dvl_time_offset", val.get("dvl_time_offset", 0.0)),
+                window=None if val.get("window") is None else parse_window(":".join(map(str, val["window"]))),
+            )
+            axes_matrix(c.imu_axes)
+        except NespmError as exc:
+            raise NespmError(f"--corrections {p}: track {key}: {exc}") from None
+        except (TypeError, ValueError) as exc:
+            raise NespmError(f"--corrections {p}: track {key}: bad value ({exc})") from None
+        out[int(key)] = c
+    return out
+
+
+def write_corrections(per_track: dict[int, Corrections]) -> str:
+    """The JSON text of :func:`read_corrections`'s format."""
+    tracks = {}
+    for n, c in sorted(per_track.items()):
+        d = dataclasses.asdict(c)
+        d["window"] = None if c.window is None else list(c.window)
+        tracks[str(n)] = d
+    return json.dumps({"tracks": tracks}, indent=2) + "\n"
+
+
+def resolve(tracks, imu: str, corrections: str | None = None, imu_axes: str = IDENTITY_AXES,
+            imu_time_offset: float = 0.0, dvl_time_offset: float = 0.0,
+            window: str | None = None) -> dict[int, Corrections]:
+    """The corrections of every track: the ``corrections`` file's values (:func:`read_corrections`),
+    each overridden for every track by an option given with a non-default value.
+
+    With a synthesized IMU (``imu != "recorded"``) the file's IMU corrections are ignored and
+    the IMU options are refused. Raises NespmError (one line) on a bad value.
+    """
+    per_track = read_corrections(corrections) if corrections else {}
+    axes_matrix(imu_axes)
+    imu_off = check_offset("--imu-time-offset", imu_time_offset)
+    dvl_off = check_offset("--dvl-time-offset", dvl_time_offset)
+    win = parse_window(window)
+    if imu != "recorded" and (imu_off or imu_axes != IDENTITY_AXES):
+        raise NespmError("--imu-axes and --imu-time-offset correct a recorded IMU: use them with --imu recorded")
+    if imu != "recorded":  # a file's IMU corrections do not apply to a synthesized IMU
+        per_track = {n: dataclasses.replace(c, imu_axes=IDENTITY_AXES, imu_time_offset=0.0) for n, c in per_track.items()}
+    out = {}
+    for n in tracks:
+        c = per_track.get(int(n), Corrections())
+        out[int(n)] = dataclasses.replace(
+            c,
+            imu_axes=imu_axes if imu_axes != IDENTITY_AXES else c.imu_axes,
+            imu_time_offset=imu_off if imu_off else c.imu_time_offset,
+            dvl_time_offset=dvl_off if dvl_off else c.dvl_time_offset,
+            window=win if win is not None else c.window,
+        )
+    return out
+
+
+def apply_corrections(track: Track, corr: Corrections) -> Track:
+    """The track as the corrections say it was measured (a new :class:`Track`).
+
+    * IMU: axes mapped by :func:`axes_matrix`, stamps minus ``imu_time_offset``;
+    * DVL: re-sampled at the GT epochs from its stamps minus ``dvl_time_offset`` (linear
+      interpolation between the 1 Hz samples);
+    * epochs: those inside ``window`` and covered by the shifted IMU and DVL.
+
+    Raises NespmError naming the track when fewer than 4 epochs remain.
+    """
+    if corr == Corrections():
+        return track
+    t = np.asarray(track.t, dtype=float)
+    keep = np.ones(len(t), dtype=bool)
+    if corr.window is not None:
+        keep &= (t >= corr.window[0] - 1e-9) & (t <= corr.window[1] + 1e-9)
+    dvl = np.asarray(track.dvl, dtype=float)
+    if corr.dvl_time_offset:
+        stamps = t - corr.dvl_time_offset  # GT time of each DVL sample
+        keep &= (t >= stamps[0] - 1e-9) & (t <= stamps[-1] + 1e-9)
+        dvl = np.stack([np.interp(t, stamps, dvl[:, i]) for i in range(3)], axis=-1)
+    imu = None if track.imu is None else np.array(track.imu, dtype=float)
+    if imu is not None:
+        A = axes_matrix(corr.imu_axes)
+        imu[:, 1:4] = imu[:, 1:4] @ A.T
+        imu[:, 4:7] = imu[:, 4:7] @ A.T
+        imu[:, 0] -= corr.imu_time_offset
+        keep &= (t >= imu[0, 0] - 1e-9) & (t <= imu[-1, 0] + 1e-9)
+    idx = np.flatnonzero(keep)
+    if len(idx) < 4 or np.any(np.diff(idx) != 1):
+        what = f"window {corr.window}" if corr.window is not None else "the time offsets"
+        raise NespmError(f"track {track.number}: after {what} only {len(idx)} GT epochs remain (need at least 4)")
+    s = slice(int(idx[0]), int(idx[-1]) + 1)
+    return dataclasses.replace(track, t=t[s], pos=track.pos[s], v_n=track.v_n[s], euler=track.euler[s],
+                               dvl=dvl[s], imu=imu)
