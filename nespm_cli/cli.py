@@ -106,6 +106,7 @@ _COMMON = [  # the options that define an experiment: the realizations, the data
     ("imu", str, default(Spec, "imu"), "--imu", "synthetic (inverse strapdown of GT: exact truth) or recorded (IMU_trajectoryN.csv)."),
     ("imu_axes", str, default(Spec, "imu_axes"), "--imu-axes", "Recorded IMU axis mapping: corrected body axis i is the i-th signed recorded axis, e.g. x,-y,z (nespm check finds it)."),
     ("imu_time_offset", float, default(Spec, "imu_time_offset"), "--imu-time-offset", "Recorded IMU stamp minus GT time [s]; subtracted from the IMU stamps (nespm check measures it)."),
+    ("imu_time_drift", float, default(Spec, "imu_time_drift"), "--imu-time-drift", "Recorded IMU clock drift [s/s]: stamp - GT time = offset + drift * GT time (nespm check measures it)."),
     ("dvl_time_offset", float, default(Spec, "dvl_time_offset"), "--dvl-time-offset", "DVL stamp minus GT time [s]; the DVL is re-sampled at the GT epochs from its shifted stamps."),
     ("window", Optional[str], default(Spec, "window"), "--window", "START:END [s, GT file time]: use only these GT epochs of every track (e.g. 20:400)."),
     ("corrections", Optional[str], default(Spec, "corrections"), "--corrections", "Per-track corrections (imu_axes, offsets, window) from the corrections.json that 'nespm check' writes; an option given explicitly overrides it for every track."),

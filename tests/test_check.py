@@ -85,6 +85,26 @@ def test_planted_defects_are_found(planted):
     assert any("200-220 s" in f for f in planted["findings"])
 
 
+PLANTED_DRIFT = -2500e-6  # [s/s] as the real IMU files against the GT
+
+
+def test_planted_clock_drift_is_found(exact_track):
+    """Stamps = (1 + d) t + o: the local offsets' line finds d and o; the correction undoes them."""
+    imu = np.array(exact_track.imu)
+    imu[:, 0] = imu[:, 0] * (1.0 + PLANTED_DRIFT) + 0.4
+    r = check_track(dataclasses.replace(exact_track, imu=imu))
+    o = r["imu"]["time_offset"]
+    assert o["drift"]["significant"]
+    assert o["drift"]["drift"] == pytest.approx(PLANTED_DRIFT, abs=1e-4)  # 4 % of the drift: 0.04 s over 400 s
+    assert abs(o["drift"]["drift"] - PLANTED_DRIFT) < 4 * o["drift"]["drift_std"] + 1e-6
+    assert o["offset_s"] == pytest.approx(0.4, abs=OFFSET_TOL)
+    assert not any(w["inconsistent"] for w in r["imu"]["windows"])
+    c = r["corrections"]
+    fixed = apply_corrections(dataclasses.replace(exact_track, imu=imu), Corrections(
+        imu_time_offset=c["imu_time_offset"], imu_time_drift=c["imu_time_drift"]))
+    assert np.abs(fixed.imu[:, 0] - exact_track.imu[:, 0]).max() < 0.03  # [s] back on the GT clock
+
+
 def test_corrections_undo_the_planted_flip_and_offset(exact_track):
     imu = np.array(exact_track.imu)
     bad = imu.copy()
@@ -189,4 +209,8 @@ def test_real_recorded_imu_is_found_flipped(real_data_dir):
         pytest.skip(f"{imu_dir} does not exist")
     r = check_track(load_track(5, imu_dir))
     assert r["imu"]["axis_mapping"]["axes"] == "x,-y,z"
-    assert abs(r["imu"]["time_offset"]["offset_s"]) < 0.1
+    # the IMU clock runs 1/399 slow against the GT's 400/399 s epoch step (measured -2389 +- 69 ppm)
+    d = r["imu"]["time_offset"]["drift"]
+    assert d["significant"] and abs(d["drift"] + 1 / 399) < 4e-4
+    assert 0.3 < r["imu"]["time_offset"]["offset_s"] < 0.6
+    assert r["corrections"]["imu_time_drift"] == pytest.approx(d["drift"], abs=1e-6)

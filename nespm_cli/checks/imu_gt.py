@@ -90,9 +90,11 @@ def compare_grid(track) -> dict:
                                   imu[:, 4:7], axis=0)}
 
 
-def resample(g: dict, offset: float = 0.0, A: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Recorded (f, w) (K, 3) at the compare times, stamps corrected by ``offset``, axes by ``A``."""
-    t = g["t"] + offset
+def resample(g: dict, offset: float = 0.0, A: np.ndarray | None = None,
+             drift: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """Recorded (f, w) (K, 3) at the compare times ``t``: the samples stamped ``t + offset + drift t``
+    (data/corrections.py), axes mapped by ``A``."""
+    t = g["t"] + offset + drift * g["t"]
     f = np.stack([np.interp(t, g["rec_t"], g["rec_f"][:, i]) for i in range(3)], axis=-1)
     w = np.stack([np.interp(t, g["rec_t"], g["rec_w"][:, i]) for i in range(3)], axis=-1)
     if A is not None:
@@ -125,22 +127,106 @@ def axis_mapping(g: dict, offset: float = 0.0) -> dict:
 
 
 def search(g: dict) -> tuple[dict, dict]:
-    """Axis mapping and time offset together: the mapping at zero offset, the offset for that
-    mapping, then both again at that offset (a 1 s offset can hide the mapping). Returns
-    ``(axis_mapping, time_offset)`` dicts."""
+    """Axis mapping, time offset and clock drift together: the mapping at zero offset, the
+    offset for that mapping, the mapping again at that offset (a 1 s offset can hide the
+    mapping), the local offsets along the track (:func:`local_offsets`), their straight line
+    (:func:`clock_drift`) and, when the drift is significant, the offset again with it applied.
+    Returns ``(axis_mapping, time_offset)``; ``time_offset`` holds ``drift`` (the line fit) and
+    ``local`` (the windows) besides the :func:`time_offset` keys."""
     mapping = axis_mapping(g)
     offset = time_offset(g, np.asarray(mapping["matrix"]))
     mapping = axis_mapping(g, offset["offset_s"])
-    return mapping, time_offset(g, np.asarray(mapping["matrix"]))
+    A = np.asarray(mapping["matrix"])
+    local = local_offsets(g, A)
+    drift = clock_drift(local)
+    if drift["significant"]:
+        offset = time_offset(g, A, drift=drift["drift"])
+    else:
+        offset = time_offset(g, A)
+    return mapping, {**offset, "drift": drift, "local": local}
 
 
-def residual(g: dict, offset: float, A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Recorded minus implied (f, w) residuals (K, 3) after ``offset`` and ``A``."""
-    f, w = resample(g, offset, A)
+def residual(g: dict, offset: float, A: np.ndarray, drift: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """Recorded minus implied (f, w) residuals (K, 3) after ``offset``, ``drift`` and ``A``."""
+    f, w = resample(g, offset, A, drift)
     return f - g["imp_f"], w - g["imp_w"]
 
 
-def time_offset(g: dict, A: np.ndarray, offsets: np.ndarray = OFFSETS) -> dict:
+def parabola_minimum(offsets: np.ndarray, cost: np.ndarray, n_eff: float) -> tuple[float, float, bool]:
+    """Minimum of a cost curve on a grid: ``(offset, 1-sigma, at_edge)``.
+
+    A parabola through the 11 grid points around the grid minimum gives the sub-grid minimum
+    and the curvature ``c''``; 1-sigma ``sqrt(2 c0 / (n_eff c''))``.
+    """
+    k = int(np.argmin(cost))
+    lo, hi = max(k - 5, 0), min(k + 6, len(offsets))
+    c2, c1, _ = np.polyfit(offsets[lo:hi] - offsets[k], cost[lo:hi], 2)
+    curv = 2.0 * c2
+    std = float(np.sqrt(2.0 * cost[k] / (n_eff * curv))) if curv > 0 else float("inf")
+    best = float(offsets[k] - c1 / curv) if curv > 0 and abs(c1 / curv) < 0.01 else float(offsets[k])
+    return best, std, bool(k in (0, len(offsets) - 1))
+
+
+LOCAL_S = 40.0  # [s] window of a local time offset
+LOCAL_STEP_S = 20.0  # [s] step between local windows
+LOCAL_OFFSETS = np.round(np.arange(-2.0, 2.0 + 1e-9, 0.01), 2)  # [s] local search grid
+DRIFT_SIGMAS = 3.0  # a clock drift is corrected when beyond this many sigma...
+DRIFT_MIN_S = 0.05  # ...and when it moves the offset by at least this much over the track [s]
+
+
+def local_offsets(g: dict, A: np.ndarray, offsets: np.ndarray = LOCAL_OFFSETS) -> list[dict]:
+    """The gyro time offset in windows of :data:`LOCAL_S` every :data:`LOCAL_STEP_S` (inner samples).
+
+    One interpolation per candidate offset for the whole track; the per-window costs come
+    from window sums (mean removed per window). Each: ``t`` (window centre), ``offset_s``,
+    ``std_s`` (as :func:`parabola_minimum`, ``n_eff = 2 B LOCAL_S``), ``at_edge``.
+    """
+    m = g["inner"]
+    t = g["t"]
+    starts = np.arange(t[m][0], t[m][-1] - LOCAL_S + 1e-9, LOCAL_STEP_S)
+    if len(starts) == 0:
+        return []
+    sel = [m & (t >= s0) & (t < s0 + LOCAL_S) for s0 in starts]
+    norm = np.array([g["imp_w"][k].var(axis=0).sum() * k.sum() for k in sel])
+    cost = np.empty((len(offsets), len(starts)))
+    for i, o in enumerate(offsets):
+        _, rw = residual(g, float(o), A)
+        for j, k in enumerate(sel):  # a few dozen windows
+            r = rw[k]
+            cost[i, j] = ((r - r.mean(axis=0)) ** 2).sum() / max(norm[j], 1e-300)
+    out = []
+    for j, s0 in enumerate(starts):
+        best, std, edge = parabola_minimum(offsets, cost[:, j], 2.0 * CUTOFF_HZ * LOCAL_S)
+        out.append({"t": float(s0 + LOCAL_S / 2), "offset_s": best, "std_s": std, "at_edge": edge})
+    return out
+
+
+def clock_drift(local: list[dict]) -> dict:
+    """Straight line ``offset(t) = a + drift t`` through the local offsets (weighted by 1/sigma^2,
+    windows at the search edge left out), with 1-sigma of both scaled by the fit's reduced
+    chi-square (when above 1). ``significant``: beyond :data:`DRIFT_SIGMAS` sigma and moving the
+    offset by at least :data:`DRIFT_MIN_S` over the track."""
+    rows = [r for r in local if not r["at_edge"] and np.isfinite(r["std_s"]) and r["std_s"] > 0]
+    if len(rows) < 3:
+        return {"drift": 0.0, "drift_std": None, "intercept_s": None, "chi2_red": None, "significant": False,
+                "windows_used": len(rows)}
+    t = np.array([r["t"] for r in rows])
+    y = np.array([r["offset_s"] for r in rows])
+    w = 1.0 / np.array([r["std_s"] for r in rows]) ** 2
+    X = np.stack([np.ones_like(t), t], axis=-1)
+    cov = np.linalg.inv(X.T @ (w[:, None] * X))
+    a, b = cov @ X.T @ (w * y)
+    chi2 = float((w * (y - a - b * t) ** 2).sum() / max(len(rows) - 2, 1))
+    cov = cov * max(chi2, 1.0)
+    sb = float(np.sqrt(cov[1, 1]))
+    span = float(t[-1] - t[0] + LOCAL_S)
+    sig = abs(b) > DRIFT_SIGMAS * sb and abs(b) * span >= DRIFT_MIN_S
+    return {"drift": float(b) if sig else 0.0, "drift_fit": float(b), "drift_std": sb, "intercept_s": float(a),
+            "intercept_std_s": float(np.sqrt(cov[0, 0])), "chi2_red": chi2, "significant": bool(sig),
+            "windows_used": len(rows)}
+
+
+def time_offset(g: dict, A: np.ndarray, offsets: np.ndarray = OFFSETS, drift: float = 0.0) -> dict:
     """IMU stamp minus GT time [s]: the offset minimising the mean-removed residual.
 
     The cost is the gyro residual variance normalised by the implied rate's variance (the
@@ -148,6 +234,7 @@ def time_offset(g: dict, A: np.ndarray, offsets: np.ndarray = OFFSETS) -> dict:
     through gravity). 1-sigma: ``sqrt(2 c0 / (n_eff c''))`` with ``c''`` the curvature of a
     parabola through the 11 grid points around the minimum and ``n_eff = 2 B T`` the
     effective sample count of a residual band-limited to B = :data:`CUTOFF_HZ` over T s.
+    ``drift`` [s/s]: a clock drift applied first (the offset is then the one at GT time 0).
     Returns ``offset_s``, ``std_s``, ``curve`` (``{"offset_s": [...], "cost": [...]}``) and
     ``at_edge`` (the minimum is at the end of the grid: the offset is outside the search).
     """
@@ -155,19 +242,12 @@ def time_offset(g: dict, A: np.ndarray, offsets: np.ndarray = OFFSETS) -> dict:
     var_w = g["imp_w"][m].var(axis=0).sum()
     cost = np.empty(len(offsets))
     for i, o in enumerate(offsets):  # one interpolation per candidate offset (801), vectorized over samples
-        _, rw = residual(g, float(o), A)
+        _, rw = residual(g, float(o), A, drift)
         cost[i] = rw[m].var(axis=0).sum() / var_w
-    k = int(np.argmin(cost))
-    lo, hi = max(k - 5, 0), min(k + 6, len(offsets))
-    c2, c1, _ = np.polyfit(offsets[lo:hi] - offsets[k], cost[lo:hi], 2)
     T = float(g["t"][m][-1] - g["t"][m][0])
-    n_eff = max(2.0 * CUTOFF_HZ * T, 1.0)
-    curv = 2.0 * c2
-    std = float(np.sqrt(2.0 * cost[k] / (n_eff * curv))) if curv > 0 else float("inf")
-    best = float(offsets[k] - c1 / curv) if curv > 0 and abs(c1 / curv) < 0.01 else float(offsets[k])
-    return {"offset_s": round(best, 3), "std_s": std, "cost": float(cost[k]),
-            "curve": {"offset_s": offsets.tolist(), "cost": cost.tolist()},
-            "at_edge": bool(k in (0, len(offsets) - 1))}
+    best, std, edge = parabola_minimum(offsets, cost, max(2.0 * CUTOFF_HZ * T, 1.0))
+    return {"offset_s": round(best, 3), "std_s": std, "cost": float(np.min(cost)),
+            "curve": {"offset_s": offsets.tolist(), "cost": cost.tolist()}, "at_edge": edge}
 
 
 def axis_stats(g: dict, rf: np.ndarray, rw: np.ndarray) -> dict:

@@ -14,6 +14,8 @@ Rules (each written once here; docs/checking-data.md explains them):
 
 * axis mapping: corrected when the best signed permutation is not the identity and its cost
   is below :data:`AXES_RATIO` times the identity's;
+* an IMU clock drift: corrected when the local offsets' line (:func:`imu_gt.clock_drift`) has a
+  slope beyond ``DRIFT_SIGMAS`` sigma that moves the offset by ``DRIFT_MIN_S`` over the track;
 * a time offset (IMU or DVL): corrected when ``|offset| >= OFFSET_MIN_S`` and beyond
   ``OFFSET_SIGMAS`` of its 1-sigma; an offset at the edge of the search is a finding;
 * windows: inconsistent or unresolved windows (:func:`imu_gt.windows`) that touch the first or
@@ -46,17 +48,21 @@ def imu_part(track: Track) -> dict:
     g = imu_gt.compare_grid(track)
     mapping, offset = imu_gt.search(g)
     A = np.asarray(mapping["matrix"])
-    rf, rw = imu_gt.residual(g, offset["offset_s"], A)
+    drift = offset["drift"]["drift"]
+    rf, rw = imu_gt.residual(g, offset["offset_s"], A, drift)
     stats = imu_gt.axis_stats(g, rf, rw)
     wins = imu_gt.windows(g, *imu_gt.remove_bias_scale(g, rf, rw, stats))
     axes = mapping["axes"] if mapping["cost"] < AXES_RATIO * mapping["identity_cost"] else IDENTITY_AXES
-    off = round(offset["offset_s"], 2) if significant(offset["offset_s"], offset["std_s"]) else 0.0
-    drift = imu_gt.attitude_drift(apply_corrections(track, Corrections(imu_axes=axes, imu_time_offset=off)))
+    off = round(offset["offset_s"], 2) if (drift or significant(offset["offset_s"], offset["std_s"])) else 0.0
+    drift = round(drift, 6)
+    att = imu_gt.attitude_drift(apply_corrections(track, Corrections(imu_axes=axes, imu_time_offset=off,
+                                                                     imu_time_drift=drift)))
     series = {"t": g["t"][::10].tolist(), "implied_w": g["imp_w"][::10].tolist(),
               "recorded_w": (g["imp_w"] + rw)[::10].tolist(), "resid_w": rw[::10].tolist(),
               "implied_f": g["imp_f"][::10].tolist(), "recorded_f": (g["imp_f"] + rf)[::10].tolist()}
     return {"axis_mapping": mapping, "time_offset": offset, "stats": stats, "windows": wins,
-            "attitude_drift": drift, "series": series, "applied": {"imu_axes": axes, "imu_time_offset": off}}
+            "attitude_drift": att, "series": series,
+            "applied": {"imu_axes": axes, "imu_time_offset": off, "imu_time_drift": drift}}
 
 
 def trim_window(track: Track, wins: list[dict]) -> tuple[tuple | None, list[dict]]:
@@ -98,7 +104,12 @@ def check_track(track: Track) -> dict:
         if o["at_edge"]:
             findings.append(f"IMU time offset at the edge of the +-{imu_gt.OFFSETS[-1]:g} s search: not determined")
         elif corr.imu_time_offset:
-            findings.append(f"IMU time offset {o['offset_s']:+.2f} +- {o['std_s']:.2f} s")
+            findings.append(f"IMU time offset {o['offset_s']:+.2f} +- {o['std_s']:.3f} s")
+        if corr.imu_time_drift:
+            d = o["drift"]
+            findings.append(f"IMU clock drift {d['drift'] * 1e6:+.0f} +- {d['drift_std'] * 1e6:.0f} ppm: the IMU's "
+                            f"offset moves {d['drift'] * float(track.duration):+.2f} s over the track "
+                            f"({d['windows_used']} local offsets, reduced chi-square {d['chi2_red']:.1f})")
         window, left = trim_window(track, imu["windows"])
         if window is not None:
             corr = dataclasses.replace(corr, window=window)

@@ -9,6 +9,9 @@ writes). Conventions (docs/conventions.md, "Recorded data"):
   position i, i.e. ``f_b = A f_recorded`` with ``A`` a signed permutation (:func:`axes_matrix`).
 * a time offset is *stamp minus GT time* [s]: the sample stamped ``s`` was measured at GT time
   ``s - offset``; the correction subtracts it from the stamps.
+* an IMU clock drift ``d`` [s/s] lets that offset grow with time: ``stamp - t_GT = offset + d t_GT``,
+  so the correction is ``t_GT = (stamp - offset) / (1 + d)``. (The 2024-01 Snapir IMU files against
+  the 2024-06 GT: ``d`` about -1/400, the GT's 400/399 s epoch step against 1 s.)
 * ``window = (start, end)`` in the GT file's time [s]: only the GT epochs inside it are used.
   After the offsets, epochs at the ends that the shifted IMU or DVL does not cover are dropped
   too (at most ``ceil(|offset| / GT step)`` at each end).
@@ -35,7 +38,8 @@ class Corrections:
     """The corrections of one track (defaults: none)."""
 
     imu_axes: str = IDENTITY_AXES
-    imu_time_offset: float = 0.0  # [s] IMU stamp minus GT time
+    imu_time_offset: float = 0.0  # [s] IMU stamp minus GT time (at GT time 0)
+    imu_time_drift: float = 0.0  # [s/s] growth of that offset per second of GT time
     dvl_time_offset: float = 0.0  # [s] DVL stamp minus GT time
     window: tuple | None = None  # (start, end) [s] in the GT file's time, or None: the whole track
 
@@ -51,6 +55,8 @@ class Corrections:
             out.append(f"--imu-axes {self.imu_axes}")
         if self.imu_time_offset:
             out.append(f"--imu-time-offset {self.imu_time_offset:g}")
+        if self.imu_time_drift:
+            out.append(f"--imu-time-drift {self.imu_time_drift:g}")
         if self.dvl_time_offset:
             out.append(f"--dvl-time-offset {self.dvl_time_offset:g}")
         if self.window is not None:
@@ -109,6 +115,16 @@ def check_offset(flag: str, value: float) -> float:
     return value
 
 
+MAX_TIME_DRIFT = 0.01  # [s/s] a clock 1 % off is refused as an option mistake
+
+
+def check_drift(flag: str, value: float) -> float:
+    value = float(value)
+    if not (math.isfinite(value) and abs(value) <= MAX_TIME_DRIFT):
+        raise NespmError(f"{flag} {value:g}: must be a finite clock drift [s/s] within +-{MAX_TIME_DRIFT:g}")
+    return value
+
+
 def read_corrections(path: str | Path) -> dict[int, Corrections]:
     """Per-track corrections from a ``corrections.json`` written by ``nespm check``.
 
@@ -138,6 +154,7 @@ def read_corrections(path: str | Path) -> dict[int, Corrections]:
             c = Corrections(
                 imu_axes=str(val.get("imu_axes", IDENTITY_AXES)),
                 imu_time_offset=check_offset("imu_time_offset", val.get("imu_time_offset", 0.0)),
+                imu_time_drift=check_drift("imu_time_drift", val.get("imu_time_drift", 0.0)),
                 dvl_time_offset=check_offset("dvl_time_offset", val.get("dvl_time_offset", 0.0)),
                 window=None if val.get("window") is None else parse_window(":".join(map(str, val["window"]))),
             )
@@ -162,7 +179,7 @@ def write_corrections(per_track: dict[int, Corrections]) -> str:
 
 def resolve(tracks, imu: str, corrections: str | None = None, imu_axes: str = IDENTITY_AXES,
             imu_time_offset: float = 0.0, dvl_time_offset: float = 0.0,
-            window: str | None = None) -> dict[int, Corrections]:
+            window: str | None = None, imu_time_drift: float = 0.0) -> dict[int, Corrections]:
     """The corrections of every track: the ``corrections`` file's values (:func:`read_corrections`),
     each overridden for every track by an option given with a non-default value.
 
@@ -172,12 +189,15 @@ def resolve(tracks, imu: str, corrections: str | None = None, imu_axes: str = ID
     per_track = read_corrections(corrections) if corrections else {}
     axes_matrix(imu_axes)
     imu_off = check_offset("--imu-time-offset", imu_time_offset)
+    imu_drift = check_drift("--imu-time-drift", imu_time_drift)
     dvl_off = check_offset("--dvl-time-offset", dvl_time_offset)
     win = parse_window(window)
-    if imu != "recorded" and (imu_off or imu_axes != IDENTITY_AXES):
-        raise NespmError("--imu-axes and --imu-time-offset correct a recorded IMU: use them with --imu recorded")
+    if imu != "recorded" and (imu_off or imu_drift or imu_axes != IDENTITY_AXES):
+        raise NespmError("--imu-axes, --imu-time-offset and --imu-time-drift correct a recorded IMU: "
+                         "use them with --imu recorded")
     if imu != "recorded":  # a file's IMU corrections do not apply to a synthesized IMU
-        per_track = {n: dataclasses.replace(c, imu_axes=IDENTITY_AXES, imu_time_offset=0.0) for n, c in per_track.items()}
+        per_track = {n: dataclasses.replace(c, imu_axes=IDENTITY_AXES, imu_time_offset=0.0, imu_time_drift=0.0)
+                     for n, c in per_track.items()}
     out = {}
     for n in tracks:
         c = per_track.get(int(n), Corrections())
@@ -185,6 +205,7 @@ def resolve(tracks, imu: str, corrections: str | None = None, imu_axes: str = ID
             c,
             imu_axes=imu_axes if imu_axes != IDENTITY_AXES else c.imu_axes,
             imu_time_offset=imu_off if imu_off else c.imu_time_offset,
+            imu_time_drift=imu_drift if imu_drift else c.imu_time_drift,
             dvl_time_offset=dvl_off if dvl_off else c.dvl_time_offset,
             window=win if win is not None else c.window,
         )
@@ -194,7 +215,8 @@ def resolve(tracks, imu: str, corrections: str | None = None, imu_axes: str = ID
 def apply_corrections(track: Track, corr: Corrections) -> Track:
     """The track as the corrections say it was measured (a new :class:`Track`).
 
-    * IMU: axes mapped by :func:`axes_matrix`, stamps minus ``imu_time_offset``;
+    * IMU: axes mapped by :func:`axes_matrix`, stamps to GT time
+      ``(stamp - imu_time_offset) / (1 + imu_time_drift)``;
     * DVL: re-sampled at the GT epochs from its stamps minus ``dvl_time_offset`` (linear
       interpolation between the 1 Hz samples);
     * epochs: those inside ``window`` and covered by the shifted IMU and DVL.
@@ -217,7 +239,7 @@ def apply_corrections(track: Track, corr: Corrections) -> Track:
         A = axes_matrix(corr.imu_axes)
         imu[:, 1:4] = imu[:, 1:4] @ A.T
         imu[:, 4:7] = imu[:, 4:7] @ A.T
-        imu[:, 0] -= corr.imu_time_offset
+        imu[:, 0] = (imu[:, 0] - corr.imu_time_offset) / (1.0 + corr.imu_time_drift)
         keep &= (t >= imu[0, 0] - 1e-9) & (t <= imu[-1, 0] + 1e-9)
     idx = np.flatnonzero(keep)
     if len(idx) < 4 or np.any(np.diff(idx) != 1):

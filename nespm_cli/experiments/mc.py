@@ -56,6 +56,7 @@ class Spec:
     outage_length: float = 20.0
     imu_axes: str = IDENTITY_AXES  # recorded IMU axis mapping (data/corrections.py)
     imu_time_offset: float = 0.0  # [s] recorded IMU stamp minus GT time
+    imu_time_drift: float = 0.0  # [s/s] growth of that offset with GT time (a clock-rate error)
     dvl_time_offset: float = 0.0  # [s] DVL stamp minus GT time
     window: str | None = None  # "START:END" [s] of the GT file time to use
     corrections: str | None = None  # corrections.json (nespm check): per-track values of the four above
@@ -156,7 +157,7 @@ def needs_noise_std(name: str) -> bool:
 def resolve_corrections(spec: Spec) -> tuple:
     """``((track, Corrections), ...)`` for every track of ``spec`` (:func:`corrections.resolve`)."""
     per = resolve(spec.tracks, spec.imu, spec.corrections, spec.imu_axes, spec.imu_time_offset,
-                  spec.dvl_time_offset, spec.window)
+                  spec.dvl_time_offset, spec.window, spec.imu_time_drift)
     return tuple(per.items())
 
 
