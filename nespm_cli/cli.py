@@ -327,11 +327,12 @@ def report(
     baseline: Optional[str] = typer.Option(None, "--baseline", help="Filter whose improvement over each other row is shown (the papers' 'Imprv.' column)."),
     n_boot: int = typer.Option(2000, "--n-boot", help="Paired bootstrap resamples for the 95 % intervals."),
     practical: float = typer.Option(PRACTICAL_PCT, "--practical", help="Smallest improvement [%] the summary calls practically meaningful (a difference must also be statistically significant)."),
+    beside: Optional[List[Path]] = typer.Option(None, "--beside", help="Another mc folder whose numbers are set beside this one's (e.g. the synthetic-IMU run of a recorded-IMU one); repeatable."),
 ) -> None:
     """Write DIR/report.md (Tables I/II layout, paired 95 % intervals, published values) and figures."""
     from nespm_cli.reports.dispatch import write_report
 
-    path = write_report(out_dir, baseline, n_boot=n_boot, practical_pct=practical)
+    path = write_report(out_dir, baseline, n_boot=n_boot, practical_pct=practical, beside=tuple(beside or ()))
     typer.echo(path.read_text())
     typer.echo(f"wrote {path}")
 
@@ -361,6 +362,12 @@ def train(
     seed: int = typer.Option(0, "--seed", help="Seed of the realizations, the split and the initial weights."),
     data_dir: Optional[str] = DATA_DIR,
     no_progress: bool = typer.Option(False, "--no-progress", help="No progress bar."),
+    imu: str = typer.Option("synthetic", "--imu", help="Clean IMU the noise is added to: synthetic (from the GT) or recorded (the tracks' IMU files, as the paper)."),
+    imu_axes: str = typer.Option(default(Spec, "imu_axes"), "--imu-axes", help="Recorded IMU axis mapping (as mc)."),
+    imu_time_offset: float = typer.Option(default(Spec, "imu_time_offset"), "--imu-time-offset", help="Recorded IMU stamp minus GT time [s] (as mc)."),
+    imu_time_drift: float = typer.Option(default(Spec, "imu_time_drift"), "--imu-time-drift", help="Recorded IMU clock drift [s/s] (as mc)."),
+    window: Optional[str] = typer.Option(None, "--window", help="START:END [s] of every track to use (as mc)."),
+    corrections: Optional[str] = typer.Option(None, "--corrections", help="Per-track corrections.json from 'nespm check' (as mc)."),
 ) -> None:
     """Train the accelerometer and gyro ProcessNets (anukf.md eqs 34-42) on dynamic-schedule windows."""
     from nespm_cli.learn.training import train_processnet
@@ -378,6 +385,11 @@ def train(
         if n not in have:
             raise NespmError(f"--tracks: no track {n} in {d if d else 'the embedded default'}; available: "
                              f"{', '.join(map(str, have))}")
+    from nespm_cli.data.corrections import resolve
+
+    if imu not in ("synthetic", "recorded"):
+        raise NespmError(f"--imu: choose synthetic or recorded, got {imu!r}")
+    corr = resolve(train_t + test_t, imu, corrections, imu_axes, imu_time_offset, 0.0, window, imu_time_drift)
     bar = None
     if not no_progress:
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
@@ -387,7 +399,8 @@ def train(
         bar.start()
     progress = _epoch_bar(bar, epochs) if bar is not None else None
     try:
-        s = train_processnet(train_t, test_t, data_dir, out, runs=runs, epochs=epochs, seed=seed, progress=progress)
+        s = train_processnet(train_t, test_t, data_dir, out, runs=runs, epochs=epochs, seed=seed, progress=progress,
+                             imu=imu, corrections=corr)
     finally:
         if bar is not None:
             bar.stop()

@@ -214,3 +214,62 @@ def test_real_recorded_imu_is_found_flipped(real_data_dir):
     assert d["significant"] and abs(d["drift"] + 1 / 399) < 4e-4
     assert 0.3 < r["imu"]["time_offset"]["offset_s"] < 0.6
     assert r["corrections"]["imu_time_drift"] == pytest.approx(d["drift"], abs=1e-6)
+
+
+@pytest.mark.parametrize("text,msg", [
+    ("{", "not valid JSON"),
+    ('{"x": 1}', "'tracks' object"),
+    ('{"tracks": {"5": {"imu_axes": "x,y,y"}}}', "signed permutation"),
+    ('{"tracks": {"5": {"lever": 1}}}', "unknown key 'lever'"),
+    ('{"tracks": {"5": {"imu_time_offset": "soon"}}}', "track 5"),
+    ('{"tracks": {"5": {"imu_time_drift": 0.5}}}', "clock drift"),
+    ('{"tracks": {"5": {"window": [30, 10]}}}', "START < END"),
+])
+def test_bad_corrections_file_is_one_line(tmp_path, text, msg):
+    p = tmp_path / "corrections.json"
+    p.write_text(text)
+    rc, out, err = nespm("mc", "--tracks", "5", "--runs", "1", "--imu", "recorded", "--corrections", str(p),
+                         "--out", str(tmp_path / "r"))
+    assert_one_error_line(rc, out, err, str(p), msg)
+    assert not (tmp_path / "r" / "metrics.parquet").exists()
+
+
+@pytest.mark.parametrize("opt,val,msg", [("--imu-time-offset", "11", "within +-10"),
+                                         ("--imu-time-drift", "0.2", "within +-0.01"),
+                                         ("--dvl-time-offset", "nan", "finite"),
+                                         ("--window", "400:20", "START < END"),
+                                         ("--window", "a:b", "START:END")])
+def test_bad_correction_option_is_one_line(tmp_path, opt, val, msg):
+    extra = ["--imu", "recorded"] if opt.startswith("--imu") else []
+    rc, out, err = nespm("mc", "--tracks", "5", "--runs", "1", opt, val, *extra, "--out", str(tmp_path / "r"))
+    assert_one_error_line(rc, out, err, opt, msg)
+
+
+def test_window_cuts_the_epochs(short_data_dir, tmp_path):
+    """--window keeps the epochs inside it: a 20-60 s window of an 80-epoch track runs 40 epochs."""
+    rc, _, err = nespm("mc", "--data-dir", str(short_data_dir), "--tracks", "5", "--runs", "1", "--filters", "ekf",
+                       "--window", "20:60", "--out", str(tmp_path / "w"), "--no-progress", "--jobs", "1")
+    assert rc == 0, err
+    import pandas as pd
+
+    ep = pd.read_parquet(tmp_path / "w" / "epochs.parquet")
+    t = load_track(5, short_data_dir).t
+    assert len(ep) == int(((t >= 20 - 1e-9) & (t <= 60 + 1e-9)).sum())
+    assert ep["t"].min() == 0.0
+
+
+def test_report_sets_folders_beside(short_data_dir, tmp_path):
+    for name, extra in (("a", []), ("b", ["--dvl", "synthetic"])):
+        rc, _, err = nespm("mc", "--data-dir", str(short_data_dir), "--tracks", "5", "--runs", "2", "--filters", "ekf",
+                           "--out", str(tmp_path / name), "--no-progress", "--jobs", "1", *extra)
+        assert rc == 0, err
+    rc, out, err = nespm("report", str(tmp_path / "a"), "--beside", str(tmp_path / "b"))
+    assert rc == 0, err
+    text = (tmp_path / "a" / "report.md").read_text()
+    assert "## Beside other results folders" in text
+    assert "b (imu synthetic, dvl synthetic)" in text and "a (imu synthetic, dvl recorded)" in text
+    import pandas as pd
+
+    vb = pd.read_parquet(tmp_path / "b" / "metrics.parquet")["vrmse"]
+    row = next(line for line in text.splitlines() if line.startswith("| ekf |") and "dvl" not in line)
+    assert f"{float(((vb ** 2).mean()) ** 0.5):.4g}" in row  # eq 51 over one track and two runs

@@ -57,8 +57,9 @@ from scipy.stats import spearmanr
 from nespm_cli.data.corruption import CorruptionConfig, draw, imu_errors, segment_index
 from nespm_cli.errors import NespmError
 from nespm_cli.learn.processnet import VALIDITY_CLIP, Adam, Normalizer, ProcessNet, load_nets, mse_loss, save_nets
-from nespm_cli.nav.synthesis import synthesize
+from nespm_cli.data.corrections import apply_corrections
 from nespm_cli.data.tracks import load_track
+from nespm_cli.nav.synthesis import from_recorded, synthesize
 
 SENSORS = ("acc", "gyro")
 DEFAULT_RUNS = 24
@@ -70,8 +71,19 @@ DEFAULT_CLIP = VALIDITY_CLIP
 
 
 # ----------------------------------------------------------------------------- data
+def clean_imu(number: int, data_dir=None, imu: str = "synthetic", corrections: dict | None = None):
+    """The clean IMU of a track (:class:`~nespm_cli.nav.synthesis.ImuTruth`): synthesized from the GT,
+    or the recorded one with the track's corrections (``corrections``: ``{track: Corrections}``)."""
+    track = load_track(int(number), data_dir)
+    c = (corrections or {}).get(int(number))
+    if c is not None:
+        track = apply_corrections(track, c)
+    return synthesize(track) if imu == "synthetic" else from_recorded(track)
+
+
 def make_windows(track_numbers, data_dir=None, runs: int = DEFAULT_RUNS, seed: int = 0, schedule: str = "dynamic",
-                 window: int = 100, stride: int = 100, config: CorruptionConfig | None = None) -> dict:
+                 window: int = 100, stride: int = 100, config: CorruptionConfig | None = None,
+                 imu: str = "synthetic", corrections: dict | None = None) -> dict:
     """Windows of corrupted IMU readings and their injected noise levels.
 
     For every track, ``runs`` realizations are drawn exactly as the Monte Carlo runner
@@ -79,7 +91,10 @@ def make_windows(track_numbers, data_dir=None, runs: int = DEFAULT_RUNS, seed: i
     ``corruption.imu_errors``), added to the clean synthesized IMU and cut into windows of
     ``window`` samples every ``stride`` samples, starting at the first IMU step. With the
     defaults (100, 100) window k is exactly the IMU steps of GT/DVL interval k, the window
-    the filters hand to the network once per DVL update.
+    the filters hand to the network once per DVL update. With ``imu="recorded"`` (the
+    track's recorded IMU, ``corrections`` applied: :func:`clean_imu`) the windows are the
+    last ``window`` steps before every GT epoch, as the filters cut them
+    (:func:`nespm_cli.learn.noise_model.interval_windows`); ``stride`` does not apply.
 
     The regression target is the noise **std**, not the variance (the paper's "diagonal
     entries of Q"): the factors span 1-6 in std but 1-36 in variance, so std targets are
@@ -105,7 +120,7 @@ def make_windows(track_numbers, data_dir=None, runs: int = DEFAULT_RUNS, seed: i
     cfg = config if config is not None else CorruptionConfig(schedule=schedule)
     parts = {k: [] for k in ("X_acc", "X_gyro", "y_acc", "y_gyro", "track", "run", "t0")}
     for n in track_numbers:
-        truth = synthesize(load_track(int(n), data_dir))
+        truth = clean_imu(int(n), data_dir, imu, corrections)
         t_rel = truth.t - truth.t[0]
         M = truth.steps
         if M < window:
@@ -113,7 +128,12 @@ def make_windows(track_numbers, data_dir=None, runs: int = DEFAULT_RUNS, seed: i
         real = draw(seed, int(n), np.arange(runs), float(t_rel[-1]), cfg)
         e_f, e_w = imu_errors(real, truth.t)
         seg = segment_index(t_rel[1:], cfg.segment_s, real.acc_factors.shape[1])  # segment of every step
-        starts = np.arange(0, M - window + 1, stride)
+        if imu == "synthetic":
+            starts = np.arange(0, M - window + 1, stride)
+        else:
+            e = truth.epoch_index
+            starts = e[1:] - window
+            starts = starts[starts >= 0]
         idx = starts[:, None] + np.arange(window)  # (K, w)
         K = len(starts)
         for key, clean, err, base, fac in (("acc", truth.f_b, e_f, cfg.acc_noise, real.acc_factors),
@@ -229,7 +249,8 @@ def evaluate(net: ProcessNet, X: np.ndarray, y: np.ndarray) -> dict:
 def train_processnet(train_tracks=(1, 2, 3, 4), test_tracks=(5, 6), data_dir=None, out_path="processnet.npz",
                      runs: int = DEFAULT_RUNS, epochs: int = DEFAULT_EPOCHS, seed: int = 0,
                      progress: Callable[[dict], None] | None = None, test_runs: int = DEFAULT_TEST_RUNS,
-                     batch: int = 32, lr: float = 3e-3, val_frac: float = 0.15, patience: int = 4) -> dict:
+                     batch: int = 32, lr: float = 3e-3, val_frac: float = 0.15, patience: int = 4,
+                     imu: str = "synthetic", corrections: dict | None = None) -> dict:
     """Train the accelerometer and gyro ProcessNets and write them with their evaluation.
 
     Trains on ``runs`` dynamic-schedule realizations of ``train_tracks``, evaluates the
@@ -250,8 +271,8 @@ def train_processnet(train_tracks=(1, 2, 3, 4), test_tracks=(5, 6), data_dir=Non
     if overlap:
         raise NespmError(f"training and test tracks overlap: {sorted(overlap)}")
     t0 = time.perf_counter()
-    tr = make_windows(train_tracks, data_dir, runs, seed)
-    te = make_windows(test_tracks, data_dir, test_runs, seed)
+    tr = make_windows(train_tracks, data_dir, runs, seed, imu=imu, corrections=corrections)
+    te = make_windows(test_tracks, data_dir, test_runs, seed, imu=imu, corrections=corrections)
     t_data = time.perf_counter() - t0
     nets, hists, tests, secs = {}, {}, {}, {}
     for s in SENSORS:
@@ -269,6 +290,7 @@ def train_processnet(train_tracks=(1, 2, 3, 4), test_tracks=(5, 6), data_dir=Non
                    "data_dir": str(data_dir) if data_dir is not None else None, "runs": runs, "test_runs": test_runs,
                    "epochs": epochs, "batch": batch, "lr": lr, "val_frac": val_frac, "patience": patience,
                    "seed": seed, "schedule": "dynamic", "window": 100, "stride": 100, "corruption": tr["config"],
+                   "imu": imu, "corrections": {str(k): asdict(v) for k, v in (corrections or {}).items()},
                    "normalizer": {s: asdict(nets[s].normalizer) for s in SENSORS}},
         "history": {s: {k: v for k, v in h.items() if k != "val_index"} for s, h in hists.items()},
         "test": tests,

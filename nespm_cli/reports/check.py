@@ -121,16 +121,29 @@ def plot_track(r: dict, out: Path) -> list[str]:
         axes[3].legend(loc="upper right", fontsize=8, ncol=3)
         axes[0].set_title(f"track {n}: recorded vs GT-implied angular rate (low-passed {0.3:g} Hz); red: inconsistent, grey: unresolved windows")
         names.append(save_figure(fig, out / f"check-track{n}-rates.png").name)
-    fig, axes = plt.subplots(1, 2 if imu is not None else 1, figsize=(10 if imu is not None else 5, 3.5), squeeze=False)
+    fig, axes = plt.subplots(1, 3 if imu is not None else 1, figsize=(14 if imu is not None else 5, 3.5), squeeze=False)
     k = 0
     if imu is not None:
-        c = imu["time_offset"]["curve"]
+        o = imu["time_offset"]
+        c = o["curve"]
         axes[0, 0].plot(c["offset_s"], c["cost"])
-        axes[0, 0].axvline(imu["time_offset"]["offset_s"], color="k", ls=":")
-        axes[0, 0].set_xlabel("IMU time offset [s]")
+        axes[0, 0].axvline(o["offset_s"], color="k", ls=":")
+        axes[0, 0].set_xlabel("IMU time offset at t = 0 [s]" + (" (drift applied)" if o["drift"]["drift"] else ""))
         axes[0, 0].set_ylabel("normalised gyro residual")
         axes[0, 0].set_yscale("log")
-        k = 1
+        loc = [w for w in o["local"] if not w["at_edge"] and math.isfinite(w["std_s"])]
+        if loc:
+            axes[0, 1].errorbar([w["t"] for w in loc], [w["offset_s"] for w in loc],
+                                yerr=[w["std_s"] for w in loc], fmt="o", ms=3)
+            d = o["drift"]
+            if d.get("intercept_s") is not None:
+                tt = np.array([loc[0]["t"], loc[-1]["t"]])
+                axes[0, 1].plot(tt, d["intercept_s"] + d["drift_fit"] * tt, "k--",
+                                label=f"drift {d['drift_fit'] * 1e6:+.0f} ppm")
+                axes[0, 1].legend(fontsize=8)
+        axes[0, 1].set_xlabel("t [s]")
+        axes[0, 1].set_ylabel("local IMU offset (40 s windows) [s]")
+        k = 2
     c = r["dvl"]["offset_curve"]
     axes[0, k].plot(c["tau_s"], c["rms"])
     axes[0, k].axvline(r["dvl"]["time_offset_s"], color="k", ls=":")

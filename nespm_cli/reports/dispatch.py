@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from nespm_cli.errors import NespmError
 from nespm_cli.reports.gp_ukf import write_gp_report
 from nespm_cli.reports.mc import write_mc_report
 from nespm_cli.reports.stats import PRACTICAL_PCT, check_practical_pct
@@ -37,12 +38,13 @@ def experiment_of(out_dir: Path) -> str:
 
 
 def write_report(out_dir: Path, reference: str | None = None, n_boot: int = 2000,
-                 practical_pct: float = PRACTICAL_PCT) -> Path:
+                 practical_pct: float = PRACTICAL_PCT, beside=()) -> Path:
     """Write ``out_dir/report.md`` and its figures; return the report path.
 
     ``reference`` is the mc report's reference filter and the sweep report's baseline (it does
     not apply to a GP-UKF folder); ``practical_pct`` [%] (default :data:`PRACTICAL_PCT`) is the
     smallest |improvement| the Summary calls practically meaningful. The bootstrap seed is 0.
+    ``beside``: other Monte Carlo folders set beside an mc folder's numbers.
     """
     check_practical_pct(practical_pct)
     out_dir = Path(out_dir)
@@ -51,4 +53,7 @@ def write_report(out_dir: Path, reference: str | None = None, n_boot: int = 2000
         return write_gp_report(out_dir, n_boot=n_boot)  # --baseline does not apply
     if kind == "sweep":
         return write_sweep_report(out_dir, reference, n_boot=n_boot, practical_pct=practical_pct)
-    return write_mc_report(out_dir, reference, n_boot=n_boot, practical_pct=practical_pct)
+    for b in beside:
+        if experiment_of(Path(b)) != "mc":
+            raise NespmError(f"--beside {b}: not a folder written by 'nespm mc'")
+    return write_mc_report(out_dir, reference, n_boot=n_boot, practical_pct=practical_pct, beside=beside)

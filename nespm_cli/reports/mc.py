@@ -703,6 +703,49 @@ def _published_md(metrics: pd.DataFrame, table: pd.DataFrame, scenario: str | No
     return "\n\n".join(parts)
 
 
+def folder_label(out_dir: Path, manifest: dict) -> str:
+    """``name (imu ..., dvl ...)`` of a results folder, from its manifest options."""
+    o = manifest.get("options", {})
+    return f"{Path(out_dir).name} (imu {o.get('imu', '?')}, dvl {o.get('dvl', '?')})"
+
+
+def beside_md(metrics: pd.DataFrame, label: str, others: Sequence[tuple[str, pd.DataFrame]],
+              scenario: str | None = "nominal") -> str:
+    """This folder's track-averaged VRMSE / MRMSE / mean NEES beside other folders' (same filter
+    names) and the published values (the first published table with the filter).
+
+    ``others``: ``(label, metrics)`` of each other folder. Only tracks in every folder count.
+    """
+    folders = [(label, metrics), *others]
+    common = set(metrics["track"].unique())
+    for _, m in others:
+        common &= set(m["track"].unique())
+    tracks = sorted(common)
+    if not tracks:
+        return "The folders share no track; nothing to set side by side."
+    avgs = []
+    for _, m in folders:
+        tt = track_table(m[m["track"].isin(tracks)])
+        avgs.append(tt.groupby("filter", sort=False)[["vrmse", "mrmse", "nees"]].mean())
+    headers = ["Method"]
+    for lab, _ in folders:
+        headers += [f"VRMSE [m/s] {lab}", f"MRMSE [rad] {lab}", f"NEES {lab}"]
+    headers.append("published VRMSE / MRMSE")
+    rows = []
+    for f in filters_in_order(metrics):
+        row = [f]
+        for a in avgs:
+            if f in a.index:
+                row += [fmt(a.loc[f, "vrmse"]), fmt(a.loc[f, "mrmse"]), fmt(a.loc[f, "nees"], ".3g")]
+            else:
+                row += ["—", "—", "—"]
+        pub = [e for e in PUBLISHED.values() if f in e["values"] and e["scenario"] == scenario]
+        row.append(f"{pub[0]['values'][f]['vrmse']:.4g} / {pub[0]['values'][f]['mrmse']:.4g} ({pub[0]['source']})"
+                   if pub else "—")
+        rows.append(row)
+    return (f"Track average (eq 51) over tracks {', '.join(map(str, tracks))}.\n\n" + md_table(headers, rows))
+
+
 def render_report(
     metrics: pd.DataFrame,
     manifest: dict,
@@ -714,9 +757,11 @@ def render_report(
     seed: int,
     practical_pct: float = PRACTICAL_PCT,
     min_pairs: int = MIN_PAIRED_RUNS,
+    beside: str = "",
 ) -> str:
     """The full markdown text of ``report.md``: header, Summary (:func:`summary_md` of
-    :func:`compare_filters` with ``practical_pct``), Definitions, tables, figures."""
+    :func:`compare_filters` with ``practical_pct``), Definitions, tables, figures; ``beside``:
+    the :func:`beside_md` section, if any."""
     scenario = scenario_of(metrics, manifest)
     ref = table.attrs["reference"]
     diverged = ", ".join(f"{r.filter} {r.diverged}" for r in table.itertuples(index=False))
@@ -740,6 +785,7 @@ def render_report(
             "## Per-track results (eqs 50, 52)\n\n" + _track_md(tt),
             "## Horizontal position error\n\n" + _horizontal_md(metrics),
             "## Comparison with the published tables\n\n" + _published_md(metrics, table, scenario, n_boot, seed),
+            *(["## Beside other results folders\n\n" + beside] if beside else []),
             "## Figures\n\nPer track: velocity-error norm and misalignment norm, mean ± 1 std "
             f"across the non-diverged runs (band clipped at 0){hpe_fig}; grey = epochs without a DVL "
             "update (outage); and the true vs mean estimated horizontal track.\n\n" + fig_text,
@@ -844,18 +890,25 @@ def plot_track_figures(
 
 
 def write_mc_report(out_dir: Path, reference: str | None = None, n_boot: int = 2000,
-                    practical_pct: float = PRACTICAL_PCT) -> Path:
+                    practical_pct: float = PRACTICAL_PCT, beside: Sequence[Path] = ()) -> Path:
     """Write ``out_dir/report.md`` and ``out_dir/figures/*.png`` of a Monte Carlo folder; return the
     report path.
 
     Figures are skipped when ``epochs.parquet`` is absent. The bootstrap seed is 0.
     ``reference`` is the filter whose improvement over each row is shown (:func:`default_reference`);
     ``practical_pct`` [%] (default :data:`PRACTICAL_PCT`) is the smallest |improvement| the
-    Summary calls practically meaningful.
+    Summary calls practically meaningful. ``beside``: other Monte Carlo folders whose numbers
+    are set beside this one's (:func:`beside_md`), e.g. the synthetic-IMU run of a recorded one.
     """
     check_practical_pct(practical_pct)
     out_dir = Path(out_dir)
     metrics, epochs, manifest = load_results(out_dir)
+    others = []
+    for b in beside:
+        m_b, _, man_b = load_results(Path(b))
+        others.append((folder_label(Path(b), man_b), m_b))
+    beside_text = (beside_md(metrics, folder_label(out_dir, manifest), others, scenario_of(metrics, manifest))
+                   if others else "")
     seed = 0
     table = filter_table(metrics, reference, n_boot=n_boot, seed=seed)
     tt = track_table(metrics)
@@ -863,7 +916,7 @@ def write_mc_report(out_dir: Path, reference: str | None = None, n_boot: int = 2
     if epochs is not None and not epochs.empty:
         figures = plot_track_figures(epochs, metrics, out_dir / "figures", scenario_of(metrics, manifest))
     text = render_report(metrics, manifest, table, tt, figures, out_dir, n_boot, seed,
-                         practical_pct=practical_pct)
+                         practical_pct=practical_pct, beside=beside_text)
     path = out_dir / "report.md"
     write_text_atomic(path, text)
     return path
