@@ -74,12 +74,20 @@ def _corruption(kw: dict) -> CorruptionConfig:
 
 
 def _spec(**kw):
+    import dataclasses
+
     from nespm_cli.experiments.mc import Spec, couple_filter
 
     corr = _corruption(kw)
     kw["filter_plugins"] = tuple(kw.get("filter_plugins") or ())
     fields = {k: kw.pop(k) for k in FILTER_FIELDS}
     fcfg = couple_filter(FilterConfig(**{**fields, "q_clip": tuple(fields["q_clip"])}), corr)
+    own = {k: kw.pop(f"filter_{k}") for k in ("acc_noise", "gyro_noise")}
+    for k, v in own.items():
+        if v is not None:
+            if not (np.isfinite(v) and v > 0):
+                raise NespmError(f"--filter-{k.replace('_', '-')} must be a positive number, got {v:g}")
+            fcfg = dataclasses.replace(fcfg, **{k: float(v)})
     return Spec(corruption=corr, filter_config=fcfg, **kw)
 
 
@@ -115,6 +123,8 @@ _COMMON = [  # the options that define an experiment: the realizations, the data
     ("dvl_r_std", Optional[float], default(Spec, "dvl_r_std"), "--dvl-r-std", "Filter DVL std [m/s] (default 0.02 with synthetic DVL, 0.1 with recorded)."),
     ("outage_start", float, default(Spec, "outage_start"), "--outage-start", "Outage start [s after the first epoch]."),
     ("outage_length", float, default(Spec, "outage_length"), "--outage-length", "Outage length [s]."),
+    ("filter_acc_noise", Optional[float], None, "--filter-acc-noise", "Accelerometer white noise std per sample in the filters' Q [m/s^2]; default: the injected --acc-noise. With a recorded IMU add its own noise in quadrature (nespm check measures it)."),
+    ("filter_gyro_noise", Optional[float], None, "--filter-gyro-noise", "Gyro white noise std per sample in the filters' Q [rad/s]; default: the injected --gyro-noise (see --filter-acc-noise)."),
     ("acc_bias_rw", float, default(FilterConfig, "acc_bias_rw"), "--acc-bias-rw", "Filter accelerometer bias random walk [m/s^2/sqrt(s)]."),
     ("gyro_bias_rw", float, default(FilterConfig, "gyro_bias_rw"), "--gyro-bias-rw", "Filter gyro bias random walk [rad/s/sqrt(s)]."),
     ("alpha", float, default(FilterConfig, "alpha"), "--alpha", "UKF sigma-point spread alpha (beta = 2, kappa = 0)."),

@@ -27,6 +27,7 @@ import os
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from nespm_cli.cli import main
@@ -148,3 +149,12 @@ def env_without_data_dir() -> dict[str, str]:
 def chunk_mtimes(d: Path) -> dict[str, int]:
     """``{file name: mtime_ns}`` of the chunk Parquet files of results folder ``d``."""
     return {p.name: p.stat().st_mtime_ns for p in (Path(d) / "chunks").glob("*.parquet")}
+
+
+def exact_imu_table(track) -> np.ndarray:
+    """(M + 1, 7) IMU file rows ``[t, f_b, w_ib_b]`` of ``track``'s synthesized (exact) IMU, as a
+    recorded file holds them: row k > 0 the step ending at t[k]; row 0 repeats the first step."""
+    from nespm_cli.nav.synthesis import synthesize
+
+    ref = synthesize(track)
+    return np.column_stack([ref.t, np.vstack([ref.f_b[:1], ref.f_b]), np.vstack([ref.w_ib_b[:1], ref.w_ib_b])])

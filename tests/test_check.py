@@ -7,13 +7,12 @@ import json
 import numpy as np
 import pytest
 
-from conftest import assert_one_error_line, nespm
+from conftest import exact_imu_table, assert_one_error_line, nespm
 from nespm_cli.checks import imu_gt
 from nespm_cli.checks.verdict import check_track
 from nespm_cli.data.corrections import Corrections, apply_corrections, axes_matrix, axes_text, read_corrections
 from nespm_cli.data.embedded import embedded_track
 from nespm_cli.data.tracks import load_track, write_akit
-from nespm_cli.nav.synthesis import synthesize
 
 # tolerances of the planted-defect test (embedded track 5: 400 s, turns of up to ~5 deg/s)
 OFFSET_TOL = 0.02  # [s] the time offset is found to within this (grid 0.01 s, 1-sigma ~0.005 s here)
@@ -21,12 +20,7 @@ BIAS_STEP = 0.005  # [rad/s] (~1000 deg/h) planted gyro-z bias step over 200-220
 PLANTED_OFFSET = 0.3  # [s] IMU stamp minus GT time
 
 
-def exact_imu(track):
-    """The synthesized IMU as a recorded file would hold it: row i >= 1 holds step i-1; row 0 repeats step 0."""
-    ref = synthesize(track)
-    f = np.vstack([ref.f_b[:1], ref.f_b])
-    w = np.vstack([ref.w_ib_b[:1], ref.w_ib_b])
-    return np.column_stack([ref.t, f, w])
+exact_imu = exact_imu_table  # the synthesized IMU as a recorded file holds it
 
 
 @pytest.fixture(scope="module")

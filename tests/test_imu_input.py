@@ -14,10 +14,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from conftest import assert_one_error_line, nespm, short_track
+from conftest import exact_imu_table, assert_one_error_line, nespm, short_track
 from nespm_cli.data.tracks import IMU_COLUMNS, IMU_MAX_GYRO, load_track, load_tracks, write_akit
 from nespm_cli.errors import NespmError
-from nespm_cli.nav.synthesis import synthesize
 
 #: The real Snapir tracks with their recorded 100 Hz IMU (same place as conftest's snapir-akit).
 REAL_IMU_DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "snapir-akit-imu"
@@ -29,13 +28,7 @@ NUMBER = 5
 EPOCHS = 60  # ~59 s of GT at the 400/399 s spacing; ~5,900 IMU rows
 
 
-def _valid_imu(track) -> np.ndarray:
-    """(M + 1, 7) IMU on synthesize's 100 Hz grid from the first to the last GT epoch: row k > 0
-    holds the step ending at t[k]; row 0 repeats the first step's values."""
-    ref = synthesize(track)
-    f = np.vstack([ref.f_b[:1], ref.f_b])
-    w = np.vstack([ref.w_ib_b[:1], ref.w_ib_b])
-    return np.column_stack([ref.t, f, w])
+_valid_imu = exact_imu_table  # the synthesized IMU as a recorded file holds it
 
 
 @pytest.fixture(scope="module")

@@ -335,6 +335,24 @@ def windows(g: dict, rf: np.ndarray, rw: np.ndarray) -> list[dict]:
     return rows
 
 
+def own_noise(track) -> dict:
+    """The recorded IMU's own white noise std per sample, per axis: ``acc`` [m/s^2], ``gyro``
+    [rad/s], from the second difference of the raw readings (``std = 1.4826 MAD(d2) / sqrt(6)``:
+    motion slow against the 100 Hz rate cancels in d2, white noise keeps ``sqrt(6)`` of its std;
+    the MAD ignores the turns' rare large steps). Vibration above a few hertz counts as noise
+    here, as it does in the filter. Also ``quantum``: the smallest step between readings of each
+    sensor (the file's resolution)."""
+    imu = np.asarray(track.imu, dtype=float)
+    d2 = np.diff(imu[:, 1:7], n=2, axis=0)
+    std = 1.4826 * np.median(np.abs(d2 - np.median(d2, axis=0)), axis=0) / np.sqrt(6.0)
+    quanta = []
+    for cols in (slice(1, 4), slice(4, 7)):
+        steps = np.abs(np.diff(imu[:, cols], axis=0))
+        steps = steps[steps > 0]
+        quanta.append(float(steps.min()) if steps.size else float("nan"))
+    return {"acc": std[:3].tolist(), "gyro": std[3:].tolist(), "quantum": {"acc": quanta[0], "gyro": quanta[1]}}
+
+
 def attitude_drift(track) -> dict:
     """Attitude the recorded gyros integrate away from the GT: per GT interval, the recorded
     gyro increment (product of its steps, earth and transport rate removed along the GT)

@@ -30,6 +30,7 @@ import numpy as np
 
 from nespm_cli.checks import dvl_gt, imu_gt
 from nespm_cli.data.corrections import IDENTITY_AXES, Corrections, apply_corrections
+from nespm_cli.data.corruption import NOMINAL_ACC_NOISE, NOMINAL_GYRO_NOISE
 from nespm_cli.data.track import Track
 
 AXES_RATIO = 0.7
@@ -61,6 +62,7 @@ def imu_part(track: Track) -> dict:
               "recorded_w": (g["imp_w"] + rw)[::10].tolist(), "resid_w": rw[::10].tolist(),
               "implied_f": g["imp_f"][::10].tolist(), "recorded_f": (g["imp_f"] + rf)[::10].tolist()}
     return {"axis_mapping": mapping, "time_offset": offset, "stats": stats, "windows": wins,
+            "own_noise": imu_gt.own_noise(track),
             "attitude_drift": att, "series": series,
             "applied": {"imu_axes": axes, "imu_time_offset": off, "imu_time_drift": drift}}
 
@@ -119,6 +121,11 @@ def check_track(track: Track) -> dict:
             what = "the 1 Hz GT cannot resolve the motion" if w["unresolved"] else "IMU and GT disagree"
             findings.append(f"{what} in {w['start']:.0f}-{w['end']:.0f} s ({'; '.join(w['reasons'])})")
         left = [w for w in left if w["inconsistent"]]
+        nz = imu["own_noise"]
+        findings.append(f"the recorded IMU's own white noise per sample: acc {max(nz['acc']):.3g} m/s^2, gyro "
+                        f"{max(nz['gyro']):.3g} rad/s ({max(nz['acc']) / NOMINAL_ACC_NOISE:.2g}x and "
+                        f"{max(nz['gyro']) / NOMINAL_GYRO_NOISE:.2g}x the papers' injected noise, which the filters' "
+                        "Q assumes by default)")
         d = imu["attitude_drift"]["final_deg"]
         findings.append("recorded gyros integrate to " + ", ".join(f"{a:+.2f}" for a in d) +
                         " deg (N, E, D axes) from the GT over the track")
