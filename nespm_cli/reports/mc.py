@@ -724,9 +724,13 @@ def beside_md(metrics: pd.DataFrame, label: str, others: Sequence[tuple[str, pd.
     if not tracks:
         return "The folders share no track; nothing to set side by side."
     avgs = []
-    for _, m in folders:
-        tt = track_table(m[m["track"].isin(tracks)])
-        avgs.append(tt.groupby("filter", sort=False)[["vrmse", "mrmse", "nees"]].mean())
+    for _, m in folders:  # as the main table: eq 51 over the tracks, NEES over all non-diverged runs
+        m = m[m["track"].isin(tracks)]
+        tt = track_table(m)
+        ok = m[~m["diverged"].astype(bool)]
+        avgs.append(pd.DataFrame({f: {"vrmse": track_average(g["vrmse"]), "mrmse": track_average(g["mrmse"]),
+                                      "nees": float(ok.loc[ok["filter"] == f, "nees"].mean())}
+                                  for f, g in tt.groupby("filter", sort=False)}).T)
     headers = ["Method"]
     for lab, _ in folders:
         headers += [f"VRMSE [m/s] {lab}", f"MRMSE [rad] {lab}", f"NEES {lab}"]
