@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import functools
 import inspect
+import re
 import json
 import sys
 import time
@@ -20,6 +21,7 @@ from nespm_cli.data.corruption import CorruptionConfig
 from nespm_cli.errors import NespmError
 from nespm_cli.experiments.gp_ukf import GPSpec
 from nespm_cli.experiments.mc import Spec
+from nespm_cli.experiments.metrics import DivergenceRule
 from nespm_cli.filters import FilterConfig
 from nespm_cli.reports.stats import PRACTICAL_PCT
 
@@ -73,15 +75,27 @@ def _corruption(kw: dict) -> CorruptionConfig:
     return CorruptionConfig(**{field: kw.pop(opt) for opt, field in CORRUPTION_FIELDS.items()})
 
 
+def _warning_mode(mode: str) -> None:
+    from nespm_cli.data.plausibility import set_warning_mode
+
+    if mode not in ("warn", "ignore", "error"):
+        raise NespmError(f"--data-warnings: choose warn, ignore or error, got {mode!r}")
+    set_warning_mode(mode)
+
+
 def _spec(**kw):
     import dataclasses
 
+    from nespm_cli.experiments.metrics import DivergenceRule
     from nespm_cli.experiments.mc import Spec, couple_filter
 
+    _warning_mode(kw.pop("data_warnings"))
     corr = _corruption(kw)
     kw["filter_plugins"] = tuple(kw.get("filter_plugins") or ())
     fields = {k: kw.pop(k) for k in FILTER_FIELDS}
     fcfg = couple_filter(FilterConfig(**{**fields, "q_clip": tuple(fields["q_clip"])}), corr)
+    kw["divergence"] = DivergenceRule(att_deg=kw.pop("diverge_att_deg"), nees=kw.pop("diverge_nees"),
+                                      window_s=kw.pop("diverge_window"), after_s=kw.pop("diverge_after"))
     own = {k: kw.pop(f"filter_{k}") for k in ("acc_noise", "gyro_noise")}
     for k, v in own.items():
         if v is not None:
@@ -110,6 +124,7 @@ _CORRUPTION = [  # (name, type, default, flag, help): the realizations (mc, swee
 
 _COMMON = [  # the options that define an experiment: the realizations, the data, the filters
     *_CORRUPTION,
+    ("data_warnings", str, "warn", "--data-warnings", "Data that looks wrong but may be legitimate (irregular epoch steps, fast turns, a DVL speed far from the GT's, ...): warn (one line each), ignore, or error (exit 2). Clear mistakes are always errors."),
     ("scenario", str, default(Spec, "scenario"), "--scenario", "nominal, or outage: no DVL for --outage-length s from --outage-start s."),
     ("imu", str, default(Spec, "imu"), "--imu", "synthetic (inverse strapdown of GT: exact truth) or recorded (IMU_trajectoryN.csv)."),
     ("imu_axes", str, default(Spec, "imu_axes"), "--imu-axes", "Recorded IMU axis mapping: corrected body axis i is the i-th signed recorded axis, e.g. x,-y,z (nespm check finds it)."),
@@ -123,6 +138,10 @@ _COMMON = [  # the options that define an experiment: the realizations, the data
     ("dvl_r_std", Optional[float], default(Spec, "dvl_r_std"), "--dvl-r-std", "Filter DVL std [m/s] (default 0.02 with synthetic DVL, 0.1 with recorded)."),
     ("outage_start", float, default(Spec, "outage_start"), "--outage-start", "Outage start [s after the first epoch]."),
     ("outage_length", float, default(Spec, "outage_length"), "--outage-length", "Outage length [s]."),
+    ("diverge_att_deg", float, default(DivergenceRule, "att_deg"), "--diverge-att-deg", "A run counts as diverged when its attitude error exceeds this [deg] after --diverge-after (also: non-finite state, speed > 50 m/s)."),
+    ("diverge_nees", float, default(DivergenceRule, "nees"), "--diverge-nees", "...or when its NEES averaged over --diverge-window s exceeds this after --diverge-after (6-dof chi-square 99.9 %: 22.5)."),
+    ("diverge_window", float, default(DivergenceRule, "window_s"), "--diverge-window", "Window of the NEES divergence test [s]."),
+    ("diverge_after", float, default(DivergenceRule, "after_s"), "--diverge-after", "Seconds after the start before the attitude and NEES tests apply (initial errors may be large)."),
     ("filter_acc_noise", Optional[float], None, "--filter-acc-noise", "Accelerometer white noise std per sample in the filters' Q [m/s^2]; default: the injected --acc-noise. With a recorded IMU add its own noise in quadrature (nespm check measures it)."),
     ("filter_gyro_noise", Optional[float], None, "--filter-gyro-noise", "Gyro white noise std per sample in the filters' Q [rad/s]; default: the injected --gyro-noise (see --filter-acc-noise)."),
     ("acc_bias_rw", float, default(FilterConfig, "acc_bias_rw"), "--acc-bias-rw", "Filter accelerometer bias random walk [m/s^2/sqrt(s)]."),
@@ -178,7 +197,8 @@ _common = _options(_COMMON)
 
 @app.command()
 def tracks(data_dir: Optional[str] = DATA_DIR,
-           no_progress: bool = typer.Option(False, "--no-progress", help="Do not say which track is being read.")) -> None:
+           no_progress: bool = typer.Option(False, "--no-progress", help="Do not say which track is being read."),
+           data_warnings: str = typer.Option("warn", "--data-warnings", help="warn, ignore or error on data that looks wrong but may be legitimate.")) -> None:
     """List the tracks: duration, distance, speed, yaw rate, depth, DVL residual and lever arm."""
     from rich.console import Console
     from rich.markup import escape
@@ -187,6 +207,7 @@ def tracks(data_dir: Optional[str] = DATA_DIR,
     from nespm_cli.experiments.progress import Status
     from nespm_cli.data.tracks import available_tracks, load_track, resolve_data_dir, track_summary
 
+    _warning_mode(data_warnings)
     d = resolve_data_dir(data_dir)
     table = Table(title=escape(f"tracks in {d if d else 'the embedded default'}"))
     for c in ("track", "duration [s]", "epochs", "distance [m]", "mean speed [m/s]", "max yaw rate [deg/s]",
@@ -218,6 +239,7 @@ def check(
     out: str = typer.Option("results/check", "--out", help="Folder for check.md, check.json, corrections.json and figures."),
     no_figures: bool = typer.Option(False, "--no-figures", help="Skip the figures (faster)."),
     no_progress: bool = typer.Option(False, "--no-progress", help="Do not say which track is being checked."),
+    data_warnings: str = typer.Option("warn", "--data-warnings", help="warn, ignore or error on data that looks wrong but may be legitimate."),
 ) -> None:
     """Check a track folder against its ground truth: recorded IMU (axes, time offset, windowed
     biases, attitude drift) and DVL (lever arm, scale, misalignment, time offset); a verdict per
@@ -226,6 +248,7 @@ def check(
     from nespm_cli.experiments.progress import Status
     from nespm_cli.reports.check import summary_table, write_check_report
 
+    _warning_mode(data_warnings)
     numbers = _tracks(tracks_) if tracks_ else None
     with Status("nespm check", enabled=not no_progress) as status:
         result = check_folder(data_dir, numbers, status=status)
@@ -527,7 +550,7 @@ def _normalize_argv(argv: list[str]) -> list[str]:
         if a in ("--tracks", "--test-tracks"):
             vals = []
             i += 1
-            while i < len(argv) and not argv[i].startswith("-"):
+            while i < len(argv) and (not argv[i].startswith("-") or re.fullmatch(r"-\d+", argv[i])):
                 vals.append(argv[i])
                 i += 1
             out += [a, " ".join(vals)]
@@ -541,8 +564,40 @@ _INTERRUPTED = "nespm: interrupted; finished chunks are kept, re-run the same co
 _ARGV: list[str] = []  # the command line main() received, for the manifest
 
 
+MAX_MESSAGE = 400  # characters of an error line
+
+
+def one_line(text: str) -> str:
+    """The first line of ``text`` with non-printable characters replaced (runs of them counted),
+    at most :data:`MAX_MESSAGE` characters."""
+    lines = str(text).splitlines() or [""]
+    out = re.sub(r"[^\x20-\x7e\u00a0-\uffff]+", lambda m: f"<{len(m.group())} non-printable>", lines[0])
+    out = "".join(ch if ch.isprintable() else "?" for ch in out)
+    return out if len(out) <= MAX_MESSAGE else out[:MAX_MESSAGE - 3] + "..."
+
+
+def os_error_line(exc: OSError) -> str:
+    """``PATH: what failed`` of an OSError (permission denied, not a directory, read-only ...)."""
+    path = exc.filename if exc.filename is not None else ""
+    what = exc.strerror or exc.__class__.__name__
+    if exc.filename2 is not None:
+        path = f"{path} -> {exc.filename2}"
+    return one_line(f"{path}: {what}" if path else f"{what} ({exc})")
+
+
+def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """Warnings print as one line ``nespm: warning: ...`` (NumPy's RuntimeWarnings not at all:
+    the checks that matter raise their own one-line errors)."""
+    if issubclass(category, RuntimeWarning):
+        return
+    typer.echo(f"nespm: warning: {one_line(str(message))}", err=True)
+
+
 def main(argv: list[str] | None = None) -> int:
     global _ARGV
+    import warnings
+
+    warnings.showwarning = _show_warning
     try:
         argv = list(sys.argv[1:] if argv is None else [str(a) for a in argv])
         _ARGV = list(argv)
@@ -554,8 +609,11 @@ def main(argv: list[str] | None = None) -> int:
             typer.echo(_INTERRUPTED, err=True)
         return rv if isinstance(rv, int) else 0
     except NespmError as exc:
-        typer.echo(f"nespm: error: {str(exc).splitlines()[0]}", err=True)
+        typer.echo(f"nespm: error: {one_line(str(exc))}", err=True)
         return exc.exit_code
+    except OSError as exc:  # the file system said no: name the path and what failed
+        typer.echo(f"nespm: error: {os_error_line(exc)}", err=True)
+        return 2
     except Exit as exc:
         return exc.exit_code
     except Abort:

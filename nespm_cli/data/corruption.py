@@ -86,8 +86,26 @@ class CorruptionConfig:
                 continue
             if not (np.isfinite(v) and v >= 0):
                 raise NespmError(f"--{name.replace('_', '-')}: must be a finite std >= 0, got {v}")
+        for name in ("misalignment_deg", "heading_deg"):
+            v = getattr(self, name)
+            if v is not None and v > MAX_ANGLE_STD_DEG:
+                raise NespmError(f"--{name.replace('_', '-')}: a std above {MAX_ANGLE_STD_DEG:g} deg is not an "
+                                 f"attitude error (angles wrap at 180), got {v:g}")
         if not (1 <= self.factor_min <= self.factor_max):
             raise NespmError("dynamic schedule factors need 1 <= min <= max")
+
+
+MAX_SEED = 2**63 - 1  # SeedSequence takes any non-negative integer; a 64-bit one is what the manifest holds
+
+
+def check_seed(seed: int) -> int:
+    """``seed`` if it is an integer from 0 to :data:`MAX_SEED`, else a one-line NespmError."""
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not (0 <= seed <= MAX_SEED):
+        raise NespmError(f"--seed must be an integer from 0 to 2**63-1, got {seed}")
+    return int(seed)
+
+
+MAX_ANGLE_STD_DEG = 180.0  # [deg] an initial-misalignment std beyond half a turn means nothing
 
 
 def stream(seed: int, track: int, run: int, kind: int) -> np.random.Generator:

@@ -16,6 +16,7 @@ the sea surface, as in the files; depth = -alt), ``v_n`` is NED [m/s], ``euler``
 """
 from __future__ import annotations
 
+import io
 import os
 import re
 from collections.abc import Iterable
@@ -24,6 +25,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from nespm_cli.data import plausibility
+from nespm_cli.data.plausibility import printable
 from nespm_cli.data.track import Track
 from nespm_cli.errors import NespmError
 from nespm_cli.data.atomic import write_atomic
@@ -116,7 +119,7 @@ def available_tracks(data_dir: Path | None) -> list[int]:
     return numbers
 
 
-def load_track(number: int, data_dir: str | Path | None = None) -> Track:
+def load_track(number: int, data_dir: str | Path | None = None, *, warnings: str | None = None) -> Track:
     """Load and validate track ``number`` from ``data_dir`` (None -> ``$NESPM_DATA_DIR`` -> embedded).
 
     Raises :class:`NespmError` (one line, naming the file and first bad data row / column) on an
@@ -127,6 +130,13 @@ def load_track(number: int, data_dir: str | Path | None = None) -> Track:
     step differing from the median by more than :data:`IMU_STEP_TOL` (a gap or non-constant
     rate), a time span that does not cover the GT span to within one IMU step at either end,
     or |ACC| > :data:`IMU_MAX_ACC` m/s^2 or |GYRO| > :data:`IMU_MAX_GYRO` rad/s (a units mistake).
+
+    Then the physical plausibility checks of :mod:`nespm_cli.data.plausibility` (angle ranges and steps,
+    altitude, epoch spacing and gaps, GT velocity against position increments, DVL against GT speed):
+    an error raises :class:`NespmError`; warnings are handled per ``warnings``: ``"warn"`` (each once
+    per file and message, as a :class:`~nespm_cli.data.plausibility.DataWarning`), ``"ignore"``, or
+    ``"error"`` (raise); None -> the mode of :func:`~nespm_cli.data.plausibility.set_warning_mode`
+    (``"warn"`` unless set).
     """
     folder = resolve_data_dir(data_dir)
     if folder is None:
@@ -158,6 +168,12 @@ def load_track(number: int, data_dir: str | Path | None = None) -> Track:
         _check_time(imu_path, imu[:, 0])
         _check_imu(imu_path, imu, gt_path, gt[:, 0])
 
+    findings = plausibility.check_track_arrays(gt_path, gt, dvl_path, dvl)
+    errors = [f for f in findings if f.level == "error"]
+    if errors:
+        raise NespmError(errors[0].text)
+    plausibility.emit(findings, warnings)
+
     return Track(
         number=number,
         t=gt[:, 0],
@@ -170,8 +186,11 @@ def load_track(number: int, data_dir: str | Path | None = None) -> Track:
     )
 
 
-def load_tracks(numbers: Iterable[int] | None, data_dir: str | Path | None = None) -> list[Track]:
-    """Load several tracks (None -> every available track) from one data folder (or embedded)."""
+def load_tracks(
+    numbers: Iterable[int] | None, data_dir: str | Path | None = None, *, warnings: str | None = None
+) -> list[Track]:
+    """Load several tracks (None -> every available track) from one data folder (or embedded);
+    ``warnings`` as in :func:`load_track`."""
     folder = resolve_data_dir(data_dir)
     if numbers is None:
         numbers = available_tracks(folder)
@@ -179,7 +198,7 @@ def load_tracks(numbers: Iterable[int] | None, data_dir: str | Path | None = Non
         from nespm_cli.data.embedded import embedded_track
 
         return [embedded_track(int(n)) for n in numbers]
-    return [load_track(int(n), folder) for n in numbers]
+    return [load_track(int(n), folder, warnings=warnings) for n in numbers]
 
 
 def write_akit(track: Track, folder: str | Path) -> Path:
@@ -210,8 +229,11 @@ def _fmt_numbers(numbers: list[int]) -> str:
 # ----------------------------------------------------------------------------- validation
 
 
-def _one_line(text: str) -> str:
-    return " ".join(str(text).split())
+def _one_line(text: str, limit: int = 100) -> str:
+    return printable(text, limit)
+
+
+QUOTE_LIMIT = 40  # characters of file content quoted in a message (printable only)
 
 
 def _read_table(path: Path, columns: tuple[str, ...]) -> np.ndarray:
@@ -219,15 +241,31 @@ def _read_table(path: Path, columns: tuple[str, ...]) -> np.ndarray:
     if not path.is_file():
         raise NespmError(f"{path}: file not found")
     try:
-        df = pd.read_csv(path, encoding="utf-8-sig")
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise NespmError(f"{path}: cannot read the file ({printable(exc.strerror or exc, QUOTE_LIMIT)})") from None
+    nul = raw.count(b"\x00")
+    if nul:
+        first = raw.index(b"\x00")
+        raise NespmError(
+            f"{path}: not a readable CSV file (binary content: {nul} NUL byte{'s' if nul != 1 else ''}, "
+            f"first at byte {first})"
+        )
+    try:
+        df = pd.read_csv(io.BytesIO(raw), encoding="utf-8-sig")
     except pd.errors.EmptyDataError:
         raise NespmError(f"{path}: empty file") from None
     except (pd.errors.ParserError, UnicodeDecodeError, ValueError) as exc:
         raise NespmError(f"{path}: not a readable CSV file ({_one_line(exc)})") from None
+    except Exception as exc:  # noqa: BLE001 - any other parser failure is a bad file, not a crash
+        raise NespmError(f"{path}: not a readable CSV file ({type(exc).__name__}: {_one_line(exc)})") from None
     df.columns = [str(c).strip() for c in df.columns]
     for col in columns:
         if col not in df.columns:
-            raise NespmError(f"{path}: missing column '{col}' (header has: {', '.join(df.columns)})")
+            header = printable(", ".join(printable(c, QUOTE_LIMIT) for c in df.columns), 120)
+            raise NespmError(f"{path}: missing column '{col}' (header has: {header})")
+        if list(df.columns).count(col) > 1:
+            raise NespmError(f"{path}: column '{col}' appears more than once in the header")
     if len(df) == 0:
         raise NespmError(f"{path}: no data rows after the header")
     if len(df) < 2:
@@ -240,8 +278,8 @@ def _read_table(path: Path, columns: tuple[str, ...]) -> np.ndarray:
             bad = np.flatnonzero((num.isna() & s.notna()).to_numpy())
             if bad.size:
                 r = int(bad[0])
-                text = str(s.iloc[r]).strip()
-                raise NespmError(f"{path}: data row {r + 1}, column '{col}': not a number ({text!r})")
+                text = printable(s.iloc[r], QUOTE_LIMIT)
+                raise NespmError(f"{path}: data row {r + 1}, column '{col}': not a number ('{text}')")
             s = num
         out[:, j] = s.to_numpy(dtype=float)
     bad_rows = np.flatnonzero(~np.isfinite(out).all(axis=1))

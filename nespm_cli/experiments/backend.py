@@ -29,7 +29,10 @@ import contextlib
 import logging
 import os
 import socket
+import threading
+import time
 import uuid
+import warnings
 from collections.abc import Callable, Iterator
 
 from nespm_cli.errors import NespmError
@@ -92,7 +95,39 @@ def _loky_map(fn: Callable, args: list[tuple], jobs: int) -> Iterator:
     from joblib import Parallel, delayed
 
     par = Parallel(n_jobs=min(jobs, max(len(args), 1)), backend="loky", return_as="generator_unordered")
-    yield from par(delayed(fn)(*a) for a in args)
+    parent = os.getpid()
+    yield from par(delayed(in_worker)(parent, fn, a) for a in args)
+
+
+_WATCHING: list[int] = []  # the parent pid a worker process watches (set once per process)
+PARENT_POLL_S = 0.5  # [s] how often a worker checks that its parent still lives
+
+
+def in_worker(parent: int, fn: Callable, args: tuple):
+    """Run ``fn(*args)`` in a loky worker that dies with the ``nespm`` process that started it.
+
+    On the first call a daemon thread starts that ends the worker (``os._exit``) within
+    :data:`PARENT_POLL_S` once ``parent`` is gone (kill -9 leaves no chance to stop the pool).
+    NumPy's RuntimeWarnings stay quiet:
+    the chunk's own checks report what matters, in one line.
+    """
+    if not _WATCHING and os.getpid() != parent:
+        _WATCHING.append(parent)
+        _die_with_parent(parent)
+        warnings.filterwarnings("ignore", category=RuntimeWarning)
+        from nespm_cli.data.plausibility import DataWarning
+
+        warnings.filterwarnings("ignore", category=DataWarning)  # the parent said it once, before the run
+    return fn(*args)
+
+
+def _die_with_parent(parent: int) -> None:
+    def watch() -> None:
+        while os.getppid() == parent:  # a worker whose parent died is re-parented (to init or a subreaper)
+            time.sleep(PARENT_POLL_S)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="nespm-parent-watch", daemon=True).start()
 
 
 # --- dask ------------------------------------------------------------------------------

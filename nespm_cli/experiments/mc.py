@@ -21,15 +21,17 @@ import pandas as pd
 
 from nespm_cli.data.corruption import CorruptionConfig, draw, dvl_noise, imu_errors
 from nespm_cli.filters.adaptive import BIAS_MODES
-from nespm_cli.learn.noise_model import WINDOW, load_weights, predict_interval_std
+from nespm_cli.learn.noise_model import WINDOW, default_weights, load_weights, predict_interval_std
 from nespm_cli.errors import NespmError
 from nespm_cli.nav.dvl import body_rate_at_epochs, dvl_velocity
 from nespm_cli.nav.earth import ned_offset
 from nespm_cli.data.embedded import embedded_track
 from nespm_cli.filters import FilterConfig, initial_nav, run_filter
 from nespm_cli.filters.registry import discover_plugins, filter_names, get_filter, load_plugin
-from nespm_cli.experiments.metrics import epoch_errors, run_metrics
-from nespm_cli.experiments.store import ResultsFolder, Task, chunk_firsts, run_blocks, write_parquet_atomic
+from nespm_cli.experiments.metrics import DivergenceRule, divergence, epoch_errors, run_metrics
+from nespm_cli.experiments.store import (ResultsFolder, Task, chunk_firsts, file_hashes, run_blocks,
+                                        write_parquet_atomic)
+from nespm_cli.data.corruption import check_seed
 from nespm_cli.data.corrections import IDENTITY_AXES, Corrections, apply_corrections, resolve
 from nespm_cli.nav.synthesis import ImuTruth, from_recorded, synthesize
 from nespm_cli.data.tracks import Track, available_tracks, load_track, resolve_data_dir
@@ -61,6 +63,7 @@ class Spec:
     window: str | None = None  # "START:END" [s] of the GT file time to use
     corrections: str | None = None  # corrections.json (nespm check): per-track values of the four above
     track_corrections: tuple = ()  # resolved by validate: ((track, Corrections), ...), what the runs use
+    divergence: DivergenceRule = field(default_factory=DivergenceRule)  # when a run counts as diverged
     weights: str | None = None  # ProcessNet file of the adaptive filters; None: the packaged default
     filter_plugins: tuple = ()  # user filter files or modules (docs/plugins.md), loaded before the filters run
     corruption: CorruptionConfig = field(default_factory=CorruptionConfig)
@@ -75,8 +78,7 @@ class Spec:
 
 def validate(spec: Spec) -> Spec:
     """Check every option against the data; return the spec with ``data_dir`` resolved."""
-    if spec.runs < 1:
-        raise NespmError(f"--runs must be at least 1, got {spec.runs}")
+    check_domains(spec)
     if spec.chunk_size < 1:
         raise NespmError(f"--chunk-size must be at least 1, got {spec.chunk_size}")
     spec = load_filters(spec)
@@ -113,7 +115,10 @@ def validate(spec: Spec) -> Spec:
             raise NespmError(f"--tracks: no track {n} in {where}; available: {', '.join(map(str, have))}")
     for n in spec.tracks:
         load_track(n, d)  # validates every file up front
-    spec = dataclasses.replace(spec, data_dir=str(d) if d is not None else None)
+    spec = dataclasses.replace(spec, data_dir=str(Path(d).resolve()) if d is not None else None,
+                               corrections=str(Path(spec.corrections).expanduser().resolve()) if spec.corrections else None,
+                               weights=(str(Path(spec.weights).expanduser().resolve())
+                                        if spec.weights and Path(spec.weights).expanduser().is_file() else spec.weights))
     spec = dataclasses.replace(spec, track_corrections=resolve_corrections(spec))
     durations = {n: prepared(n, spec.data_dir, spec.imu, corrections_for(spec, n))[0].duration
                  for n in spec.tracks}
@@ -134,6 +139,45 @@ def validate(spec: Spec) -> Spec:
                     f"ends past track {n}'s end ({dur:.1f} s)"
                 )
     return dataclasses.replace(spec, filter_config=filter_config(spec))  # what the filters use, recorded as such
+
+
+MAX_LEVER_ARM = 100.0  # [m] a DVL farther than this from the INS is a units or sign mistake
+
+
+def check_domains(spec: Spec) -> None:
+    """Every option's domain, before anything is read or written (one-line NespmError)."""
+    def finite(x) -> bool:
+        return x is not None and np.isfinite(x)
+
+    if spec.runs < 1:
+        raise NespmError(f"--runs must be at least 1, got {spec.runs}")
+    check_seed(spec.seed)
+    if len(set(spec.tracks)) != len(spec.tracks):
+        dup = next(n for n in spec.tracks if list(spec.tracks).count(n) > 1)
+        raise NespmError(f"--tracks: track {dup} is given more than once")
+    if any(n < 1 for n in spec.tracks):
+        raise NespmError(f"--tracks: track numbers are positive, got {min(spec.tracks)}")
+    fc = spec.filter_config
+    if not (finite(fc.alpha) and 0 < fc.alpha <= 1):
+        raise NespmError(f"--alpha must satisfy 0 < alpha <= 1 (the UKF's sigma-point spread), got {fc.alpha:g}")
+    if spec.dvl_r_std is not None and not (finite(spec.dvl_r_std) and spec.dvl_r_std > 0):
+        raise NespmError(f"--dvl-r-std must be a positive std [m/s], got {spec.dvl_r_std:g}")
+    for flag, v in (("--acc-bias-rw", fc.acc_bias_rw), ("--gyro-bias-rw", fc.gyro_bias_rw)):
+        if not (finite(v) and v >= 0):
+            raise NespmError(f"{flag} must be a finite random walk >= 0, got {v:g}")
+    lever = np.asarray(spec.dvl_lever_arm, dtype=float)
+    if lever.shape != (3,) or not np.all(np.isfinite(lever)) or np.abs(lever).max() > MAX_LEVER_ARM:
+        raise NespmError(f"--dvl-lever-arm must be three finite numbers within +-{MAX_LEVER_ARM:g} m, "
+                         f"got {' '.join(f'{x:g}' for x in lever.ravel())}")
+    for flag, v in (("--outage-start", spec.outage_start), ("--outage-length", spec.outage_length)):
+        if not finite(v):
+            raise NespmError(f"{flag} must be a finite number of seconds, got {v:g}")
+    d = spec.divergence
+    for flag, v in (("--diverge-att-deg", d.att_deg), ("--diverge-nees", d.nees), ("--diverge-window", d.window_s)):
+        if not (finite(v) and v > 0):
+            raise NespmError(f"{flag} must be a positive number, got {v:g}")
+    if not (finite(d.after_s) and d.after_s >= 0):
+        raise NespmError(f"--diverge-after must be a number of seconds >= 0, got {d.after_s:g}")
 
 
 def load_filters(spec: Spec) -> Spec:
@@ -307,7 +351,9 @@ def run_chunk(cell: Cell, number: int, first: int, out_dir: str, last: int | Non
     e = truth.epoch_index
     t_rel = truth.t[e] - truth.t[e[0]]
     for name, (out, err, secs) in results.items():
-        m = run_metrics(err, out.diverged)
+        div, why = divergence(err, out.diverged, t_rel, spec.divergence)
+        m = run_metrics(err, div)
+        m["diverged_reason"] = why
         m.update(q_factors(out.noise_std, filter_config(spec), len(runs)))
         df = pd.DataFrame({**extra, "track": number, "filter": name, "run": runs, "scenario": spec.scenario,
                            "schedule": spec.corruption.schedule, "seed": spec.seed, **m,
@@ -317,7 +363,7 @@ def run_chunk(cell: Cell, number: int, first: int, out_dir: str, last: int | Non
             **extra, "track": number, "filter": name, "run": np.repeat(runs, N), "epoch": np.tile(np.arange(N), R),
             "t": np.tile(t_rel, R), "vel_err": err.vel.ravel(), "att_err": err.att.ravel(),
             "nees": err.nees.ravel(), "north_err": err.ne[..., 0].ravel(), "east_err": err.ne[..., 1].ravel(),
-            "dvl_used": np.tile(out.dvl_used, R), "diverged": np.repeat(out.diverged, N),
+            "dvl_used": np.tile(out.dvl_used, R), "diverged": np.repeat(div, N),
         })
         # series first: a metrics file marks the chunk complete
         write_parquet_atomic(series, chunks / _chunk_name("series", number, name, first, tag))
@@ -403,6 +449,24 @@ def run_mc(spec: Spec, out_dir: str | Path, jobs: int = 2, progress: bool = True
                      backend=backend, scheduler=scheduler)
 
 
+def input_files(spec: Spec) -> list[Path]:
+    """Every file the numbers of ``spec`` depend on: each track's GT and DVL (and IMU with
+    ``--imu recorded``), the ProcessNet weights of adaptive filters, the corrections file and
+    the filter plugin files. Their hashes go into the manifest (docs/results-schema.md)."""
+    files: list[Path] = []
+    if spec.data_dir is not None:
+        for n in spec.tracks:
+            tdir = Path(spec.data_dir) / f"Trajectory{n}"
+            names = ["GT", "DVL"] + (["IMU"] if spec.imu == "recorded" else [])
+            files += [tdir / f"{k}_trajectory{n}.csv" for k in names]
+    if any(needs_noise_std(f) for f in spec.filters):
+        files.append(Path(spec.weights) if spec.weights else default_weights())
+    if spec.corrections:
+        files.append(Path(spec.corrections))
+    files += [Path(p) for p in spec.filter_plugins if Path(p).is_file()]
+    return files
+
+
 def run_cells(cells: list[Cell], options: dict, out_dir: str | Path, jobs: int = 2, progress: bool = True,
               argv=None, label: str = "mc", backend: str = "loky", scheduler: str | None = None) -> pd.DataFrame:
     """Run (or resume, or extend to more runs) validated ``cells`` into ``out_dir``; ``options``
@@ -418,7 +482,8 @@ def run_cells(cells: list[Cell], options: dict, out_dir: str | Path, jobs: int =
     check_backend(backend)  # before --out is created
     folder = ResultsFolder(out_dir, options, argv, extendable=("runs",))
     first = cells[0].spec
-    folder.open(seed=first.seed, data_dir=first.data_dir or "embedded",
+    files = sorted({p.resolve() for c in cells for p in input_files(c.spec)})
+    folder.open(inputs=file_hashes(files), seed=first.seed, data_dir=first.data_dir or "embedded",
                 filter_config={c.tag or "all": dataclasses.asdict(c.spec.filter_config) for c in cells})
     blocks = run_blocks(folder.old, first.runs)
     folder.manifest["run_blocks"] = [list(b) for b in blocks]

@@ -73,6 +73,48 @@ def epoch_errors(out, v_true: np.ndarray, C_true: np.ndarray, pos_true: np.ndarr
     return EpochErrors(vel, att, nees, ne, dist=distance_travelled(pos_true))  # hpe derived from ne
 
 
+@dataclass(frozen=True)
+class DivergenceRule:
+    """When a run counts as diverged (docs/filters.md, "Divergence"), besides a non-finite state or
+    a speed above 50 m/s (the engine's numeric test):
+
+    * ``att_deg`` [deg]: its attitude error exceeds this at any epoch after ``after_s``;
+    * ``nees``: its NEES averaged over any ``window_s`` [s] window after ``after_s`` exceeds this
+      (the 6-dof chi-square 99.9 % point is 22.5: a run 40x beyond it for half a minute is not
+      "overconfident", its covariance has lost the state).
+    """
+
+    att_deg: float = 45.0
+    nees: float = 1000.0
+    window_s: float = 30.0
+    after_s: float = 60.0
+
+
+def divergence(err: EpochErrors, numeric: np.ndarray, t_rel: np.ndarray,
+               rule: DivergenceRule = DivergenceRule()) -> tuple[np.ndarray, np.ndarray]:
+    """``(diverged (R,) bool, reason (R,) str)``: ``numeric``, ``attitude``, ``nees`` or ``""``.
+
+    ``numeric`` (R,) is the engine's flag; ``t_rel`` (N,) [s] the epoch times from the first.
+    """
+    numeric = np.asarray(numeric, dtype=bool)
+    t_rel = np.asarray(t_rel, dtype=float)
+    late = t_rel >= rule.after_s
+    with np.errstate(invalid="ignore"):
+        att = np.where(late, err.att, 0.0)
+        bad_att = np.nanmax(att, axis=1) > np.radians(rule.att_deg) if late.any() else np.zeros(len(numeric), bool)
+        dt = float(np.median(np.diff(t_rel))) if len(t_rel) > 1 else 1.0
+        w = max(int(round(rule.window_s / dt)), 1)
+        # a filter without a covariance (ins) has NaN NEES: no test; an overflow counts as large
+        nees = np.nan_to_num(np.asarray(err.nees, dtype=float), nan=0.0, posinf=1e300)[:, late]
+        if nees.shape[1] >= w:
+            c = np.concatenate([np.zeros((nees.shape[0], 1)), np.cumsum(nees, axis=1)], axis=1)
+            bad_nees = ((c[:, w:] - c[:, :-w]) / w).max(axis=1) > rule.nees
+        else:
+            bad_nees = np.zeros(len(numeric), dtype=bool)
+    reason = np.where(numeric, "numeric", np.where(bad_att, "attitude", np.where(bad_nees, "nees", "")))
+    return reason != "", reason.astype(object)
+
+
 def run_metrics(err: EpochErrors, diverged: np.ndarray) -> dict[str, np.ndarray]:
     """Per-run summary (R,) arrays; every error sum of a diverged run is NaN.
 

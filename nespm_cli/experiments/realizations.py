@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from nespm_cli.data.corruption import CorruptionConfig, draw, imu_errors
+from nespm_cli.data.corruption import check_seed, CorruptionConfig, draw, imu_errors
 from nespm_cli.errors import NespmError
 from nespm_cli.experiments.mc import prepared
 from nespm_cli.experiments.store import write_json_atomic, write_parquet_atomic
@@ -28,6 +28,9 @@ def write_realizations(tracks, runs: int, seed: int, config: CorruptionConfig, o
     """
     if runs < 1:
         raise NespmError(f"--runs must be at least 1, got {runs}")
+    check_seed(seed)
+    if len(set(tracks)) != len(tuple(tracks)) or any(n < 1 for n in tracks):
+        raise NespmError(f"--tracks: give each positive track number once, got {' '.join(map(str, tracks))}")
     d = resolve_data_dir(data_dir)
     have = available_tracks(d)
     for n in tracks:

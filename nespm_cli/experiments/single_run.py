@@ -10,7 +10,7 @@ import pandas as pd
 from nespm_cli.errors import NespmError
 from nespm_cli.experiments.mc import Spec, corrections_for, prepared, simulate, validate
 from nespm_cli.experiments.store import write_parquet_atomic
-from nespm_cli.experiments.metrics import run_metrics
+from nespm_cli.experiments.metrics import divergence, run_metrics
 from nespm_cli.nav.rotations import dcm_to_euler
 
 
@@ -48,11 +48,14 @@ def run_single(spec: Spec, track: int, filt: str, run: int, clean: bool = False,
             say(f"{filt} on track {track}, run {run}: epoch {k}/{n}")
     results, truth, real = simulate(spec, track, np.array([run]), [filt], clean=clean, progress=progress)
     o, err, secs = results[filt]
-    m = run_metrics(err, o.diverged)
+    e0 = truth.epoch_index
+    div, why = divergence(err, o.diverged, truth.t[e0] - truth.t[e0[0]], spec.divergence)
+    m = run_metrics(err, div)
     summary = {"track": track, "filter": filt, "run": run, "clean": clean, "scenario": spec.scenario,
                "schedule": spec.corruption.schedule, **{k: (bool(v[0]) if k == "diverged" else (int(v[0]) if k == "n_samples" else float(v[0])))
                                              for k, v in m.items()}}
     summary = {k: (None if isinstance(v, float) and not np.isfinite(v) else v) for k, v in summary.items()}
+    summary["diverged_reason"] = str(why[0])
     if out:
         e = truth.epoch_index
         ts = pd.DataFrame({"t": truth.t[e] - truth.t[e[0]], "dvl_used": o.dvl_used,

@@ -1,7 +1,8 @@
 """The results store: one run folder of any experiment (``mc``, ``sweep``, ``gp-ukf``).
 
-A folder ``OUT`` holds ``manifest.json`` (command, options, versions, timings; written
-first, updated at the end), ``chunks/`` (one Parquet file per finished chunk and filter,
+A folder ``OUT`` holds ``manifest.json`` (command, options, input-file hashes, versions,
+timings; written first, updated after every chunk and at the end), ``.lock`` (taken by the
+process writing the folder: a second one is told the folder is busy), ``chunks/`` (one Parquet file per finished chunk and filter,
 written atomically: a file exists only once complete, so an interrupted run resumes by
 computing only what is missing), and the assembled ``metrics.parquet`` / ``epochs.parquet``
 (docs/results-schema.md). The experiment modules say what a chunk computes; this module
@@ -10,7 +11,9 @@ the progress display, running the chunks where the backend says, collecting timi
 """
 from __future__ import annotations
 
+import hashlib
 import json
+import os
 import platform
 import shutil
 import subprocess
@@ -28,6 +31,8 @@ from nespm_cli import __version__
 from nespm_cli.data.atomic import write_atomic, write_text_atomic
 from nespm_cli.errors import NespmError
 from nespm_cli.experiments.progress import PROGRESS_DIR, Poller, Progress
+
+LOCK_FILE = ".lock"  # OUT/.lock: held (flock) by the process writing the folder
 
 
 # --- atomic files (nespm_cli.data.atomic) ---------------------------------------------------
@@ -69,13 +74,77 @@ def now() -> str:
 
 # --- the folder --------------------------------------------------------------------------
 
+def file_hashes(paths) -> dict[str, str]:
+    """``{absolute path: sha256 hex}`` of every file in ``paths`` (the inputs of an experiment)."""
+    out = {}
+    for p in paths:
+        p = Path(p).resolve()
+        h = hashlib.sha256()
+        try:
+            with open(p, "rb") as f:
+                for block in iter(lambda: f.read(1 << 20), b""):
+                    h.update(block)
+        except OSError as exc:
+            raise NespmError(f"{p}: cannot read ({exc.strerror or exc.__class__.__name__})") from None
+        out[str(p)] = h.hexdigest()
+    return out
+
+
+def check_inputs(out: Path, old: dict | None, inputs: dict[str, str]) -> None:
+    """Refuse to resume ``out`` when an input file changed since it was started (one line)."""
+    before = (old or {}).get("inputs") or {}
+    for path, digest in inputs.items():
+        if path in before and before[path] != digest:
+            raise NespmError(f"{path}: changed since {out} was started (sha256 {before[path][:12]}... now "
+                             f"{digest[:12]}...); restore the file or use a new --out folder")
+    gone = sorted(set(before) - set(inputs))
+    if gone and set(inputs):
+        raise NespmError(f"{gone[0]}: an input of {out} is no longer used or found; use a new --out folder")
+
+
+def has_results(out: Path) -> bool:
+    """Whether ``out`` holds any finished chunk or assembled table."""
+    return (out / "metrics.parquet").exists() or any((out / "chunks").glob("metrics-*.parquet"))
+
+
+class FolderLock:
+    """An exclusive lock on a results folder (``OUT/.lock``, ``flock``), held until :meth:`release`
+    or the process ends (the system releases it on kill -9 too)."""
+
+    def __init__(self, out: Path) -> None:
+        import fcntl
+
+        out.mkdir(parents=True, exist_ok=True)
+        self.path = out / LOCK_FILE
+        self.handle = open(self.path, "a+")
+        try:
+            fcntl.flock(self.handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            self.handle.seek(0)
+            pid = self.handle.read().strip() or "?"
+            self.handle.close()
+            raise NespmError(f"{out}: busy: another nespm process (pid {pid}) is writing this folder; wait "
+                             "for it to finish, or use another --out") from None
+        self.handle.seek(0)
+        self.handle.truncate()
+        self.handle.write(str(os.getpid()))
+        self.handle.flush()
+
+    def release(self) -> None:
+        if not self.handle.closed:
+            self.handle.close()
+
+
 def check_existing(out: Path, options: dict, extendable: tuple[str, ...] = ()) -> dict | None:
     """The old manifest of ``out`` (None for a new folder); refuse another experiment's folder.
 
     ``extendable``: integer options that may grow (``runs``: more runs extend the folder)
-    but never shrink.
+    but never shrink. A manifest without any result (a start that failed before its first
+    chunk) is no experiment: the folder counts as new.
     """
     mf = out / "manifest.json"
+    if mf.exists() and not has_results(out):
+        return None
     if not mf.exists():
         if (out / "chunks").exists() and any((out / "chunks").iterdir()):
             raise NespmError(f"{out}: has chunk files but no manifest.json; use a new --out folder")
@@ -144,15 +213,20 @@ class ResultsFolder:
         self.old: dict | None = None
         self.manifest: dict = {}
         self.t0 = time.perf_counter()
+        self.lock: FolderLock | None = None
 
-    def open(self, **extra) -> "ResultsFolder":
+    def open(self, inputs: dict[str, str] | None = None, **extra) -> "ResultsFolder":
+        """Lock the folder, check it against ``options`` and the ``inputs`` hashes
+        (:func:`file_hashes`), write the manifest."""
         if self.out.exists() and not self.out.is_dir():
             raise NespmError(f"--out {self.out}: exists and is not a folder")
+        self.lock = FolderLock(self.out)
         self.old = check_existing(self.out, self.options, self.extendable)
+        check_inputs(self.out, self.old, inputs or {})
         self.chunks.mkdir(parents=True, exist_ok=True)
         shutil.rmtree(self.chunks / PROGRESS_DIR, ignore_errors=True)  # a killed run's stale reports
         old = self.old or {}
-        self.manifest = {"command": self.argv, "options": self.options, **extra,
+        self.manifest = {"command": self.argv, "options": self.options, **extra, "inputs": inputs or {},
                          "versions": versions(), "git_commit": git_commit(),
                          "started": old.get("started", now()), "finished": None,
                          "chunk_seconds": old.get("chunk_seconds", {})}
@@ -186,6 +260,7 @@ class ResultsFolder:
                 Poller(bar, self.chunks) as poller:
             for key, timings in results:
                 self.manifest["chunk_seconds"].update(timings)
+                self.save()  # a killed run's finished chunks keep their timings
                 poller.finish(key)
                 bar.chunk_done(units.get(key, 0))
                 poller.poll()
@@ -200,3 +275,4 @@ class ResultsFolder:
         self.manifest.update(finished=now(), chunks=chunks,
                              wall_seconds=round(time.perf_counter() - self.t0 + old.get("wall_seconds", 0.0), 3))
         self.save()
+        self.lock.release()

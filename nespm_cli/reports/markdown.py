@@ -94,6 +94,17 @@ def md_table(headers: Sequence[str], rows: Iterable[Sequence[str]]) -> str:
     return "\n".join(lines)
 
 
+def inputs_text(manifest: dict) -> str:
+    """`` (N input files, sha256 ...)``: which data a table came from (the manifest's ``inputs``)."""
+    import hashlib
+
+    inputs = manifest.get("inputs") or {}
+    if not inputs:
+        return ""
+    digest = hashlib.sha256("".join(f"{k}={v}\n" for k, v in sorted(inputs.items())).encode()).hexdigest()
+    return f" ({len(inputs)} input files; sha256 of their hashes {digest[:12]}, per file in manifest.json)"
+
+
 def header_line(metrics: pd.DataFrame, manifest: dict) -> str:
     """The run summary line: tracks, runs per track, filters, scenario, schedule, seed, data, time."""
     options = manifest.get("options") or {}
@@ -114,7 +125,7 @@ def header_line(metrics: pd.DataFrame, manifest: dict) -> str:
         f"scenario {field('scenario')}",
         f"schedule {field('schedule')}",
         f"seed {seed_text}",
-        f"data dir {manifest.get('data_dir') or DASH}",
+        f"data dir {manifest.get('data_dir') or DASH}" + inputs_text(manifest),
         f"wall time {wall_text}",
     ]
     return "**Run:** " + "; ".join(parts) + "."

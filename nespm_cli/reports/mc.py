@@ -769,6 +769,10 @@ def render_report(
     scenario = scenario_of(metrics, manifest)
     ref = table.attrs["reference"]
     diverged = ", ".join(f"{r.filter} {r.diverged}" for r in table.itertuples(index=False))
+    if "diverged_reason" in metrics.columns and metrics["diverged"].astype(bool).any():
+        why = metrics[metrics["diverged"].astype(bool)].groupby(["filter", "diverged_reason"], sort=False).size()
+        diverged += " (" + "; ".join(f"{f}: {n} {r}" for (f, r), n in why.items()) + "; the tests: README, " \
+            "\"Divergence\")"
     comps = compare_filters(metrics, n_boot=n_boot, seed=seed, practical_pct=practical_pct,
                             min_pairs=min_pairs)
     fig_text = (
