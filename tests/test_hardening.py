@@ -283,3 +283,24 @@ def test_unreadable_track_folder(tmp_path, short_data_dir, monkeypatch):
     rc, out, err = nespm("mc", "--data-dir", str(data), *EKF, "--out", str(tmp_path / "r"))
     assert_one_error_line(rc, out, err, str(data), "Permission denied")
     assert not (tmp_path / "r").exists()
+
+
+def test_out_inside_a_read_only_folder(tmp_path, short_data_dir, monkeypatch):
+    """As root a read-only folder is writable, so its refusal is given by a patched mkdir too."""
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    real_mkdir = Path.mkdir
+
+    def mkdir(path, *a, **k):
+        if ro in path.parents:
+            raise PermissionError(13, "Permission denied", str(path))
+        return real_mkdir(path, *a, **k)
+
+    monkeypatch.setattr(Path, "mkdir", mkdir)
+    rc, out, err = nespm("mc", "--data-dir", str(short_data_dir), *EKF, "--out", str(ro / "r"))
+    assert_one_error_line(rc, out, err, str(ro / "r"), "Permission denied")
+    if os.geteuid() != 0:
+        monkeypatch.setattr(Path, "mkdir", real_mkdir)
+        ro.chmod(0o555)
+        rc, out, err = nespm("mc", "--data-dir", str(short_data_dir), *EKF, "--out", str(ro / "r2"))
+        assert_one_error_line(rc, out, err, str(ro / "r2"))
