@@ -23,6 +23,19 @@ from nespm_cli.experiments.store import FolderLock
 EKF = ("--tracks", "5", "--runs", "2", "--filters", "ekf", "--no-progress", "--jobs", "1")
 
 
+def deny(monkeypatch, method: str, when) -> None:
+    """Make ``Path.<method>`` raise PermissionError for the paths where ``when(path)`` holds, as a
+    read-only or unreadable file system would (as root, permissions are not enforced)."""
+    real = getattr(Path, method)
+
+    def denied(path, *a, **k):
+        if when(path):
+            raise PermissionError(13, "Permission denied", str(path))
+        return real(path, *a, **k)
+
+    monkeypatch.setattr(Path, method, denied)
+
+
 def copy_data(src: Path, dst: Path) -> Path:
     shutil.copytree(src, dst)
     return dst
@@ -45,18 +58,11 @@ def test_unreadable_gt_file(tmp_path, short_data_dir, monkeypatch):
     """As root nothing is unreadable, so the file system's answer is given by a patched reader too."""
     data = copy_data(short_data_dir, tmp_path / "d")
     gt = data / "Trajectory5" / "GT_trajectory5.csv"
-    real_read = Path.read_bytes
-
-    def read_bytes(path):
-        if path == gt:
-            raise PermissionError(13, "Permission denied", str(gt))
-        return real_read(path)
-
-    monkeypatch.setattr(Path, "read_bytes", read_bytes)
-    rc, out, err = nespm("tracks", "--data-dir", str(data), "--no-progress")
+    with monkeypatch.context() as m:
+        deny(m, "read_bytes", lambda p: p == gt)
+        rc, out, err = nespm("tracks", "--data-dir", str(data), "--no-progress")
     assert_one_error_line(rc, out, err, str(gt), "Permission denied")
     if os.geteuid() != 0:  # and for real where permissions apply
-        monkeypatch.setattr(Path, "read_bytes", real_read)
         gt.chmod(0)
         rc, out, err = nespm("tracks", "--data-dir", str(data), "--no-progress")
         assert_one_error_line(rc, out, err, str(gt))
@@ -272,14 +278,7 @@ def test_all_nul_file_is_one_printable_line(tmp_path, short_data_dir):
 
 def test_unreadable_track_folder(tmp_path, short_data_dir, monkeypatch):
     data = copy_data(short_data_dir, tmp_path / "d")
-    real_iterdir = Path.iterdir
-
-    def iterdir(path):
-        if path == data:
-            raise PermissionError(13, "Permission denied", str(data))
-        return real_iterdir(path)
-
-    monkeypatch.setattr(Path, "iterdir", iterdir)
+    deny(monkeypatch, "iterdir", lambda p: p == data)
     rc, out, err = nespm("mc", "--data-dir", str(data), *EKF, "--out", str(tmp_path / "r"))
     assert_one_error_line(rc, out, err, str(data), "Permission denied")
     assert not (tmp_path / "r").exists()
@@ -289,18 +288,11 @@ def test_out_inside_a_read_only_folder(tmp_path, short_data_dir, monkeypatch):
     """As root a read-only folder is writable, so its refusal is given by a patched mkdir too."""
     ro = tmp_path / "ro"
     ro.mkdir()
-    real_mkdir = Path.mkdir
-
-    def mkdir(path, *a, **k):
-        if ro in path.parents:
-            raise PermissionError(13, "Permission denied", str(path))
-        return real_mkdir(path, *a, **k)
-
-    monkeypatch.setattr(Path, "mkdir", mkdir)
-    rc, out, err = nespm("mc", "--data-dir", str(short_data_dir), *EKF, "--out", str(ro / "r"))
+    with monkeypatch.context() as m:
+        deny(m, "mkdir", lambda p: ro in p.parents)
+        rc, out, err = nespm("mc", "--data-dir", str(short_data_dir), *EKF, "--out", str(ro / "r"))
     assert_one_error_line(rc, out, err, str(ro / "r"), "Permission denied")
     if os.geteuid() != 0:
-        monkeypatch.setattr(Path, "mkdir", real_mkdir)
         ro.chmod(0o555)
         rc, out, err = nespm("mc", "--data-dir", str(short_data_dir), *EKF, "--out", str(ro / "r2"))
         assert_one_error_line(rc, out, err, str(ro / "r2"))
