@@ -15,7 +15,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from conftest import REPO, assert_one_error_line, chunk_mtimes, env_without_data_dir, nespm
+from conftest import REPO, assert_one_error_line, chunk_mtimes, console_script, env_without_data_dir, nespm
 from nespm_cli.cli import one_line
 from nespm_cli.experiments.metrics import DivergenceRule, EpochErrors, divergence
 from nespm_cli.experiments.store import FolderLock
@@ -296,3 +296,15 @@ def test_out_inside_a_read_only_folder(tmp_path, short_data_dir, monkeypatch):
         ro.chmod(0o555)
         rc, out, err = nespm("mc", "--data-dir", str(short_data_dir), *EKF, "--out", str(ro / "r2"))
         assert_one_error_line(rc, out, err, str(ro / "r2"))
+
+
+def test_overflowing_dvl_gives_the_error_line_only(tmp_path, short_data_dir):
+    """A DVL value of 1e308 overflows the speed (a NumPy RuntimeWarning): only the error line prints."""
+    data = copy_data(short_data_dir, tmp_path / "d")
+    dvl = data / "Trajectory5" / "DVL_trajectory5.csv"
+    df = pd.read_csv(dvl)
+    df.iloc[7, 1:4] = 1e308
+    df.to_csv(dvl, index=False)
+    r = subprocess.run([*console_script(), "mc", "--data-dir", str(data), *EKF, "--out", str(tmp_path / "r")],
+                       capture_output=True, text=True, env=env_without_data_dir(), timeout=120)
+    assert_one_error_line(r.returncode, r.stdout, r.stderr, str(dvl), "data row 8")  # a real process's stderr
