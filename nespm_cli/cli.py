@@ -122,17 +122,21 @@ _CORRUPTION = [  # (name, type, default, flag, help): the realizations (mc, swee
     ("gyro_bias", float, default(CorruptionConfig, "gyro_bias"), "--gyro-bias", "Gyro bias std [rad/s]."),
 ]
 
-_COMMON = [  # the options that define an experiment: the realizations, the data, the filters
-    *_CORRUPTION,
-    ("data_warnings", str, "warn", "--data-warnings", "Data that looks wrong but may be legitimate (irregular epoch steps, fast turns, a DVL speed far from the GT's, ...): warn (one line each), ignore, or error (exit 2). Clear mistakes are always errors."),
-    ("scenario", str, default(Spec, "scenario"), "--scenario", "nominal, or outage: no DVL for --outage-length s from --outage-start s."),
-    ("imu", str, default(Spec, "imu"), "--imu", "synthetic (inverse strapdown of GT: exact truth) or recorded (IMU_trajectoryN.csv)."),
+_RECORDED = [  # corrections of recorded data (docs/checking-data.md): mc, sweep, run, train
     ("imu_axes", str, default(Spec, "imu_axes"), "--imu-axes", "Recorded IMU axis mapping: corrected body axis i is the i-th signed recorded axis, e.g. x,-y,z (nespm check finds it)."),
     ("imu_time_offset", float, default(Spec, "imu_time_offset"), "--imu-time-offset", "Recorded IMU stamp minus GT time [s]; subtracted from the IMU stamps (nespm check measures it)."),
     ("imu_time_drift", float, default(Spec, "imu_time_drift"), "--imu-time-drift", "Recorded IMU clock drift [s/s]: stamp - GT time = offset + drift * GT time (nespm check measures it)."),
     ("dvl_time_offset", float, default(Spec, "dvl_time_offset"), "--dvl-time-offset", "DVL stamp minus GT time [s]; the DVL is re-sampled at the GT epochs from its shifted stamps."),
     ("window", Optional[str], default(Spec, "window"), "--window", "START:END [s, GT file time]: use only these GT epochs of every track (e.g. 20:400)."),
     ("corrections", Optional[str], default(Spec, "corrections"), "--corrections", "Per-track corrections (imu_axes, offsets, window) from the corrections.json that 'nespm check' writes; an option given explicitly overrides it for every track."),
+]
+
+_COMMON = [  # the options that define an experiment: the realizations, the data, the filters
+    *_CORRUPTION,
+    ("data_warnings", str, "warn", "--data-warnings", "Data that looks wrong but may be legitimate (irregular epoch steps, fast turns, a DVL speed far from the GT's, ...): warn (one line each), ignore, or error (exit 2). Clear mistakes are always errors."),
+    ("scenario", str, default(Spec, "scenario"), "--scenario", "nominal, or outage: no DVL for --outage-length s from --outage-start s."),
+    ("imu", str, default(Spec, "imu"), "--imu", "synthetic (inverse strapdown of GT: exact truth) or recorded (IMU_trajectoryN.csv)."),
+    *_RECORDED,
     ("dvl", str, default(Spec, "dvl"), "--dvl", "recorded (the track's DVL file) or synthetic (C_n^b v + w_nb x l + N(0, dvl-noise^2))."),
     ("dvl_lever_arm", Tuple[float, float, float], default(Spec, "dvl_lever_arm"), "--dvl-lever-arm", "DVL lever arm X Y Z [m, body] in the measurement model (and in synthetic DVL)."),
     ("dvl_r_std", Optional[float], default(Spec, "dvl_r_std"), "--dvl-r-std", "Filter DVL std [m/s] (default 0.02 with synthetic DVL, 0.1 with recorded)."),
@@ -385,7 +389,11 @@ def _epoch_bar(bar, epochs: int):
     return progress
 
 
+_IMU = [o for o in _COMMON if o[0] == "imu"]
+
+
 @app.command()
+@_options(_IMU, _RECORDED)
 def train(
     tracks_: str = typer.Option("1 2 3 4", "--tracks", help="Training tracks, e.g. '1 2 3 4'."),
     test_tracks: str = typer.Option("5 6", "--test-tracks", help="Held-out tracks for the Spearman check."),
@@ -395,12 +403,7 @@ def train(
     seed: int = typer.Option(0, "--seed", help="Seed of the realizations, the split and the initial weights."),
     data_dir: Optional[str] = DATA_DIR,
     no_progress: bool = typer.Option(False, "--no-progress", help="No progress bar."),
-    imu: str = typer.Option("synthetic", "--imu", help="Clean IMU the noise is added to: synthetic (from the GT) or recorded (the tracks' IMU files, as the paper)."),
-    imu_axes: str = typer.Option(default(Spec, "imu_axes"), "--imu-axes", help="Recorded IMU axis mapping (as mc)."),
-    imu_time_offset: float = typer.Option(default(Spec, "imu_time_offset"), "--imu-time-offset", help="Recorded IMU stamp minus GT time [s] (as mc)."),
-    imu_time_drift: float = typer.Option(default(Spec, "imu_time_drift"), "--imu-time-drift", help="Recorded IMU clock drift [s/s] (as mc)."),
-    window: Optional[str] = typer.Option(None, "--window", help="START:END [s] of every track to use (as mc)."),
-    corrections: Optional[str] = typer.Option(None, "--corrections", help="Per-track corrections.json from 'nespm check' (as mc)."),
+    **kw,
 ) -> None:
     """Train the accelerometer and gyro ProcessNets (anukf.md eqs 34-42) on dynamic-schedule windows."""
     from nespm_cli.learn.training import train_processnet
@@ -420,9 +423,11 @@ def train(
                              f"{', '.join(map(str, have))}")
     from nespm_cli.data.corrections import resolve
 
+    imu = kw["imu"]
     if imu not in ("synthetic", "recorded"):
         raise NespmError(f"--imu: choose synthetic or recorded, got {imu!r}")
-    corr = resolve(train_t + test_t, imu, corrections, imu_axes, imu_time_offset, 0.0, window, imu_time_drift)
+    corr = resolve(train_t + test_t, imu, kw["corrections"], kw["imu_axes"], kw["imu_time_offset"],
+                   kw["dvl_time_offset"], kw["window"], kw["imu_time_drift"])
     bar = None
     if not no_progress:
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
@@ -568,12 +573,11 @@ MAX_MESSAGE = 400  # characters of an error line
 
 
 def one_line(text: str) -> str:
-    """The first line of ``text`` with non-printable characters replaced (runs of them counted),
+    """The first line of ``text``, printable (:func:`nespm_cli.data.plausibility.printable`),
     at most :data:`MAX_MESSAGE` characters."""
-    lines = str(text).splitlines() or [""]
-    out = re.sub(r"[^\x20-\x7e\u00a0-\uffff]+", lambda m: f"<{len(m.group())} non-printable>", lines[0])
-    out = "".join(ch if ch.isprintable() else "?" for ch in out)
-    return out if len(out) <= MAX_MESSAGE else out[:MAX_MESSAGE - 3] + "..."
+    from nespm_cli.data.plausibility import printable
+
+    return printable((str(text).splitlines() or [""])[0], MAX_MESSAGE)
 
 
 def os_error_line(exc: OSError) -> str:

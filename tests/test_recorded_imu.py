@@ -82,3 +82,10 @@ def test_filter_noise_options_reach_the_filters(short_data_dir, tmp_path):
     assert fc["gyro_noise"] == 5e-4 and fc["acc_noise"] == 0.035
     rc, out, err = nespm("mc", "--filter-gyro-noise", "-1", "--out", str(tmp_path / "b"))
     assert_one_error_line(rc, out, err, "--filter-gyro-noise", "positive")
+
+
+def test_train_takes_the_correction_options(tmp_path):
+    rc, out, err = nespm("train", "--imu", "bogus", "--out", str(tmp_path / "w.npz"))
+    assert_one_error_line(rc, out, err, "--imu", "bogus")
+    rc, out, err = nespm("train", "--imu", "recorded", "--imu-axes", "x,y,y", "--out", str(tmp_path / "w.npz"))
+    assert_one_error_line(rc, out, err, "--imu-axes", "signed permutation")

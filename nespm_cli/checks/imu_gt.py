@@ -178,7 +178,7 @@ def local_offsets(g: dict, A: np.ndarray, offsets: np.ndarray = LOCAL_OFFSETS) -
     """The gyro time offset in windows of :data:`LOCAL_S` every :data:`LOCAL_STEP_S` (inner samples).
 
     One interpolation per candidate offset for the whole track; the per-window costs come
-    from window sums (mean removed per window). Each: ``t`` (window centre), ``offset_s``,
+    from cumulative sums (mean removed per window). Each: ``t`` (window centre), ``offset_s``,
     ``std_s`` (as :func:`parabola_minimum`, ``n_eff = 2 B LOCAL_S``), ``at_edge``.
     """
     m = g["inner"]
@@ -186,14 +186,22 @@ def local_offsets(g: dict, A: np.ndarray, offsets: np.ndarray = LOCAL_OFFSETS) -
     starts = np.arange(t[m][0], t[m][-1] - LOCAL_S + 1e-9, LOCAL_STEP_S)
     if len(starts) == 0:
         return []
-    sel = [m & (t >= s0) & (t < s0 + LOCAL_S) for s0 in starts]
-    norm = np.array([g["imp_w"][k].var(axis=0).sum() * k.sum() for k in sel])
+    ti = t[m]
+    lo, hi = np.searchsorted(ti, starts), np.searchsorted(ti, starts + LOCAL_S)  # window j: inner samples lo..hi-1
+    n = np.maximum(hi - lo, 1)[:, None]
+
+    def window_ss(x: np.ndarray) -> np.ndarray:
+        """Sum over the axes of each window's squared deviations from its mean (from cumulative sums)."""
+        c1 = np.vstack([np.zeros(3), np.cumsum(x, axis=0)])
+        c2 = np.vstack([np.zeros(3), np.cumsum(x * x, axis=0)])
+        s1, s2 = c1[hi] - c1[lo], c2[hi] - c2[lo]
+        return (s2 - s1 * s1 / n).sum(axis=1)
+
+    norm = np.maximum(window_ss(g["imp_w"][m]), 1e-300)
     cost = np.empty((len(offsets), len(starts)))
-    for i, o in enumerate(offsets):
+    for i, o in enumerate(offsets):  # one interpolation per candidate offset, all windows at once
         _, rw = residual(g, float(o), A)
-        for j, k in enumerate(sel):  # a few dozen windows
-            r = rw[k]
-            cost[i, j] = ((r - r.mean(axis=0)) ** 2).sum() / max(norm[j], 1e-300)
+        cost[i] = window_ss(rw[m]) / norm
     out = []
     for j, s0 in enumerate(starts):
         best, std, edge = parabola_minimum(offsets, cost[:, j], 2.0 * CUTOFF_HZ * LOCAL_S)

@@ -207,9 +207,8 @@ def resolve_corrections(spec: Spec) -> tuple:
 
 def corrections_for(spec: Spec, number: int) -> Corrections:
     """The corrections track ``number`` runs with (resolved by :func:`validate`)."""
-    for n, c in spec.track_corrections:
-        if n == number:
-            return c if isinstance(c, Corrections) else Corrections(**{**c, "window": tuple(c["window"]) if c.get("window") else None})
+    if spec.track_corrections:
+        return dict(spec.track_corrections)[number]
     return dict(resolve_corrections(dataclasses.replace(spec, tracks=(number,))))[number]
 
 
@@ -388,17 +387,9 @@ def chunk_tasks(cells: list[Cell], blocks: list[tuple[int, int]] | None = None) 
             for f0, f1 in chunk_firsts(blocks or [(0, c.spec.runs)], c.spec.chunk_size)]
 
 
-@lru_cache(maxsize=64)
-def _epochs_of(number: int, data_dir: str | None) -> int:
-    track = load_track(number, data_dir) if data_dir is not None else embedded_track(number)
-    return len(track.t)
-
-
 def track_epochs(spec: Spec, number: int) -> int:
-    """Number of GT epochs of track ``number`` (for progress totals; cached per process)."""
-    if spec.track_corrections and not corrections_for(spec, number).is_identity:
-        return len(prepared(number, spec.data_dir, spec.imu, corrections_for(spec, number))[0].t)
-    return _epochs_of(number, spec.data_dir)
+    """Number of GT epochs track ``number`` runs with (after its window; for progress totals)."""
+    return len(prepared(number, spec.data_dir, spec.imu, corrections_for(spec, number))[0].t)
 
 
 def assemble(out: Path, keys: tuple = ()) -> tuple[pd.DataFrame, pd.DataFrame]:

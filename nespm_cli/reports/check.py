@@ -9,13 +9,9 @@ import numpy as np
 
 from nespm_cli.data.atomic import write_text_atomic
 from nespm_cli.reports.figures import save_figure
-from nespm_cli.reports.markdown import md_table
+from nespm_cli.reports.markdown import fmt, md_table
 
 DEG_H = 180.0 / math.pi * 3600.0  # rad/s -> deg/h
-
-
-def _f(x, spec: str = ".3g") -> str:
-    return "—" if x is None or (isinstance(x, float) and not math.isfinite(x)) else format(x, spec)
 
 
 def summary_rows(result: dict) -> list[list[str]]:
@@ -29,13 +25,13 @@ def summary_rows(result: dict) -> list[list[str]]:
         else:
             o = imu["time_offset"]
             imu_cells = [imu["axis_mapping"]["axes"], f"{o['offset_s']:+.2f} ± {o['std_s']:.2f}",
-                         _f(min(imu["stats"]["gyro"]["corr"]), ".3f"),
+                         fmt(min(imu["stats"]["gyro"]["corr"]), ".3f"),
                          ", ".join(f"{a:+.1f}" for a in imu["attitude_drift"]["final_deg"])]
         sf = dvl["scale_factor"]
         mis = dvl["misalignment_deg"]
         rows.append([
             str(r["track"]), r["verdict"], *imu_cells,
-            f"{dvl['time_offset_s']:+.2f} ± {_f(dvl['time_offset_std_s'], '.2f')}",
+            f"{dvl['time_offset_s']:+.2f} ± {fmt(dvl['time_offset_std_s'], '.2f')}",
             "(" + ", ".join(f"{x:.2f}" for x in dvl["lever_arm"]) + ")",
             f"{100 * sf:+.2f}", "(" + ", ".join(f"{x:+.2f}" for x in mis) + ")",
             f"{dvl['resid_rms_after']:.3f}", f"`{r['options']}`" if r["options"] else "none",
@@ -77,11 +73,11 @@ def track_section(r: dict, fig_names: list[str]) -> str:
         lines.append("")
     d = r["dvl"]
     und = ", ".join(d.get("undetermined") or []) or "none"
-    lines += [f"DVL against GT: time offset {d['time_offset_s']:+.3f} ± {_f(d['time_offset_std_s'])} s, lever arm "
-              f"({', '.join(f'{x:.3f}' for x in d['lever_arm'])}) ± ({', '.join(_f(x) for x in d['lever_arm_std'])}) m, "
-              f"scale factor {d['scale_factor']:+.4f} ± {_f(d['scale_factor_std'])}, misalignment "
+    lines += [f"DVL against GT: time offset {d['time_offset_s']:+.3f} ± {fmt(d['time_offset_std_s'], '.3g')} s, lever arm "
+              f"({', '.join(f'{x:.3f}' for x in d['lever_arm'])}) ± ({', '.join(fmt(x, '.3g') for x in d['lever_arm_std'])}) m, "
+              f"scale factor {d['scale_factor']:+.4f} ± {fmt(d['scale_factor_std'], '.3g')}, misalignment "
               f"({', '.join(f'{x:+.3f}' for x in d['misalignment_deg'])}) ± "
-              f"({', '.join(_f(x) for x in d['misalignment_std_deg'])}) deg; residual std "
+              f"({', '.join(fmt(x, '.3g') for x in d['misalignment_std_deg'])}) deg; residual std "
               f"({', '.join(f'{x:.3f}' for x in d['resid_std_before'])}) m/s after the lever arm alone, "
               f"({', '.join(f'{x:.3f}' for x in d['resid_std_after'])}) after all four. Undetermined: {und}.", ""]
     lines += [f"![{n}]({n})" for n in fig_names]

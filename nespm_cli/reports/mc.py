@@ -723,14 +723,8 @@ def beside_md(metrics: pd.DataFrame, label: str, others: Sequence[tuple[str, pd.
     tracks = sorted(common)
     if not tracks:
         return "The folders share no track; nothing to set side by side."
-    avgs = []
-    for _, m in folders:  # as the main table: eq 51 over the tracks, NEES over all non-diverged runs
-        m = m[m["track"].isin(tracks)]
-        tt = track_table(m)
-        ok = m[~m["diverged"].astype(bool)]
-        avgs.append(pd.DataFrame({f: {"vrmse": track_average(g["vrmse"]), "mrmse": track_average(g["mrmse"]),
-                                      "nees": float(ok.loc[ok["filter"] == f, "nees"].mean())}
-                                  for f, g in tt.groupby("filter", sort=False)}).T)
+    avgs = [filter_table(m[m["track"].isin(tracks)], None, n_boot=0).set_index("filter")
+            for _, m in folders]  # the main table's numbers: eq 51 over the tracks, NEES over all runs
     headers = ["Method"]
     for lab, _ in folders:
         headers += [f"VRMSE [m/s] {lab}", f"MRMSE [rad] {lab}", f"NEES {lab}"]
