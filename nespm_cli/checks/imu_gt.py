@@ -191,11 +191,13 @@ def local_offsets(g: dict, A: np.ndarray, offsets: np.ndarray = LOCAL_OFFSETS) -
     n = np.maximum(hi - lo, 1)[:, None]
 
     def window_ss(x: np.ndarray) -> np.ndarray:
-        """Sum over the axes of each window's squared deviations from its mean (from cumulative sums)."""
+        """Sum over the axes of each window's squared deviations from its mean (from cumulative sums
+        of the deviations from the track mean, so a constant bias does not cancel; >= 0)."""
+        x = x - x.mean(axis=0)
         c1 = np.vstack([np.zeros(3), np.cumsum(x, axis=0)])
         c2 = np.vstack([np.zeros(3), np.cumsum(x * x, axis=0)])
         s1, s2 = c1[hi] - c1[lo], c2[hi] - c2[lo]
-        return (s2 - s1 * s1 / n).sum(axis=1)
+        return np.maximum(s2 - s1 * s1 / n, 0.0).sum(axis=1)
 
     norm = np.maximum(window_ss(g["imp_w"][m]), 1e-300)
     cost = np.empty((len(offsets), len(starts)))
