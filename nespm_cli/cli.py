@@ -131,6 +131,11 @@ _RECORDED = [  # corrections of recorded data (docs/checking-data.md): mc, sweep
     ("corrections", Optional[str], default(Spec, "corrections"), "--corrections", "Per-track corrections (imu_axes, offsets, window) from the corrections.json that 'nespm check' writes; an option given explicitly overrides it for every track."),
 ]
 
+_KERNELS = ("kernels", Optional[str], None, "--kernels",
+            "The filters' IMU-rate loop: auto (compiled with numba where installed), numba, or numpy (the "
+            "reference); default $NESPM_KERNELS, else auto. The same numbers to round-off either way (docs/architecture.md); not part of an "
+            "experiment's identity, like --jobs.")
+
 _COMMON = [  # the options that define an experiment: the realizations, the data, the filters
     *_CORRUPTION,
     ("data_warnings", str, "warn", "--data-warnings", "Data that looks wrong but may be legitimate (irregular epoch steps, fast turns, a DVL speed far from the GT's, ...): warn (one line each), ignore, or error (exit 2). Clear mistakes are always errors."),
@@ -167,6 +172,7 @@ _PARALLEL = [  # where the chunks of a resumable experiment run (mc, sweep, gp-u
     ("backend", str, "loky", "--backend", "Where chunks run: loky (local processes) or dask (a Dask cluster; pip install 'nespm[dask]')."),
     ("scheduler", Optional[str], None, "--scheduler", "Dask scheduler address (tcp://host:8786) or scheduler file; default $NESPM_DASK_SCHEDULER, else a local cluster of --jobs workers (docs/cluster.md)."),
     ("no_progress", bool, False, "--no-progress", "No progress (a bar on a terminal, else a line on stderr every 15 s with the ETA)."),
+    _KERNELS,
 ]
 
 _RUNNER = [  # options of the commands that run many realizations (mc, sweep)
@@ -189,6 +195,11 @@ def _options(*groups):
 
         @functools.wraps(f)
         def wrapper(**kwargs):
+            if "kernels" in kwargs:  # for this process and the workers it starts (they inherit it)
+                from nespm_cli.filters.kernels import kernel_mode, set_kernel_mode
+
+                mode = kwargs.pop("kernels")
+                set_kernel_mode(kernel_mode() if mode is None else mode)
             return f(**kwargs)
 
         wrapper.__signature__ = inspect.Signature(own + extra)
@@ -196,7 +207,6 @@ def _options(*groups):
     return deco
 
 
-_common = _options(_COMMON)
 
 
 @app.command()
@@ -287,7 +297,7 @@ def corrupt(
 
 
 @app.command()
-@_common
+@_options(_COMMON, [_KERNELS])
 def run(
     track: int = typer.Option(..., "--track", help="Track number."),
     filt: str = typer.Option("ukf-nespm", "--filter", help="ins, ekf, ukf, ukf-nespm, anekf, anukf or anukf-nespm."),

@@ -488,11 +488,24 @@ def run_cells(cells: list[Cell], options: dict, out_dir: str | Path, jobs: int =
     todo = [Task(chunk_key(c, n, f0), (_absolute(c), n, f0, str(out.resolve()), f1), k * (track_epochs(c.spec, n) - 1))
             for c, n, f0, f1 in tasks for k in [len(missing(c, n, f0))] if k]
     folder.run(run_chunk_keyed, todo, jobs, backend, scheduler, label, progress)
+    recover_timings(folder.manifest["chunk_seconds"], tasks, out / "chunks")
     metrics, epochs = assemble(out, tuple(k for k, _ in cells[0].columns))
     epochs = add_true_track(epochs, first)
     write_parquet_atomic(epochs, out / "epochs.parquet")
     folder.finish(chunks=len(tasks))
     return metrics
+
+
+def recover_timings(chunk_seconds: dict, tasks: list, chunks: Path) -> None:
+    """Fill in the timing of chunks that finished (their files are on disk) but whose worker's
+    answer never reached a manifest (the parent was killed in between): from the chunk's own
+    ``seconds`` column (seconds per run)."""
+    for c, n, f0, _ in tasks:
+        for filt in c.spec.filters:
+            key = f"{c.tag}{n}-{filt}-{f0}"
+            path = chunks / _chunk_name("metrics", n, filt, f0, c.tag)
+            if key not in chunk_seconds and path.exists():
+                chunk_seconds[key] = float(pd.read_parquet(path, columns=["seconds"])["seconds"].sum())
 
 
 def _absolute(cell: Cell) -> Cell:

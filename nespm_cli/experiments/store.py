@@ -53,9 +53,16 @@ def versions() -> dict:
     import pyarrow
     import scipy
 
-    return {"python": platform.python_version(), "nespm": __version__, "numpy": np.__version__,
-            "scipy": scipy.__version__, "pandas": pd.__version__, "pyarrow": pyarrow.__version__,
-            "joblib": joblib.__version__}
+    from nespm_cli.filters.kernels import kernel_backend
+
+    out = {"python": platform.python_version(), "nespm": __version__, "numpy": np.__version__,
+           "scipy": scipy.__version__, "pandas": pd.__version__, "pyarrow": pyarrow.__version__,
+           "joblib": joblib.__version__, "kernels": kernel_backend()}
+    if out["kernels"] == "numba":
+        import numba
+
+        out["numba"] = numba.__version__
+    return out
 
 
 def git_commit() -> str | None:

@@ -30,10 +30,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from nespm_cli.errors import NespmError
+from nespm_cli.filters import kernels
 from nespm_cli.filters.adaptive import adaptive_q
 from nespm_cli.filters.measurements import Measurement
-from nespm_cli.filters.model import N_STATES, FilterConfig, NavState, feedback, process_noise, system_matrix
+from nespm_cli.filters.model import BA, BG, DPSI, DV, N_STATES, FilterConfig, NavState, feedback, process_noise, system_matrix
 from nespm_cli.filters.unscented import UTWeights, safe_cholesky
+from nespm_cli.nav.products import mat_mul
+from nespm_cli.nav.rotations import exp_so3
 from nespm_cli.nav.strapdown import na_cycle
 
 
@@ -108,7 +111,9 @@ class ErrorStateFilter(Filter):
     Attributes available to subclasses: ``cfg``; ``nav`` (:class:`NavState`, R runs);
     ``P`` (R, 12, 12); ``bad`` (R,) divergence mask; ``f``, ``w`` (R, M, 3), ``dt`` (M,)
     the IMU; ``R`` the number of runs; ``ut`` the scaled-UT weights of ``cfg``; ``lever`` (3,)
-    [m]; ``dt_imu`` the median IMU step [s]; ``eye`` I₁₂.
+    [m]; ``dt_imu`` the median IMU step [s]; ``eye`` I₁₂; ``compiled`` whether the IMU-rate
+    loops run compiled (:mod:`nespm_cli.filters.kernels`; ``strapdown`` and ``transition`` use
+    them by themselves).
     """
 
     def __init__(self, cfg: FilterConfig, nav0: NavState, imu: ImuData, noise_std=None):
@@ -126,6 +131,7 @@ class ErrorStateFilter(Filter):
         self.lever = np.asarray(cfg.lever_arm, dtype=float)
         self.dt_imu = float(np.median(imu.dt))
         self.eye = np.eye(N_STATES)
+        self.compiled = kernels.compiled_enabled()
 
     # --- interface -------------------------------------------------------------------------
     def state(self) -> NavState:
@@ -166,6 +172,10 @@ class ErrorStateFilter(Filter):
 
     def strapdown(self, j0: int, j1: int) -> None:
         """Move the navigation solution through steps ``[j0, j1)`` (free inertial)."""
+        if self.compiled:
+            n = self.contiguous_nav()
+            kernels.strapdown(n.pos, n.v_n, n.C_bn, n.b_a, n.b_g, self.f, self.w, self.dt, j0, j1)
+            return
         for j in range(j0, j1):
             f, w = self.imu(j)
             n = self.nav
@@ -174,6 +184,9 @@ class ErrorStateFilter(Filter):
     def transition(self, j0: int, j1: int) -> np.ndarray:
         """Move the solution through steps ``[j0, j1)`` and return Φ = Π (I + F dt) (R, 12, 12),
         F evaluated on the solution before each step (:func:`nespm_cli.filters.model.system_matrix`)."""
+        if self.compiled:
+            n = self.contiguous_nav()
+            return kernels.transition(n.pos, n.v_n, n.C_bn, n.b_a, n.b_g, self.f, self.w, self.dt, j0, j1)
         Phi = np.broadcast_to(self.eye, self.P.shape).copy()
         for j in range(j0, j1):
             f, w = self.imu(j)
@@ -182,6 +195,35 @@ class ErrorStateFilter(Filter):
             Phi = (self.eye + F * self.dt[j]) @ Phi
             n.pos, n.v_n, n.C_bn = na_cycle(n.pos, n.v_n, n.C_bn, f, w, self.dt[j])
         return Phi
+
+    def points_through_cycle(self, X: np.ndarray, j0: int, j1: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The solution (point 0) and the solution ⊕ each error-state offset ``X`` (R, S-1, 12)
+        (sigma or cubature points) through steps ``[j0, j1)``, each point compensating the IMU
+        with its own biases (ukf-nespm.md eqs 35-38). Returns ``(pos, v, C)`` (R, S, 3) ``[lat,
+        lon, h]``, (R, S, 3) [m/s], (R, S, 3, 3); the solution is not modified. Compiled where
+        :attr:`compiled` (:func:`nespm_cli.filters.kernels.points_through_cycle`, same bits)."""
+        if self.compiled:
+            n = self.contiguous_nav()
+            return kernels.points_through_cycle(n.pos, n.v_n, n.C_bn, n.b_a, n.b_g, X, self.f, self.w, self.dt,
+                                                j0, j1)
+        nav = self.nav
+        S = X.shape[1] + 1
+        Xa = np.concatenate([np.zeros((self.R, 1, N_STATES)), X], axis=1)  # point 0 is the solution
+        pos = np.repeat(nav.pos[:, None], S, axis=1)  # eq 35: position unperturbed
+        v = nav.v_n[:, None] + Xa[..., DV]  # eq 36
+        C = mat_mul(exp_so3(Xa[..., DPSI]), nav.C_bn[:, None])  # eq 37: ⊕
+        b_a = nav.b_a[:, None] + Xa[..., BA]
+        b_g = nav.b_g[:, None] + Xa[..., BG]
+        for j in range(j0, j1):  # eq 38 over the span, every point compensating its own biases
+            pos, v, C = na_cycle(pos, v, C, self.f[:, j, None] - b_a, self.w[:, j, None] - b_g, self.dt[j])
+        return pos, v, C
+
+    def contiguous_nav(self) -> NavState:
+        """The solution with C-contiguous float64 arrays (what the compiled loops update in place)."""
+        n = self.nav
+        n.pos, n.v_n, n.C_bn = (np.ascontiguousarray(a, dtype=np.float64) for a in (n.pos, n.v_n, n.C_bn))
+        n.b_a, n.b_g = (np.ascontiguousarray(a, dtype=np.float64) for a in (n.b_a, n.b_g))
+        return n
 
     def cholesky(self, P: np.ndarray | None = None) -> np.ndarray:
         """Batched Cholesky factor (R, 12, 12) of ``P`` (default ``self.P``); failing runs are flagged."""

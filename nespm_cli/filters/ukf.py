@@ -12,12 +12,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from nespm_cli.filters.model import BA, BG, DPSI, DV, N_STATES
+from nespm_cli.filters.model import BA, BG
 from nespm_cli.filters.protocol import ErrorStateFilter
 from nespm_cli.filters.registry import register
 from nespm_cli.filters.unscented import moments, sigma_offsets
-from nespm_cli.nav.rotations import attitude_minus, exp_so3
-from nespm_cli.nav.strapdown import na_cycle
+from nespm_cli.nav.rotations import attitude_minus
 
 
 @register("ukf")
@@ -62,16 +61,7 @@ class UKFNespm(UKF):
         nav = self.nav
         L = self.cholesky()
         X = sigma_offsets(L, self.ut)  # (R, 2n, 12)
-        S = X.shape[1] + 1
-        zero = np.zeros((self.R, 1, N_STATES))
-        Xa = np.concatenate([zero, X], axis=1)  # (R, S, 12); point 0 is the mean
-        pos = np.repeat(nav.pos[:, None], S, axis=1)  # eq 35: position unperturbed
-        v = nav.v_n[:, None] + Xa[..., DV]  # eq 36
-        C = exp_so3(Xa[..., DPSI]) @ nav.C_bn[:, None]  # eq 37: ⊕
-        b_a = nav.b_a[:, None] + Xa[..., BA]
-        b_g = nav.b_g[:, None] + Xa[..., BG]
-        for j in range(j0, j1):  # eq 38 over the span, every sigma point compensating its biases
-            pos, v, C = na_cycle(pos, v, C, self.f[:, j, None] - b_a, self.w[:, j, None] - b_g, self.dt[j])
+        pos, v, C = self.points_through_cycle(X, j0, j1)  # eqs 35-38
         dv = v[:, 1:] - v[:, :1]  # eq 39
         dpsi = attitude_minus(C[:, 1:], C[:, :1])  # eq 40: ⊖
         Y = np.concatenate([dv, dpsi, X[..., BA], X[..., BG]], axis=-1)

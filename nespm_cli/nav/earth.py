@@ -26,7 +26,7 @@ def radii(lat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """
     s2 = np.sin(lat) ** 2
     den = 1.0 - E2 * s2
-    R_N = A * (1.0 - E2) / den**1.5
+    R_N = A * (1.0 - E2) / (den * np.sqrt(den))  # den^1.5; sqrt is correctly rounded everywhere, pow is not
     R_E = A / np.sqrt(den)
     return R_N, R_E
 

@@ -16,6 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from nespm_cli.nav.earth import gravity_n, height_rate, lat_rate, lon_rate, radii, transport_rates
+from nespm_cli.nav.products import mat_mul, mat_vec, matT_vec
 from nespm_cli.nav.rotations import exp_so3, log_so3
 
 
@@ -24,16 +25,6 @@ def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
     b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
     return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
-
-
-def _mT_vec(C: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """``C^T @ x`` for (..., 3, 3) and (..., 3)."""
-    return (np.swapaxes(C, -1, -2) @ x[..., None])[..., 0]
-
-
-def _vec(C: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """``C @ x`` for (..., 3, 3) and (..., 3)."""
-    return (C @ x[..., None])[..., 0]
 
 
 def update_position(
@@ -86,20 +77,20 @@ def na_cycle(
     R_N, R_E = radii(lat)
     w_ie, w_en = transport_rates(lat, h, v_n, R_N, R_E)
     # eq 25: intermediate body rate relative to NED, with the step-k transport/earth rates
-    w_nb_star = w_ib_b - _mT_vec(C_bn, w_ie + w_en)
+    w_nb_star = w_ib_b - matT_vec(C_bn, w_ie + w_en)
     # eq 24: mid-step attitude used to resolve the specific force
-    C_star = C_bn @ exp_so3(w_nb_star * (0.5 * dt)[..., None])
+    C_star = mat_mul(C_bn, exp_so3(w_nb_star * (0.5 * dt)[..., None]))
     # eq 26-27: velocity
-    v_dot = _vec(C_star, f_b) + gravity_n(pos) - cross(w_en + 2.0 * w_ie, v_n)
+    v_dot = mat_vec(C_star, f_b) + gravity_n(pos) - cross(w_en + 2.0 * w_ie, v_n)
     v_next = v_n + v_dot * dt[..., None]
     # eqs 28-30: position
     pos_next = update_position(pos, v_n, v_next, dt)
     # eq 32: body rate relative to NED with the updated position and velocity
     R_N1, R_E1 = radii(pos_next[..., 0])
     w_ie1, w_en1 = transport_rates(pos_next[..., 0], pos_next[..., 2], v_next, R_N1, R_E1)
-    w_nb = w_ib_b - _mT_vec(C_bn, w_ie1 + w_en1)
+    w_nb = w_ib_b - matT_vec(C_bn, w_ie1 + w_en1)
     # eq 31: attitude
-    C_next = C_bn @ exp_so3(w_nb * dt[..., None])
+    C_next = mat_mul(C_bn, exp_so3(w_nb * dt[..., None]))
     return pos_next, v_next, C_next
 
 
@@ -126,12 +117,12 @@ def na_cycle_inverse(
     w_nb = log_so3(np.swapaxes(C_bn, -1, -2) @ C_bn_next) / dt[..., None]
     R_N1, R_E1 = radii(pos_next[..., 0])
     w_ie1, w_en1 = transport_rates(pos_next[..., 0], pos_next[..., 2], v_n_next, R_N1, R_E1)
-    w_ib_b = w_nb + _mT_vec(C_bn, w_ie1 + w_en1)  # eq 32 inverted
+    w_ib_b = w_nb + matT_vec(C_bn, w_ie1 + w_en1)  # eq 32 inverted
     R_N, R_E = radii(pos[..., 0])
     w_ie, w_en = transport_rates(pos[..., 0], pos[..., 2], v_n, R_N, R_E)
-    w_nb_star = w_ib_b - _mT_vec(C_bn, w_ie + w_en)  # eq 25
-    C_star = C_bn @ exp_so3(w_nb_star * (0.5 * dt)[..., None])  # eq 24
+    w_nb_star = w_ib_b - matT_vec(C_bn, w_ie + w_en)  # eq 25
+    C_star = mat_mul(C_bn, exp_so3(w_nb_star * (0.5 * dt)[..., None]))  # eq 24
     v_dot = (v_n_next - v_n) / dt[..., None]  # eq 27 inverted
     f_n = v_dot - gravity_n(pos) + cross(w_en + 2.0 * w_ie, v_n)  # eq 26 inverted
-    f_b = _mT_vec(C_star, f_n)
+    f_b = matT_vec(C_star, f_n)
     return f_b, w_ib_b

@@ -1,0 +1,152 @@
+"""The compiled time loop of the built-in filters, and the switch between it and NumPy.
+
+What is compiled (numba, :mod:`nespm_cli.nav.kernels`) is the part that runs at the IMU
+rate, the loop over the IMU steps of one time-update span, for every run (and sigma point)
+of a batch:
+
+* :func:`strapdown` — free inertial steps (``ins``; ``ErrorStateFilter.strapdown``);
+* :func:`transition` — the navigation cycle plus the accumulation of Φ = Π (I + F dt), F the
+  error-state matrix of :func:`nespm_cli.filters.model.system_matrix` on the solution before
+  each step (``ekf``, ``ukf``, the adaptive twins and every plugin that calls
+  ``ErrorStateFilter.transition``);
+* :func:`points_through_cycle` — error-state points (sigma or cubature offsets) added to the
+  solution (ukf-nespm.md eqs 35-37) and each carried through the navigation cycle with its
+  own bias compensation (eq 38) (``ukf-nespm``, ``anukf-nespm``).
+
+What stays NumPy is what runs once per span or per DVL epoch (Cholesky factors, unscented
+moments, ``Φ P Φᵀ + Q``, the measurement update): at 100 IMU steps per DVL interval it is
+a few per cent of a run (benchmarks/README.md gives the split). The NumPy functions remain
+the reference; tests/test_kernels.py runs both on the same realizations.
+
+The switch, :func:`kernel_mode`: ``auto`` (default) uses the compiled loop where numba is
+installed, ``numba`` requires it, ``numpy`` never uses it. It is read from the context set by
+:func:`use_kernels`, else from the environment variable ``NESPM_KERNELS`` (which the CLI's
+``--kernels`` sets, so that worker processes inherit it). It never changes a result beyond
+round-off (tests: 1e-9), so it is not part of an experiment's identity (like ``--jobs``).
+"""
+from __future__ import annotations
+
+import importlib.util
+import os
+from contextlib import contextmanager
+from typing import Iterator
+
+import numpy as np
+
+from nespm_cli.errors import NespmError
+
+MODES = ("auto", "numba", "numpy")
+ENV = "NESPM_KERNELS"
+_override: list[str] = []
+
+
+def numba_installed() -> bool:
+    """Whether numba can be imported (without importing it: that costs ~0.4 s)."""
+    return importlib.util.find_spec("numba") is not None
+
+
+def kernel_mode() -> str:
+    """The requested mode: the innermost :func:`use_kernels`, else ``$NESPM_KERNELS``, else ``auto``."""
+    mode = _override[-1] if _override else os.environ.get(ENV, "auto") or "auto"
+    if mode not in MODES:
+        raise NespmError(f"--kernels / {ENV}: unknown mode {mode!r}; choose {', '.join(MODES)}")
+    return mode
+
+
+def compiled_enabled() -> bool:
+    """Whether the filters use the compiled loop now (see :func:`kernel_mode`)."""
+    mode = kernel_mode()
+    if mode == "numpy":
+        return False
+    if not numba_installed():
+        if mode == "numba":
+            raise NespmError("--kernels numba: numba is not installed (pip install numba), or use --kernels numpy")
+        return False
+    return True
+
+
+def kernel_backend() -> str:
+    """``numba`` or ``numpy``: what :func:`compiled_enabled` resolves to (for manifests)."""
+    return "numba" if compiled_enabled() else "numpy"
+
+
+def set_kernel_mode(mode: str) -> None:
+    """Set ``$NESPM_KERNELS`` (this process and the worker processes it starts); checks ``mode``
+    and, for ``numba``, that numba is installed."""
+    if mode not in MODES:
+        raise NespmError(f"--kernels: unknown mode {mode!r}; choose {', '.join(MODES)}")
+    os.environ[ENV] = mode
+    compiled_enabled()
+
+
+@contextmanager
+def use_kernels(mode: str) -> Iterator[None]:
+    """Run the enclosed filters with ``mode`` (one of :data:`MODES`) in this process."""
+    if mode not in MODES:
+        raise NespmError(f"--kernels: unknown mode {mode!r}; choose {', '.join(MODES)}")
+    _override.append(mode)
+    try:
+        yield
+    finally:
+        _override.pop()
+
+
+def _f64(a: np.ndarray) -> np.ndarray:
+    """Float64 view or copy; broadcast (zero-stride) views pass through uncopied."""
+    return a if a.dtype == np.float64 else a.astype(np.float64)
+
+
+def strapdown(pos, v_n, C_bn, b_a, b_g, f, w, dt, j0: int, j1: int) -> None:
+    """Free-inertial steps ``[j0, j1)`` of R runs, in place on ``pos``, ``v_n`` (R, 3), ``C_bn``
+    (R, 3, 3) (C-contiguous float64); IMU ``f``, ``w`` (R, M, 3) minus ``b_a``, ``b_g`` (R, 3);
+    ``dt`` (M,) [s]. Same numbers as :func:`nespm_cli.nav.strapdown.na_cycle` step by step."""
+    from nespm_cli.nav import kernels as nk
+
+    nk.strapdown_span(pos, v_n, C_bn, b_a, b_g, _f64(f), _f64(w), _f64(dt), j0, j1)
+
+
+def transition(pos, v_n, C_bn, b_a, b_g, f, w, dt, j0: int, j1: int, invariant: bool = False) -> np.ndarray:
+    """Steps ``[j0, j1)`` in place as :func:`strapdown`, returning Φ (R, 12, 12) = Π (I + F dt),
+    F (:func:`nespm_cli.filters.model.system_matrix`, or with ``invariant`` the right-invariant
+    :func:`nespm_cli.filters.iekf.invariant_system_matrix`) on the solution before each step."""
+    from nespm_cli.filters import transition_kernel as tk
+
+    Phi = np.empty((pos.shape[0], 12, 12))
+    tk.transition_span(pos, v_n, C_bn, b_a, b_g, _f64(f), _f64(w), _f64(dt), j0, j1, Phi, bool(invariant))
+    return Phi
+
+
+def points_through_cycle(pos, v_n, C_bn, b_a, b_g, X, f, w, dt, j0: int, j1: int):
+    """The mean (point 0) and the offsets ``X`` (R, S-1, 12) of each run through steps ``[j0, j1)``.
+
+    Point s starts at ``pos``, ``v_n + dv``, ``exp([dpsi x]) C_bn`` (eqs 35-37) and uses the IMU
+    minus ``b_a + δb_a``, ``b_g + δb_g`` (eq 38). Returns ``(pos, v, C)`` (R, S, 3), (R, S, 3),
+    (R, S, 3, 3); nothing is modified in place.
+    """
+    from nespm_cli.filters import transition_kernel as tk
+
+    R, S = X.shape[0], X.shape[1] + 1
+    out = np.empty((R, S, 3)), np.empty((R, S, 3)), np.empty((R, S, 3, 3))
+    tk.points_span(pos, v_n, C_bn, b_a, b_g, np.ascontiguousarray(X, dtype=float),
+                   _f64(f), _f64(w), _f64(dt), j0, j1, *out)
+    return out
+
+
+def warm_up() -> float:
+    """Compile (or load from the on-disk cache) every kernel on a tiny input; returns seconds.
+
+    The first call on a machine compiles (benchmarks/README.md gives the cost); later processes
+    load the cached machine code. Nothing needs to call it: the kernels compile on first use.
+    """
+    import time
+
+    t0 = time.perf_counter()
+    R, M = 1, 2
+    pos, v = np.array([[0.5, 0.1, -10.0]]), np.array([[1.0, 0.0, 0.0]])
+    C, b = np.eye(3)[None].copy(), np.zeros((R, 3))
+    f, w, dt = np.tile([0.0, 0.0, -9.8], (R, M, 1)), np.zeros((R, M, 3)), np.full(M, 0.01)
+    strapdown(pos.copy(), v.copy(), C.copy(), b, b, f, w, dt, 0, M)
+    for invariant in (False, True):
+        transition(pos.copy(), v.copy(), C.copy(), b, b, f, w, dt, 0, M, invariant)
+    points_through_cycle(pos, v, C, b, b, np.zeros((R, 24, 12)), f, w, dt, 0, M)
+    return time.perf_counter() - t0
