@@ -30,6 +30,7 @@ import pytest
 from conftest import assert_one_error_line, chunk_mtimes, console_script, nespm, write_short_tracks
 from nespm_cli.experiments.backend import check_backend, parallel_map
 from nespm_cli.errors import NespmError
+from nespm_cli.filters.kernels import numba_installed
 from nespm_cli.experiments.mc import Cell, Spec, run_chunk
 
 KEY = ["track", "filter", "run"]
@@ -107,6 +108,8 @@ def test_dask_equals_loky_bit_for_bit(mc_dask, mc_loky):
     pd.testing.assert_frame_equal(pd.read_parquet(mc_dask / "epochs.parquet"),
                                   pd.read_parquet(mc_loky / "epochs.parquet"), check_exact=True)
     assert sorted(p.name for p in (mc_dask / "chunks").glob("metrics-*.parquet")) == sorted(CHUNKS)
+    if numba_installed():  # the Dask workers ran the compiled loop, as the loky ones
+        assert (a["kernels"] == "numba").all() and (b["kernels"] == "numba").all()
 
 
 def test_client_is_closed_after_the_run(mc_dask, cluster):

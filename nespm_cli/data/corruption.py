@@ -195,19 +195,24 @@ def imu_errors(real: Realization, t: np.ndarray) -> tuple[np.ndarray, np.ndarray
     M = len(t) - 1
     R = len(real.runs)
     seg = segment_index(t[1:] - t[0], real.config.segment_s, real.acc_factors.shape[1])
-    fa = real.acc_factors[:, seg][..., None]  # (R, M, 1)
-    fg = real.gyro_factors[:, seg][..., None]
-    n_f = np.empty((R, M, 3))
-    n_w = np.empty((R, M, 3))
-    for i, r in enumerate(real.runs):  # per-run noise streams (see draw)
-        n_f[i] = stream(real.seed, real.track, int(r), STREAM_ACC).standard_normal((M, 3))
-        n_w[i] = stream(real.seed, real.track, int(r), STREAM_GYRO).standard_normal((M, 3))
     if real.config.dynamic_bias == "segment":
-        ba, bg = fa, fg
+        bias_seg = seg
     else:  # the bias keeps the run's first-segment factor
-        ba, bg = real.acc_factors[:, :1, None], real.gyro_factors[:, :1, None]
-    e_f = ba * real.b_a[:, None, :] + fa * (real.config.acc_noise * n_f)
-    e_w = bg * real.b_g[:, None, :] + fg * (real.config.gyro_noise * n_w)
+        bias_seg = np.zeros(1, dtype=np.int64)
+    e_f = np.empty((R, M, 3))
+    e_w = np.empty((R, M, 3))
+    cfg = real.config
+    # per-run noise streams (see draw); each run is formed in place in its own rows (a cache-sized
+    # working set): bias x factor + factor x (std x N(0, 1)), the same operations as the
+    # whole-array expression, so the same bits
+    for i, r in enumerate(real.runs):
+        for out, kind, std, factors, bias in ((e_f, STREAM_ACC, cfg.acc_noise, real.acc_factors, real.b_a),
+                                              (e_w, STREAM_GYRO, cfg.gyro_noise, real.gyro_factors, real.b_g)):
+            n = out[i]
+            stream(real.seed, real.track, int(r), kind).standard_normal((M, 3), out=n)
+            n *= std
+            n *= factors[i, seg][:, None]
+            n += factors[i, bias_seg][:, None] * bias[i]
     real._cache[key] = (e_f, e_w)
     return e_f, e_w
 

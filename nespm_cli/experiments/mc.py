@@ -27,6 +27,7 @@ from nespm_cli.nav.dvl import body_rate_at_epochs, dvl_velocity
 from nespm_cli.nav.earth import ned_offset
 from nespm_cli.data.embedded import embedded_track
 from nespm_cli.filters import FilterConfig, initial_nav, run_filter
+from nespm_cli.filters.kernels import kernel_backend
 from nespm_cli.filters.registry import discover_plugins, filter_names, get_filter, load_plugin
 from nespm_cli.experiments.metrics import DivergenceRule, divergence, epoch_errors, run_metrics
 from nespm_cli.experiments.store import (ResultsFolder, Task, chunk_firsts, file_hashes, run_blocks,
@@ -356,7 +357,7 @@ def run_chunk(cell: Cell, number: int, first: int, out_dir: str, last: int | Non
         m.update(q_factors(out.noise_std, filter_config(spec), len(runs)))
         df = pd.DataFrame({**extra, "track": number, "filter": name, "run": runs, "scenario": spec.scenario,
                            "schedule": spec.corruption.schedule, "seed": spec.seed, **m,
-                           "seconds": secs / len(runs)})
+                           "seconds": secs / len(runs), "kernels": kernel_backend()})
         R, N = err.vel.shape
         series = pd.DataFrame({
             **extra, "track": number, "filter": name, "run": np.repeat(runs, N), "epoch": np.tile(np.arange(N), R),

@@ -17,18 +17,18 @@ import math
 import numpy as np
 
 from nespm_cli.nav.earth import A, E2, F, GAMMA_E, K_SOMIGLIANA
-from nespm_cli.nav.kernels import GRAV_M, N_EARTH, earth_s, exp_so3_s, matmul3, na_cycle_s, njit
+from nespm_cli.nav.kernels import GRAV_M, cycle_t, exp_so3_s, load_t, matmul3, njit, store_t
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def system_top_s(pos, v, C, f, M, dt, e):
+def system_top_s(x, f0, f1, f2, M, dt):
     """Rows 0-5 of ``I + F dt`` into ``M`` (6, 12): F of model.system_matrix (Groves 14.2.4).
 
     dv'   = (-[(2 w_ie + w_en) x] + [v x] J) dv - [f_n x] dpsi - C b_a
     dpsi' = -J dv - [w_in x] dpsi - C b_g        (J = d w_en / d v)
     """
-    lat, h = pos[0], pos[2]
-    R_N, R_E = e[2], e[3]
+    lat, h = x[0], x[2]
+    R_N, R_E = x[17], x[18]
     J01 = 1.0 / (R_E + h)
     J10 = -1.0 / (R_N + h)
     J21 = -math.tan(lat) / (R_E + h)
@@ -36,10 +36,10 @@ def system_top_s(pos, v, C, f, M, dt, e):
         for k in range(12):
             M[i, k] = 0.0
     # -skew(2 w_ie + w_en)
-    u0, u1, u2 = 2.0 * e[4] + e[7], 2.0 * e[5] + e[8], 2.0 * e[6] + e[9]
+    u0, u1, u2 = 2.0 * x[19] + x[22], 2.0 * x[20] + x[23], 2.0 * x[21] + x[24]
     a01, a02, a12 = u2, -u1, u0  # -skew(u): [0, u2, -u1; -u2, 0, u0; u1, -u0, 0]
     # [v x] J with J = [[0, J01, 0], [J10, 0, 0], [0, J21, 0]]
-    v0, v1, v2 = v[0], v[1], v[2]
+    v0, v1, v2 = x[3], x[4], x[5]
     # skew(v) = [[0, -v2, v1], [v2, 0, -v0], [-v1, v0, 0]]
     s00 = -v2 * J10
     s01 = v1 * J21
@@ -57,9 +57,9 @@ def system_top_s(pos, v, C, f, M, dt, e):
     M[2, 1] = -a12 + s21
     M[2, 2] = 0.0
     # -[f_n x], f_n = C f
-    fn0 = C[0, 0] * f[0] + C[0, 1] * f[1] + C[0, 2] * f[2]
-    fn1 = C[1, 0] * f[0] + C[1, 1] * f[1] + C[1, 2] * f[2]
-    fn2 = C[2, 0] * f[0] + C[2, 1] * f[1] + C[2, 2] * f[2]
+    fn0 = x[6] * f0 + x[7] * f1 + x[8] * f2
+    fn1 = x[9] * f0 + x[10] * f1 + x[11] * f2
+    fn2 = x[12] * f0 + x[13] * f1 + x[14] * f2
     M[0, 4], M[0, 5] = fn2, -fn1
     M[1, 3], M[1, 5] = -fn2, fn0
     M[2, 3], M[2, 4] = fn1, -fn0
@@ -68,15 +68,15 @@ def system_top_s(pos, v, C, f, M, dt, e):
     M[4, 0] = -J10
     M[5, 1] = -J21
     # -skew(w_ie + w_en)
-    u0, u1, u2 = e[4] + e[7], e[5] + e[8], e[6] + e[9]
+    u0, u1, u2 = x[19] + x[22], x[20] + x[23], x[21] + x[24]
     M[3, 4], M[3, 5] = u2, -u1
     M[4, 3], M[4, 5] = -u2, u0
     M[5, 3], M[5, 4] = u1, -u0
     # -C into the bias columns
     for i in range(3):
         for k in range(3):
-            M[i, 6 + k] = -C[i, k]
-            M[3 + i, 9 + k] = -C[i, k]
+            M[i, 6 + k] = -x[6 + 3 * i + k]
+            M[3 + i, 9 + k] = -x[6 + 3 * i + k]
     # I + F dt
     for i in range(6):
         for k in range(12):
@@ -85,22 +85,26 @@ def system_top_s(pos, v, C, f, M, dt, e):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def invariant_top_s(pos, v, C, M, dt, e, S):
+def invariant_top_s(x, M, dt, S):
     """Rows 0-5 of ``I + F_inv dt`` into ``M`` (6, 12): F_inv of iekf.invariant_system_matrix.
 
     ρ̇ = −[(2ω_ie + ω_en)×] ρ + ([g×] + [v×][ω_ie×]) φ − C b_a − [v×] C b_g
-    φ̇ = −J ρ + (J [v×] − [ω_in×]) φ − C b_g.      ``S`` (4, 3, 3) scratch.
+    φ̇ = −J ρ + (J [v×] − [ω_in×]) φ − C b_g.      ``S`` (5, 3, 3) scratch.
     """
-    lat, h = pos[0], pos[2]
-    R_N, R_E = e[2], e[3]
-    sl = e[0]
+    lat, h = x[0], x[2]
+    R_N, R_E = x[17], x[18]
+    sl = x[15]
     s2 = sl * sl
     g0 = GAMMA_E * (1.0 + K_SOMIGLIANA * s2) / math.sqrt(1.0 - E2 * s2)
     gN = -8.08e-9 * h * math.sin(2.0 * lat)
     gD = g0 * (1.0 - 2.0 / A * (1.0 + F + GRAV_M - 2.0 * F * s2) * h + 3.0 * h * h / A**2)
     V, W, J, T = S[0], S[1], S[2], S[3]
-    skew_s(v[0], v[1], v[2], V)
-    skew_s(e[4], e[5], e[6], W)
+    skew_s(x[3], x[4], x[5], V)
+    skew_s(x[19], x[20], x[21], W)
+    C = S[4]
+    for i in range(3):
+        for k in range(3):
+            C[i, k] = x[6 + 3 * i + k]
     for i in range(3):
         for k in range(3):
             J[i, k] = 0.0
@@ -110,7 +114,7 @@ def invariant_top_s(pos, v, C, M, dt, e, S):
     for i in range(6):
         for k in range(12):
             M[i, k] = 0.0
-    skew_s(2.0 * e[4] + e[7], 2.0 * e[5] + e[8], 2.0 * e[6] + e[9], T)
+    skew_s(2.0 * x[19] + x[22], 2.0 * x[20] + x[23], 2.0 * x[21] + x[24], T)
     for i in range(3):
         for k in range(3):
             M[i, k] = -T[i, k]
@@ -122,7 +126,7 @@ def invariant_top_s(pos, v, C, M, dt, e, S):
             M[i, 9 + k] = -(V[i, 0] * C[0, k] + V[i, 1] * C[1, k] + V[i, 2] * C[2, k])
             M[3 + i, k] = -J[i, k]
             M[3 + i, 9 + k] = -C[i, k]
-    skew_s(e[4] + e[7], e[5] + e[8], e[6] + e[9], T)
+    skew_s(x[19] + x[22], x[20] + x[23], x[21] + x[24], T)
     for i in range(3):
         for k in range(3):
             M[3 + i, 3 + k] = (J[i, 0] * V[0, k] + J[i, 1] * V[1, k] + J[i, 2] * V[2, k]) - T[i, k]
@@ -144,10 +148,7 @@ def skew_s(a0, a1, a2, out):
 def transition_span(pos, v, C, b_a, b_g, f, w, dt, j0, j1, Phi, invariant):
     """Steps ``[j0, j1)`` in place on the solution; Φ (R, 12, 12) = Π (I + F dt) into ``Phi``
     (``invariant``: F_inv of the right-invariant error, iekf.py, instead of model.system_matrix)."""
-    S = np.empty((4, 3, 3))
-    e = np.empty(N_EARTH)
-    fc, wc = np.empty(3), np.empty(3)
-    p1, v1, C1 = np.empty(3), np.empty(3), np.empty((3, 3))
+    S = np.empty((5, 3, 3))
     M = np.empty((6, 12))
     top = np.empty((6, 12))
     for r in range(pos.shape[0]):
@@ -155,15 +156,14 @@ def transition_span(pos, v, C, b_a, b_g, f, w, dt, j0, j1, Phi, invariant):
         for i in range(12):
             for k in range(12):
                 P[i, k] = 1.0 if i == k else 0.0
-        earth_s(pos[r, 0], pos[r, 2], v[r], e)
+        x = load_t(pos[r], v[r], C[r])
+        ba0, ba1, ba2, bg0, bg1, bg2 = b_a[r, 0], b_a[r, 1], b_a[r, 2], b_g[r, 0], b_g[r, 1], b_g[r, 2]
         for j in range(j0, j1):
-            for i in range(3):
-                fc[i] = f[r, j, i] - b_a[r, i]
-                wc[i] = w[r, j, i] - b_g[r, i]
+            f0, f1, f2 = f[r, j, 0] - ba0, f[r, j, 1] - ba1, f[r, j, 2] - ba2
             if invariant:
-                invariant_top_s(pos[r], v[r], C[r], M, dt[j], e, S)
+                invariant_top_s(x, M, dt[j], S)
             else:
-                system_top_s(pos[r], v[r], C[r], fc, M, dt[j], e)
+                system_top_s(x, f0, f1, f2, M, dt[j])
             for i in range(6):
                 for k in range(12):
                     s = 0.0
@@ -175,50 +175,33 @@ def transition_span(pos, v, C, b_a, b_g, f, w, dt, j0, j1, Phi, invariant):
             for i in range(6):
                 for k in range(12):
                     P[i, k] = top[i, k]
-            na_cycle_s(pos[r], v[r], C[r], fc, wc, dt[j], e, p1, v1, C1)
-            pos[r, :] = p1
-            v[r, :] = v1
-            C[r, :, :] = C1
+            x = cycle_t(x, f0, f1, f2, w[r, j, 0] - bg0, w[r, j, 1] - bg1, w[r, j, 2] - bg2, dt[j])
+        store_t(x, pos[r], v[r], C[r])
 
 
 @njit(cache=True, error_model="numpy")
 def points_span(pos, v, C, b_a, b_g, X, f, w, dt, j0, j1, pos_o, v_o, C_o):
     """The mean and the 2n offsets ``X`` (R, 2n, 12) of each run through steps ``[j0, j1)``
     (ukf-nespm.md eqs 35-38) into ``pos_o``, ``v_o`` (R, 2n+1, 3), ``C_o`` (R, 2n+1, 3, 3)."""
-    e = np.empty(N_EARTH)
     E = np.empty((3, 3))
-    fc, wc, ba, bg = np.empty(3), np.empty(3), np.empty(3), np.empty(3)
-    p0, v0, C0 = np.empty(3), np.empty(3), np.empty((3, 3))
-    p1, v1, C1 = np.empty(3), np.empty(3), np.empty((3, 3))
+    v0, C0 = np.empty(3), np.empty((3, 3))
     S = X.shape[1] + 1
     for r in range(pos.shape[0]):
         for s in range(S):
             # eqs 35-37: position unperturbed, v + dv, exp([dpsi x]) C (point 0: the mean)
             if s == 0:
-                for i in range(3):
-                    p0[i] = pos[r, i]
-                    v0[i] = v[r, i]
-                    ba[i] = b_a[r, i]
-                    bg[i] = b_g[r, i]
-                C0[:, :] = C[r]
+                x = load_t(pos[r], v[r], C[r])
+                ba0, ba1, ba2, bg0, bg1, bg2 = b_a[r, 0], b_a[r, 1], b_a[r, 2], b_g[r, 0], b_g[r, 1], b_g[r, 2]
             else:
-                x = X[r, s - 1]
+                d = X[r, s - 1]
                 for i in range(3):
-                    p0[i] = pos[r, i]
-                    v0[i] = v[r, i] + x[i]
-                    ba[i] = b_a[r, i] + x[6 + i]
-                    bg[i] = b_g[r, i] + x[9 + i]
-                exp_so3_s(x[3], x[4], x[5], E)
+                    v0[i] = v[r, i] + d[i]
+                exp_so3_s(d[3], d[4], d[5], E)
                 matmul3(E, C[r], C0)
-            earth_s(p0[0], p0[2], v0, e)
+                x = load_t(pos[r], v0, C0)
+                ba0, ba1, ba2 = b_a[r, 0] + d[6], b_a[r, 1] + d[7], b_a[r, 2] + d[8]
+                bg0, bg1, bg2 = b_g[r, 0] + d[9], b_g[r, 1] + d[10], b_g[r, 2] + d[11]
             for j in range(j0, j1):  # eq 38, the point compensating its own biases
-                for i in range(3):
-                    fc[i] = f[r, j, i] - ba[i]
-                    wc[i] = w[r, j, i] - bg[i]
-                na_cycle_s(p0, v0, C0, fc, wc, dt[j], e, p1, v1, C1)
-                p0[:] = p1
-                v0[:] = v1
-                C0[:, :] = C1
-            pos_o[r, s, :] = p0
-            v_o[r, s, :] = v0
-            C_o[r, s, :, :] = C0
+                x = cycle_t(x, f[r, j, 0] - ba0, f[r, j, 1] - ba1, f[r, j, 2] - ba2,
+                            w[r, j, 0] - bg0, w[r, j, 1] - bg1, w[r, j, 2] - bg2, dt[j])
+            store_t(x, pos_o[r, s], v_o[r, s], C_o[r, s])

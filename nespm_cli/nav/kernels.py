@@ -76,34 +76,9 @@ def matmul3(X, Y, out):
             out[i, k] = X[i, 0] * Y[0, k] + X[i, 1] * Y[1, k] + X[i, 2] * Y[2, k]
 
 
-#: layout of the earth cache of one state (:func:`earth_s`): sin L, cos L, R_N, R_E, w_ie^n, w_en^n
-N_EARTH = 10
-
-
 @njit(cache=True, error_model="numpy", inline="always")
-def earth_s(lat, h, v, e):
-    """Fill the earth cache ``e`` (10,) of a state: ``[sin L, cos L, R_N, R_E, w_ie (3), w_en (3)]``.
-
-    The navigation cycle ends by evaluating these at the new state (eq 32), which is where the
-    next cycle starts (eq 25): :func:`na_cycle_s` hands them on instead of computing them twice
-    (the reference evaluates them twice, with the same inputs, so to the same bits).
-    """
-    sl, cl = math.sin(lat), math.cos(lat)
-    den = 1.0 - E2 * (sl * sl)
-    R_N = A * (1.0 - E2) / (den * math.sqrt(den))
-    R_E = A / math.sqrt(den)
-    e[0], e[1], e[2], e[3] = sl, cl, R_N, R_E
-    e[4] = OMEGA_IE * cl
-    e[5] = 0.0
-    e[6] = -OMEGA_IE * sl
-    e[7] = v[1] / (R_E + h)
-    e[8] = -v[0] / (R_N + h)
-    e[9] = -v[1] * sl / cl / (R_E + h)
-
-
-@njit(cache=True, error_model="numpy", inline="always")
-def exp_mul_s(C, p0, p1, p2, out):
-    """``out = C @ exp([p x])`` (3, 3) (eqs 24 and 31); ``out`` may alias nothing."""
+def exp_mul_t(c00, c01, c02, c10, c11, c12, c20, c21, c22, p0, p1, p2):
+    """``C @ exp([p x])`` as a 9-tuple, row-major (eqs 24 and 31; rotations.exp_so3 and products.mat_mul)."""
     th2 = p0 * p0 + p1 * p1 + p2 * p2
     if th2 >= SERIES2:
         th = math.sqrt(th2)
@@ -122,84 +97,112 @@ def exp_mul_s(C, p0, p1, p2, out):
     e20 = -(p1 * a) + b * (p2 * p0)
     e21 = p0 * a + b * (p2 * p1)
     e22 = b * (p2 * p2) + d
-    for i in range(3):
-        x0, x1, x2 = C[i, 0], C[i, 1], C[i, 2]
-        out[i, 0] = (x0 * e00 + x1 * e10) + x2 * e20
-        out[i, 1] = (x0 * e01 + x1 * e11) + x2 * e21
-        out[i, 2] = (x0 * e02 + x1 * e12) + x2 * e22
+    return ((c00 * e00 + c01 * e10) + c02 * e20, (c00 * e01 + c01 * e11) + c02 * e21,
+            (c00 * e02 + c01 * e12) + c02 * e22,
+            (c10 * e00 + c11 * e10) + c12 * e20, (c10 * e01 + c11 * e11) + c12 * e21,
+            (c10 * e02 + c11 * e12) + c12 * e22,
+            (c20 * e00 + c21 * e10) + c22 * e20, (c20 * e01 + c21 * e11) + c22 * e21,
+            (c20 * e02 + c21 * e12) + c22 * e22)
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def na_cycle_s(pos, v, C, f, w, dt, e, pos_out, v_out, C_out):
-    """One navigation cycle, ukf-nespm.md eqs 24-32 (strapdown.na_cycle), for one state.
+def earth_t(lat, h, vN, vE):
+    """The earth quantities of a state, a 10-tuple ``(sin L, cos L, R_N, R_E, w_ie^n (3), w_en^n (3))``.
 
-    ``e`` is the state's earth cache (:func:`earth_s`) on entry and the new state's on exit.
-    ``C_out`` is used as scratch for C* before eq 31; the outputs may not alias the inputs.
+    A cycle ends by evaluating them at the new state (eq 32), which is where the next cycle
+    starts (eq 25): :func:`cycle_t` hands them on instead of computing them twice (the
+    reference computes them twice, from the same inputs, so to the same bits).
     """
-    lat, lon, h = pos[0], pos[1], pos[2]
-    sl, cl, R_N, R_E = e[0], e[1], e[2], e[3]
-    u0, u1, u2 = e[4] + e[7], e[5] + e[8], e[6] + e[9]
+    sl, cl = math.sin(lat), math.cos(lat)
+    den = 1.0 - E2 * (sl * sl)
+    R_N = A * (1.0 - E2) / (den * math.sqrt(den))
+    R_E = A / math.sqrt(den)
+    return (sl, cl, R_N, R_E, OMEGA_IE * cl, 0.0, -OMEGA_IE * sl,
+            vE / (R_E + h), -vN / (R_N + h), -vE * sl / cl / (R_E + h))
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def cycle_t(x, f0, f1, f2, w0, w1, w2, dt):
+    """One navigation cycle, ukf-nespm.md eqs 24-32 (strapdown.na_cycle), on scalars.
+
+    ``x`` is the 25-tuple ``(lat, lon, h, v (3), C (9, row-major), earth cache (10))`` of a
+    state (:func:`earth_t`); returns that of the next state. Kept in registers: the loops over
+    IMU steps carry ``x`` from one cycle to the next.
+    """
+    lat, lon, h = x[0], x[1], x[2]
+    v0, v1, v2 = x[3], x[4], x[5]
+    c00, c01, c02, c10, c11, c12, c20, c21, c22 = x[6], x[7], x[8], x[9], x[10], x[11], x[12], x[13], x[14]
+    sl, cl, R_N, R_E = x[15], x[16], x[17], x[18]
+    ie0, ie1, ie2, en0, en1, en2 = x[19], x[20], x[21], x[22], x[23], x[24]
+    u0, u1, u2 = ie0 + en0, ie1 + en1, ie2 + en2
     half = 0.5 * dt
     # eq 25: w_nb* = w_ib - C^T (w_ie + w_en); eq 24: C* = C exp(w_nb* dt/2)
-    p0 = (w[0] - ((C[0, 0] * u0 + C[1, 0] * u1) + C[2, 0] * u2)) * half
-    p1 = (w[1] - ((C[0, 1] * u0 + C[1, 1] * u1) + C[2, 1] * u2)) * half
-    p2 = (w[2] - ((C[0, 2] * u0 + C[1, 2] * u1) + C[2, 2] * u2)) * half
-    Cs = C_out
-    exp_mul_s(C, p0, p1, p2, Cs)
+    p0 = (w0 - ((c00 * u0 + c10 * u1) + c20 * u2)) * half
+    p1 = (w1 - ((c01 * u0 + c11 * u1) + c21 * u2)) * half
+    p2 = (w2 - ((c02 * u0 + c12 * u1) + c22 * u2)) * half
+    s00, s01, s02, s10, s11, s12, s20, s21, s22 = exp_mul_t(c00, c01, c02, c10, c11, c12, c20, c21, c22,
+                                                            p0, p1, p2)
     # gravity (earth.gravity_n)
     s2 = sl * sl
     g0 = GAMMA_E * (1.0 + K_SOMIGLIANA * s2) / math.sqrt(1.0 - E2 * s2)
     gN = -8.08e-9 * h * math.sin(2.0 * lat)
     gD = g0 * (1.0 - 2.0 / A * (1.0 + F + GRAV_M - 2.0 * F * s2) * h + 3.0 * h * h / A**2)
     # eqs 26-27: v_dot = C* f + g - (w_en + 2 w_ie) x v
-    a0, a1, a2 = e[7] + 2.0 * e[4], e[8] + 2.0 * e[5], e[9] + 2.0 * e[6]
-    v0, v1, v2 = v[0], v[1], v[2]
-    f0, f1, f2 = f[0], f[1], f[2]
-    vd0 = (((Cs[0, 0] * f0 + Cs[0, 1] * f1) + Cs[0, 2] * f2) + gN) - (a1 * v2 - a2 * v1)
-    vd1 = (((Cs[1, 0] * f0 + Cs[1, 1] * f1) + Cs[1, 2] * f2) + 0.0) - (a2 * v0 - a0 * v2)
-    vd2 = (((Cs[2, 0] * f0 + Cs[2, 1] * f1) + Cs[2, 2] * f2) + gD) - (a0 * v1 - a1 * v0)
+    a0, a1, a2 = en0 + 2.0 * ie0, en1 + 2.0 * ie1, en2 + 2.0 * ie2
+    vd0 = (((s00 * f0 + s01 * f1) + s02 * f2) + gN) - (a1 * v2 - a2 * v1)
+    vd1 = (((s10 * f0 + s11 * f1) + s12 * f2) + 0.0) - (a2 * v0 - a0 * v2)
+    vd2 = (((s20 * f0 + s21 * f1) + s22 * f2) + gD) - (a0 * v1 - a1 * v0)
     n0, n1, n2 = v0 + vd0 * dt, v1 + vd1 * dt, v2 + vd2 * dt
-    v_out[0], v_out[1], v_out[2] = n0, n1, n2
     # eqs 28-30: position (strapdown.update_position)
     h1 = h + (-n2 + -v2) * half
     lat1 = lat + (v0 / (R_N + h) + n0 / (R_N + h1)) * half
-    earth_s(lat1, h1, v_out, e)
+    e = earth_t(lat1, h1, n0, n1)
     lon1 = lon + (v1 / ((R_E + h) * cl) + n1 / ((e[3] + h1) * e[1])) * half
-    pos_out[0], pos_out[1], pos_out[2] = lat1, lon1, h1
     # eq 32: w_nb with the updated position and velocity; eq 31: C_{k+1} = C exp(w_nb dt)
     u0, u1, u2 = e[4] + e[7], e[5] + e[8], e[6] + e[9]
-    p0 = (w[0] - ((C[0, 0] * u0 + C[1, 0] * u1) + C[2, 0] * u2)) * dt
-    p1 = (w[1] - ((C[0, 1] * u0 + C[1, 1] * u1) + C[2, 1] * u2)) * dt
-    p2 = (w[2] - ((C[0, 2] * u0 + C[1, 2] * u1) + C[2, 2] * u2)) * dt
-    exp_mul_s(C, p0, p1, p2, C_out)
+    p0 = (w0 - ((c00 * u0 + c10 * u1) + c20 * u2)) * dt
+    p1 = (w1 - ((c01 * u0 + c11 * u1) + c21 * u2)) * dt
+    p2 = (w2 - ((c02 * u0 + c12 * u1) + c22 * u2)) * dt
+    C1 = exp_mul_t(c00, c01, c02, c10, c11, c12, c20, c21, c22, p0, p1, p2)
+    return (lat1, lon1, h1, n0, n1, n2) + C1 + e
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def load_t(pos, v, C):
+    """The 25-tuple of :func:`cycle_t` from arrays ``pos``, ``v`` (3,), ``C`` (3, 3)."""
+    return ((pos[0], pos[1], pos[2], v[0], v[1], v[2], C[0, 0], C[0, 1], C[0, 2], C[1, 0], C[1, 1], C[1, 2],
+             C[2, 0], C[2, 1], C[2, 2]) + earth_t(pos[0], pos[2], v[0], v[1]))
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def store_t(x, pos, v, C):
+    """Write the state of a 25-tuple into ``pos``, ``v`` (3,) and ``C`` (3, 3)."""
+    pos[0], pos[1], pos[2] = x[0], x[1], x[2]
+    v[0], v[1], v[2] = x[3], x[4], x[5]
+    C[0, 0], C[0, 1], C[0, 2] = x[6], x[7], x[8]
+    C[1, 0], C[1, 1], C[1, 2] = x[9], x[10], x[11]
+    C[2, 0], C[2, 1], C[2, 2] = x[12], x[13], x[14]
 
 
 @njit(cache=True, error_model="numpy")
 def na_cycle_batch(pos, v, C, f, w, dt, pos_out, v_out, C_out):
-    """:func:`na_cycle_s` over a flat batch: ``pos``, ``v``, ``f``, ``w`` (B, 3), ``C`` (B, 3, 3), ``dt`` (B,)."""
-    e = np.empty(N_EARTH)
+    """:func:`cycle_t` over a flat batch: ``pos``, ``v``, ``f``, ``w`` (B, 3), ``C`` (B, 3, 3), ``dt`` (B,)."""
     for b in range(pos.shape[0]):
-        earth_s(pos[b, 0], pos[b, 2], v[b], e)
-        na_cycle_s(pos[b], v[b], C[b], f[b], w[b], dt[b], e, pos_out[b], v_out[b], C_out[b])
+        x = cycle_t(load_t(pos[b], v[b], C[b]), f[b, 0], f[b, 1], f[b, 2], w[b, 0], w[b, 1], w[b, 2], dt[b])
+        store_t(x, pos_out[b], v_out[b], C_out[b])
 
 
 @njit(cache=True, error_model="numpy")
 def strapdown_span(pos, v, C, b_a, b_g, f, w, dt, j0, j1):
     """Free-inertial steps ``[j0, j1)`` of R runs in place: ``pos``, ``v``, ``b_a``, ``b_g`` (R, 3),
     ``C`` (R, 3, 3); IMU ``f``, ``w`` (R, M, 3) compensated by the run's biases; ``dt`` (M,)."""
-    e = np.empty(N_EARTH)
-    fc, wc = np.empty(3), np.empty(3)
-    p1, v1, C1 = np.empty(3), np.empty(3), np.empty((3, 3))
     for r in range(pos.shape[0]):
-        earth_s(pos[r, 0], pos[r, 2], v[r], e)
+        x = load_t(pos[r], v[r], C[r])
+        ba0, ba1, ba2, bg0, bg1, bg2 = b_a[r, 0], b_a[r, 1], b_a[r, 2], b_g[r, 0], b_g[r, 1], b_g[r, 2]
         for j in range(j0, j1):
-            for i in range(3):
-                fc[i] = f[r, j, i] - b_a[r, i]
-                wc[i] = w[r, j, i] - b_g[r, i]
-            na_cycle_s(pos[r], v[r], C[r], fc, wc, dt[j], e, p1, v1, C1)
-            pos[r, :] = p1
-            v[r, :] = v1
-            C[r, :, :] = C1
+            x = cycle_t(x, f[r, j, 0] - ba0, f[r, j, 1] - ba1, f[r, j, 2] - ba2,
+                        w[r, j, 0] - bg0, w[r, j, 1] - bg1, w[r, j, 2] - bg2, dt[j])
+        store_t(x, pos[r], v[r], C[r])
 
 
 def na_cycle_compiled(pos: np.ndarray, v_n: np.ndarray, C_bn: np.ndarray, f_b: np.ndarray,
