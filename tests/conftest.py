@@ -146,6 +146,12 @@ def env_without_data_dir() -> dict[str, str]:
     return {k: v for k, v in os.environ.items() if k != ENV_DATA_DIR}
 
 
+def slow_env() -> dict[str, str]:
+    """:func:`env_without_data_dir` with the NumPy reference loop (``NESPM_KERNELS=numpy``): a
+    chunk then lasts seconds instead of milliseconds, so a test's signal lands mid-run."""
+    return {**env_without_data_dir(), "NESPM_KERNELS": "numpy"}
+
+
 def chunk_mtimes(d: Path) -> dict[str, int]:
     """``{file name: mtime_ns}`` of the chunk Parquet files of results folder ``d``."""
     return {p.name: p.stat().st_mtime_ns for p in (Path(d) / "chunks").glob("*.parquet")}

@@ -23,7 +23,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from conftest import (SHORT_EPOCHS, assert_one_error_line, cli, console_script, env_without_data_dir,
+from conftest import (SHORT_EPOCHS, assert_one_error_line, cli, console_script, env_without_data_dir, slow_env,
                       short_track)
 from nespm_cli.data.corruption import CorruptionConfig, draw, n_segments
 from nespm_cli.data.embedded import embedded_track
@@ -338,7 +338,7 @@ def test_ctrl_c_during_mc_prints_the_resume_hint(tmp_path):
     p = subprocess.Popen([sys.executable, "-m", "nespm_cli.cli", "mc", "--tracks", "5", "--runs", "2",
                           "--filters", "ekf", "--no-progress", "--out", str(out)],
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                         env=env_without_data_dir())
+                         env=slow_env())
     deadline = time.time() + 60
     while not (out / "manifest.json").exists() and time.time() < deadline and p.poll() is None:
         time.sleep(0.05)  # the manifest is written before the first chunk starts

@@ -11,7 +11,6 @@ from scipy.spatial.transform import Rotation
 
 from nespm_cli.nav import earth
 
-from nespm_cli.nav import strapdown
 from nespm_cli.nav.rotations import attitude_minus, euler_to_dcm, exp_so3, log_so3, skew
 from nespm_cli.nav.strapdown import cross, na_cycle, na_cycle_inverse, update_position
 

@@ -505,7 +505,7 @@ def summary_md(
         else:
             cons.append(f"`{r.filter}` {r.nees:.2f} vs [{r.nees_lo:.2f}, {r.nees_hi:.2f}] ({r.nees_n} runs): "
                         f"{_CONSISTENCY_WORDS[r.consistency]}")
-    lines.append(f"- **Consistency** (mean NEES against its 95 % band for a consistent 6-DOF filter): "
+    lines.append("- **Consistency** (mean NEES against its 95 % band for a consistent 6-DOF filter): "
                  + "; ".join(cons) + ".")
     small = _small_sample_tracks(metrics, min_pairs)
     if small:
