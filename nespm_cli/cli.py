@@ -178,7 +178,7 @@ _PARALLEL = [  # where the chunks of a resumable experiment run (mc, sweep, gp-u
 _RUNNER = [  # options of the commands that run many realizations (mc, sweep)
     ("tracks_", str, " ".join(map(str, default(Spec, "tracks"))), "--tracks", "Track numbers: --tracks 5 6 or --tracks 5,6."),
     ("runs", int, default(Spec, "runs"), "--runs", "Monte Carlo runs per track."),
-    ("filters_", str, ",".join(default(Spec, "filters")), "--filters", "Comma list of ins, ekf, ukf, ukf-nespm, anekf, anukf, anukf-nespm."),
+    ("filters_", str, ",".join(default(Spec, "filters")), "--filters", "Comma list of ins, ekf, ukf, ukf-nespm, anekf, anukf, anukf-nespm, ckf, ckf-nespm, iekf (docs/filters.md), or a plugin's."),
     ("chunk_size", int, default(Spec, "chunk_size"), "--chunk-size", "Runs per batch, the resumable unit."),
     ("config", Optional[str], None, "--config", "TOML file of options (keys are option names: runs = 100, tracks = [5, 6]); options on the command line override it. See experiments/."),
     *_PARALLEL,
@@ -300,7 +300,7 @@ def corrupt(
 @_options(_COMMON, [_KERNELS])
 def run(
     track: int = typer.Option(..., "--track", help="Track number."),
-    filt: str = typer.Option("ukf-nespm", "--filter", help="ins, ekf, ukf, ukf-nespm, anekf, anukf or anukf-nespm."),
+    filt: str = typer.Option("ukf-nespm", "--filter", help="ins, ekf, ukf, ukf-nespm, anekf, anukf, anukf-nespm, ckf, ckf-nespm or iekf (docs/filters.md)."),
     run: int = typer.Option(0, "--run", help="Realization index (same index = same realization as in mc)."),
     clean: bool = typer.Option(False, "--clean", help="No corruption: exact initial state, clean IMU, noise-free synthetic DVL."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object with the run's metrics."),

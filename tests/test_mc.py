@@ -498,3 +498,16 @@ def test_mc_on_real_track(real_data_dir, tmp_path):
     assert not e["dvl_used"].iloc[0] and e["dvl_used"].iloc[1:].all()
     assert json.loads((out / "manifest.json").read_text())["data_dir"] == str(real_data_dir)
 
+
+# --------------------------------------------------------------------------- issue 16's filters
+
+def test_invariant_and_cubature_filters_do_not_depend_on_jobs_or_chunks(tmp_path, short_data_dir):
+    """iekf, ckf and ckf-nespm through mc: 2 chunks of 2 runs on 2 workers against one chunk of
+    4 runs in-process. Each run is its own iteration of the compiled loop, so the numbers are
+    the same bits (the NumPy reference would allow last-ulp differences, see above)."""
+    base = ["mc", "--data-dir", short_data_dir, "--tracks", "5", "--runs", "4", "--filters", "iekf,ckf,ckf-nespm",
+            "--no-progress", "--seed", "5"]
+    a = metrics(mc(tmp_path / "a", *base, "--chunk-size", "2", "--jobs", "2"))
+    c = metrics(mc(tmp_path / "c", *base, "--chunk-size", "4", "--jobs", "1"))
+    assert len(a) == 12 and not a["diverged"].any()
+    pd.testing.assert_frame_equal(no_seconds(a), no_seconds(c), check_exact=True)

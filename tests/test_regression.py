@@ -6,7 +6,7 @@ Configuration (all of it determines the numbers):
   (~39 s, written to a temporary A-KIT folder and passed as ``--data-dir``), 4 runs (0-3) in
   chunks of 2, every other option at its default (nominal scenario, constant schedule,
   recorded DVL, synthetic IMU, the packaged ProcessNet weights);
-- all 7 filters of ``nespm_cli.filters.FILTERS`` in one command, with ``--jobs 2`` (worker
+- all 10 filters of ``nespm_cli.filters.FILTERS`` in one command, with ``--jobs 2`` (worker
   processes); then one filter each, with ``--jobs 1`` (in-process), for
   ``--schedule dynamic`` (anukf-nespm), ``--scenario outage --outage-start 15
   --outage-length 10`` (ekf) and ``--dvl synthetic`` (ukf).
@@ -26,7 +26,7 @@ between two runs and between --jobs 1 and --jobs 2 (results do not depend on --j
 A change that moves any of them (filters, corruption draws, synthesis, metrics, track cut...)
 must explain in its commit why the numbers change, and update them here in the same commit.
 
-Cost: ~10-20 s (the seven filters over 40 epochs are one batch per chunk).
+Cost: ~10-20 s (the ten filters over 40 epochs are one batch per chunk).
 """
 from __future__ import annotations
 
@@ -98,6 +98,24 @@ EXPECTED = {
         "mrmse": [0.002385883967047129, 0.0019768702808799733, 0.0014027326281085466, 0.0014257366872199712],
         "nees": [5.049853051421753, 2.931726417084376, 1.2863987716330332, 1.922100778927516],
         "mean": {"vrmse": 0.055261559683053296, "mrmse": 0.001797805890813905, "nees": 2.7975197547666695},
+    },
+    ("nominal", "ckf"): {
+        "vrmse": [0.03735786748593504, 0.055148482170757226, 0.08303008463667341, 0.04552252530576056],
+        "mrmse": [0.0023851273126359084, 0.001976382486663214, 0.0014027125927307885, 0.0014254424012495272],
+        "nees": [5.049947096506232, 2.931537384482863, 1.2868639133651096, 1.922308665438349],
+        "mean": {"vrmse": 0.05526473989978156, "mrmse": 0.0017974161983198597, "nees": 2.7976642649481382},
+    },
+    ("nominal", "ckf-nespm"): {
+        "vrmse": [0.037360034965655396, 0.0551490821396838, 0.08302973652029039, 0.045523328616481354],
+        "mrmse": [0.0023849946485181373, 0.0019762991355630837, 0.0014027150207240246, 0.0014253662865295464],
+        "nees": [5.049492426849627, 2.931279846514838, 1.2868242642371481, 1.9221985965436297],
+        "mean": {"vrmse": 0.055265545560527735, "mrmse": 0.001797343772833698, "nees": 2.797448783536311},
+    },
+    ("nominal", "iekf"): {
+        "vrmse": [0.0373570833349502, 0.05514443196675528, 0.0830237193632933, 0.045521670937229024],
+        "mrmse": [0.002385403515105659, 0.001976337385456522, 0.0014027656312922568, 0.0014264681752803282],
+        "nees": [5.050160098981666, 2.9319865911023273, 1.2866316729212397, 1.9240270308595744],
+        "mean": {"vrmse": 0.055261726400556946, "mrmse": 0.0017977436767836917, "nees": 2.7982013484662023},
     },
     ("dynamic", "anukf-nespm"): {
         "vrmse": [0.1219913923667863, 0.1460689501265907, 0.1046332918590896, 0.12940691784893293],

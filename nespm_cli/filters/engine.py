@@ -12,6 +12,9 @@ protocol (:mod:`nespm_cli.filters.protocol`) looked up by name in the registry
   5-23), or each through the full strapdown (eqs 35-40); nonlinear DVL model (eq 33).
 * ``anekf``, ``anukf``, ``anukf-nespm`` (:mod:`.adaptive_filters`): the same three with Q
   from the ProcessNet noise std of each DVL interval (anukf.md eqs 43-49).
+* ``ckf``, ``ckf-nespm`` (:mod:`.ckf`): cubature Kalman filters (2n points, no tuning), the
+  points through Φ or each through the full strapdown.
+* ``iekf`` (:mod:`.iekf`): right-invariant EKF with bias states (docs/iekf.md).
 
 After every time update and every DVL update the estimate is fed back into the
 navigation solution and bias compensation (closed loop), so the state mean is zero
@@ -30,6 +33,8 @@ from nespm_cli.filters import ins  # noqa: F401,I001
 from nespm_cli.filters import ekf  # noqa: F401
 from nespm_cli.filters import ukf  # noqa: F401
 from nespm_cli.filters import adaptive_filters  # noqa: F401
+from nespm_cli.filters import ckf  # noqa: F401
+from nespm_cli.filters import iekf  # noqa: F401
 from nespm_cli.filters.measurements import DvlMeasurement
 from nespm_cli.filters.model import FilterConfig, NavState
 from nespm_cli.filters.protocol import ImuData

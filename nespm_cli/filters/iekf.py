@@ -1,0 +1,300 @@
+"""``iekf``: right-invariant error-state EKF with bias states (an "imperfect" IEKF).
+
+Sources: Barrau & Bonnabel, *The invariant extended Kalman filter as a stable observer*,
+IEEE TAC 62(4), 2017 (right-invariant error, right-invariant observations ``Y = X⁻¹ b``);
+A. Barrau, *Non-linear state error based extended Kalman filters with applications to
+navigation*, PhD thesis, Mines ParisTech, 2015 (the "imperfect IEKF": biases appended as a
+vector-space part of the state); Hartley et al., *Contact-aided invariant extended Kalman
+filtering for robot state estimation*, IJRR 39(4), 2020 (the bias columns of the right-invariant
+error dynamics). Derivations, choices and the coordinate map: docs/iekf.md.
+
+State, shapes and units (R runs first; every function is batched over leading axes ``B``):
+
+* group part ``X = (C_bn, v_n)``, the SE_2(3) extended pose without position (position is not a
+  state, as in the common model), a 4x4 matrix ``[[C, v], [0, 1]]``;
+* right-invariant error ``η = X_true X_nav⁻¹ = exp(ξ)``, with Lie-algebra coordinates
+  ``ξ = [ρ (0:3) m/s, φ (3:6) rad]``: ``C_true = exp([φ×]) C_nav`` (so φ IS the common δψ) and
+  ``v_true = exp([φ×]) v_nav + J_l(φ) ρ``;
+* biases as in the common state: ``b_a (6:9)`` m/s², ``b_g (9:12)`` rad/s, residuals in the
+  compensated IMU (``f_true = f_meas − b̂_a − b_a``);
+* invariant state ``ξ = [ρ, φ, b_a, b_g]`` (R, 12), covariance ``P_inv`` (R, 12, 12).
+
+The common 12-state error ``x = [δv, δψ, b_a, b_g]`` of :mod:`nespm_cli.filters.model` is, to
+first order, ``x = T(v_nav) ξ`` with ``δv = ρ − [v×] φ`` (:func:`common_from_invariant`);
+:meth:`IEKF.covariance` returns ``T P_inv Tᵀ``, so the engine's P6 / P_diag and the NEES are in
+the common coordinates like every other filter's.
+
+Public array-level functions (what a compiled kernel needs): :func:`invariant_system_matrix`
+(F_inv), :func:`invariant_dvl_H` (H_inv), :func:`invariant_dvl_h`, :func:`invariant_retraction`
+(the feedback), :func:`common_from_invariant`, :func:`invariant_from_common`,
+:func:`covariance_to_common`, :func:`covariance_to_invariant`, :func:`invariant_log`,
+:func:`so3_left_jacobian`, :func:`so3_left_jacobian_inverse`.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from nespm_cli.filters import kernels
+from nespm_cli.filters.measurements import DvlMeasurement, Measurement
+from nespm_cli.filters.model import BA, BG, DPSI, DV, N_STATES, FilterConfig, NavState
+from nespm_cli.filters.protocol import ErrorStateFilter, ImuData
+from nespm_cli.filters.registry import register
+from nespm_cli.nav.earth import d_w_en_d_v, gravity_n, radii, transport_rates
+from nespm_cli.nav.rotations import exp_so3, exp_so3_minus_identity, log_so3, skew
+from nespm_cli.nav.strapdown import cross, na_cycle
+
+#: below this squared angle [rad²] the Jacobian coefficients use their series (exact to double
+#: precision: the first omitted term is θ⁸/3.6e6 ≈ 3e-23 relative)
+SERIES_TH2 = 1e-4
+
+
+def _swap(A: np.ndarray) -> np.ndarray:
+    return np.swapaxes(A, -1, -2)
+
+
+# --- SO(3) left Jacobian (the V matrix of the group exponential) ---------------------------------
+
+def so3_left_jacobian(phi: np.ndarray) -> np.ndarray:
+    """Left Jacobian of SO(3) ``J_l(φ) = I + (1 − cos θ)/θ² [φ×] + (θ − sin θ)/θ³ [φ×]²``.
+
+    ``phi`` (..., 3) [rad] -> (..., 3, 3). Series below θ = 0.01 rad, per element.
+    """
+    phi = np.asarray(phi, dtype=float)
+    th2 = (phi * phi).sum(axis=-1)
+    b = np.asarray(0.5 - th2 / 24.0 * (1.0 - th2 / 30.0 * (1.0 - th2 / 56.0)))
+    c = np.asarray(1.0 / 6.0 - th2 / 120.0 * (1.0 - th2 / 42.0 * (1.0 - th2 / 72.0)))
+    big = th2 >= SERIES_TH2
+    if big.any():
+        th = np.sqrt(th2[big])
+        b[big] = (1.0 - np.cos(th)) / th2[big]
+        c[big] = (th - np.sin(th)) / (th2[big] * th)
+    S = skew(phi)
+    return np.eye(3) + b[..., None, None] * S + c[..., None, None] * (S @ S)
+
+
+def so3_left_jacobian_inverse(phi: np.ndarray) -> np.ndarray:
+    """``J_l(φ)⁻¹ = I − ½ [φ×] + (1/θ² − (1 + cos θ)/(2 θ sin θ)) [φ×]²`` (..., 3, 3), |φ| < π."""
+    phi = np.asarray(phi, dtype=float)
+    th2 = (phi * phi).sum(axis=-1)
+    d = np.asarray(1.0 / 12.0 + th2 / 720.0 + th2 * th2 / 30240.0 + th2**3 / 1209600.0)
+    big = th2 >= SERIES_TH2
+    if big.any():
+        th = np.sqrt(th2[big])
+        d[big] = 1.0 / th2[big] - (1.0 + np.cos(th)) / (2.0 * th * np.sin(th))
+    S = skew(phi)
+    return np.eye(3) - 0.5 * S + d[..., None, None] * (S @ S)
+
+
+# --- the group: exponential (retraction) and logarithm ---------------------------------------------
+
+def invariant_retraction(v_n: np.ndarray, C_bn: np.ndarray, xi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Left-multiply the solution by ``exp(ξ)`` (the right-invariant feedback): ``X⁺ = exp(ξ) X``.
+
+    ``C⁺ = exp([φ×]) C``, ``v⁺ = exp([φ×]) v + J_l(φ) ρ``, evaluated as
+    ``v + (exp([φ×]) − I) v + J_l(φ) ρ`` (no cancellation of the large ``v``).
+
+    Args:
+        v_n: (B, 3) [m/s]; C_bn: (B, 3, 3); xi: (B, ≥6) with ``ρ = xi[..., 0:3]`` [m/s] and
+            ``φ = xi[..., 3:6]`` [rad] (bias entries, if present, are ignored here).
+
+    Returns:
+        ``(v_n⁺, C_bn⁺)``.
+    """
+    rho, phi = xi[..., DV], xi[..., DPSI]
+    dv = (exp_so3_minus_identity(phi) @ v_n[..., None])[..., 0] + (so3_left_jacobian(phi) @ rho[..., None])[..., 0]
+    return v_n + dv, exp_so3(phi) @ C_bn
+
+
+def invariant_log(C_true: np.ndarray, v_true: np.ndarray, C_nav: np.ndarray, v_nav: np.ndarray) -> np.ndarray:
+    """Invariant error coordinates ``ξ = log(X_true X_nav⁻¹)`` = ``[ρ, φ]`` (..., 6).
+
+    ``φ = log(C_true C_navᵀ)``, ``ρ = J_l(φ)⁻¹ (v_true − C_true C_navᵀ v_nav)``; the inverse of
+    :func:`invariant_retraction`.
+    """
+    E = C_true @ _swap(C_nav)
+    phi = log_so3(E)
+    p = (v_true - v_nav) - ((E - np.eye(3)) @ v_nav[..., None])[..., 0]
+    rho = (so3_left_jacobian_inverse(phi) @ p[..., None])[..., 0]
+    return np.concatenate([rho, phi], axis=-1)
+
+
+def invariant_feedback(nav: NavState, xi: np.ndarray) -> None:
+    """Close the loop in place: ``X ← exp(ξ) X`` (:func:`invariant_retraction`), biases added to
+    the compensation (``b̂ ← b̂ + b``). ``xi`` (B, 12); afterwards the estimate is zero."""
+    nav.v_n, nav.C_bn = invariant_retraction(nav.v_n, nav.C_bn, xi)
+    nav.b_a = nav.b_a + xi[..., BA]
+    nav.b_g = nav.b_g + xi[..., BG]
+
+
+# --- coordinate map between the invariant and the common error state ------------------------------
+
+def common_from_invariant(v_n: np.ndarray) -> np.ndarray:
+    """``T`` (B, 12, 12), the Jacobian at ξ = 0 of the common error as a function of the invariant one.
+
+    ``x = T ξ``: ``δv = ρ − [v×] φ``, ``δψ = φ``, biases unchanged (from ``v_true − v_nav =
+    (exp([φ×]) − I) v_nav + J_l(φ) ρ ≈ ρ + φ × v_nav``).
+    """
+    T = np.broadcast_to(np.eye(N_STATES), v_n.shape[:-1] + (N_STATES, N_STATES)).copy()
+    T[..., DV, DPSI] = -skew(v_n)
+    return T
+
+
+def invariant_from_common(v_n: np.ndarray) -> np.ndarray:
+    """``T⁻¹`` (B, 12, 12): ``ξ = T⁻¹ x``, ``ρ = δv + [v×] δψ``, ``φ = δψ``."""
+    Ti = np.broadcast_to(np.eye(N_STATES), v_n.shape[:-1] + (N_STATES, N_STATES)).copy()
+    Ti[..., DV, DPSI] = skew(v_n)
+    return Ti
+
+
+def covariance_to_common(P_inv: np.ndarray, v_n: np.ndarray) -> np.ndarray:
+    """``P = T P_inv Tᵀ`` (B, 12, 12), symmetrized, with ``T`` of :func:`common_from_invariant`."""
+    T = common_from_invariant(v_n)
+    P = T @ P_inv @ _swap(T)
+    return 0.5 * (P + _swap(P))
+
+
+def covariance_to_invariant(P: np.ndarray, v_n: np.ndarray) -> np.ndarray:
+    """``P_inv = T⁻¹ P T⁻ᵀ`` (B, 12, 12), symmetrized: a common-coordinate covariance (P0, the
+    process noise Q) in the invariant coordinates at velocity ``v_n`` (B, 3)."""
+    Ti = invariant_from_common(v_n)
+    P_inv = Ti @ P @ _swap(Ti)
+    return 0.5 * (P_inv + _swap(P_inv))
+
+
+# --- Jacobians ---------------------------------------------------------------------------------
+
+def invariant_system_matrix(pos: np.ndarray, v_n: np.ndarray, C_bn: np.ndarray) -> np.ndarray:
+    """Continuous right-invariant error matrix ``F_inv`` (B, 12, 12), ``ξ̇ = F_inv ξ`` (docs/iekf.md).
+
+    ``F_inv = T⁻¹ F T + T⁻¹ Ṫ`` with the common F (:func:`nespm_cli.filters.model.system_matrix`),
+    worked out in closed form; the specific force cancels (the group-affine part)::
+
+        ρ̇ = −[(2ω_ie + ω_en)×] ρ + ([g×] + [v×][ω_ie×]) φ − C b_a − [v×] C b_g
+        φ̇ = −J ρ + (J [v×] − [ω_in×]) φ − C b_g            (J = ∂ω_en/∂v, ω_in = ω_ie + ω_en)
+
+    The earth-rate, transport-rate and Coriolis terms are not group-affine; they are kept as
+    first-order terms. Gravity's position dependence and the position couplings of the earth
+    and transport rates are dropped (position is not a state), as in the common F.
+
+    Args:
+        pos: (B, 3) [lat, lon, h]; v_n: (B, 3) [m/s]; C_bn: (B, 3, 3), the solution before the step.
+    """
+    lat, h = pos[..., 0], pos[..., 2]
+    R_N, R_E = radii(lat)
+    w_ie, w_en = transport_rates(lat, h, v_n, R_N, R_E)
+    J = d_w_en_d_v(pos)
+    V = skew(v_n)
+    F = np.zeros(v_n.shape[:-1] + (N_STATES, N_STATES))
+    F[..., DV, DV] = -skew(2.0 * w_ie + w_en)
+    F[..., DV, DPSI] = skew(gravity_n(pos)) + V @ skew(w_ie)
+    F[..., DV, BA] = -C_bn
+    F[..., DV, BG] = -V @ C_bn
+    F[..., DPSI, DV] = -J
+    F[..., DPSI, DPSI] = J @ V - skew(w_ie + w_en)
+    F[..., DPSI, BG] = -C_bn
+    return F
+
+
+def invariant_dvl_h(X: np.ndarray, C_bn: np.ndarray, lever: np.ndarray) -> np.ndarray:
+    """DVL model (anukf.md eq 33) as its change from ξ = 0, for invariant points ``X`` (B, S, 12).
+
+    ``y = C_trueᵀ v_true + (ω_nb − b_g) × l`` with ``X_true = exp(ξ) X_nav``: since
+    ``exp(−[φ×]) J_l(φ) = J_l(−φ)`` (the right Jacobian), ``y(ξ) − y(0) = Cᵀ J_l(−φ) ρ + l × b_g``
+    (B, S, 3) — the right-invariant observation ``Y = X⁻¹ b`` of Barrau & Bonnabel (2017).
+    """
+    rho, phi, bg = X[..., DV], X[..., DPSI], X[..., BG]
+    v_b = (so3_left_jacobian(-phi) @ rho[..., None])[..., 0]
+    out = (_swap(C_bn)[..., None, :, :] @ v_b[..., None])[..., 0]
+    return out + cross(np.broadcast_to(lever, bg.shape), bg)
+
+
+def invariant_dvl_H(C_bn: np.ndarray, lever: np.ndarray) -> np.ndarray:
+    """Jacobian of :func:`invariant_dvl_h` at ξ = 0 (B, 3, 12): ``[Cᵀ, 0, 0, [l×]]``.
+
+    No attitude column: the attitude error enters only through ρ (= H_common T, with H_common
+    of :func:`nespm_cli.filters.model.dvl_H`). ``C_bn`` (B, 3, 3); ``lever`` (3,) [m].
+    """
+    B = C_bn.shape[:-2]
+    H = np.zeros(B + (3, N_STATES))
+    H[..., :, DV] = _swap(C_bn)
+    H[..., :, BG] = skew(np.broadcast_to(np.asarray(lever, dtype=float), B + (3,)))
+    return H
+
+
+# --- the filter ---------------------------------------------------------------------------------
+
+@register("iekf")
+class IEKF(ErrorStateFilter):
+    """Closed-loop right-invariant EKF: covariance ``P_inv`` held in ξ = [ρ, φ, b_a, b_g].
+
+    ``self.P`` (what :meth:`covariance` returns and :meth:`check` tests) is kept equal to
+    ``T P_inv Tᵀ`` at the current solution's velocity (:func:`covariance_to_common`).
+    """
+
+    def __init__(self, cfg: FilterConfig, nav0: NavState, imu: ImuData, noise_std=None):
+        super().__init__(cfg, nav0, imu, noise_std)
+        self.P_inv = covariance_to_invariant(self.P, self.nav.v_n)  # self.P = P0 exactly at epoch 0
+
+    def _sync(self) -> None:
+        self.P = covariance_to_common(self.P_inv, self.nav.v_n)
+
+    def invariant_transition(self, j0: int, j1: int) -> np.ndarray:
+        """Move the solution through steps ``[j0, j1)`` (na_cycle) and return
+        ``Φ_inv = Π (I + F_inv dt)`` (R, 12, 12), F_inv on the solution before each step
+        (compiled where :attr:`compiled`, :func:`nespm_cli.filters.kernels.transition`)."""
+        if self.compiled:
+            n = self.contiguous_nav()
+            return kernels.transition(n.pos, n.v_n, n.C_bn, n.b_a, n.b_g, self.f, self.w, self.dt, j0, j1,
+                                      invariant=True)
+        Phi = np.broadcast_to(self.eye, self.P_inv.shape).copy()
+        for j in range(j0, j1):
+            f, w = self.imu(j)
+            n = self.nav
+            F = invariant_system_matrix(n.pos, n.v_n, n.C_bn)
+            Phi = (self.eye + F * self.dt[j]) @ Phi
+            n.pos, n.v_n, n.C_bn = na_cycle(n.pos, n.v_n, n.C_bn, f, w, self.dt[j])
+        return Phi
+
+    def propagate(self, j0: int, j1: int, k: int = 0) -> None:
+        Q = self.process_noise(self.span(j0, j1), k)  # common coordinates, at the attitude before the span
+        Phi = self.invariant_transition(j0, j1)
+        # Q is added at the end of the span (as the EKF's P ← Φ P Φᵀ + Q): mapped with T there
+        Q_inv = covariance_to_invariant(np.broadcast_to(Q, self.P_inv.shape), self.nav.v_n)
+        self.P_inv = Phi @ self.P_inv @ _swap(Phi) + Q_inv
+        self.P_inv = 0.5 * (self.P_inv + _swap(self.P_inv))
+        self._sync()
+
+    def measurement_jacobian(self, measurement: Measurement) -> np.ndarray:
+        """H_inv (R, m, 12): closed form for the DVL, else ``H_common T`` (chain rule)."""
+        if isinstance(measurement, DvlMeasurement):
+            return invariant_dvl_H(self.nav.C_bn, measurement.lever)
+        return measurement.H(self.nav) @ common_from_invariant(self.nav.v_n)
+
+    def update(self, measurement: Measurement, j_last: int) -> None:
+        nav = self.nav
+        nu = measurement.innovation(nav)  # z − h(X_nav), the same innovation as the EKF's
+        Rm = measurement.R
+        H = self.measurement_jacobian(measurement)
+        P = self.P_inv
+        PHt = P @ _swap(H)
+        S = H @ PHt + Rm
+        K = _swap(np.linalg.solve(S, _swap(PHt)))
+        xi = (K @ nu[..., None])[..., 0]
+        IKH = self.eye - K @ H
+        P = IKH @ P @ _swap(IKH) + K @ Rm @ _swap(K)  # Joseph form
+        self.P_inv = 0.5 * (P + _swap(P))
+        invariant_feedback(nav, xi)
+        self._sync()
+
+    def check(self) -> None:
+        new = ~self.bad.copy()
+        super().check()
+        new &= self.bad
+        if new.any():  # base reset these runs' solution and P (= P0); restart P_inv from them
+            self.P_inv[new] = covariance_to_invariant(self.P[new], self.nav.v_n[new])
+
+
+__all__ = ["IEKF", "common_from_invariant", "covariance_to_common", "covariance_to_invariant",
+           "invariant_dvl_H", "invariant_dvl_h", "invariant_feedback", "invariant_from_common",
+           "invariant_log", "invariant_retraction", "invariant_system_matrix", "so3_left_jacobian",
+           "so3_left_jacobian_inverse"]
