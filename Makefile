@@ -8,7 +8,7 @@ RUNS   ?= 100
 JOBS   ?= 2
 DATA_OPT := $(if $(DATA),--data-dir $(DATA),)
 
-.PHONY: setup run test smoke table1 table2 anukf-table1 anukf-table2 nespm-table1 weights sweep-misalignment gp-ukf bench clean check-data recorded-table1 recorded-table2 recorded-anukf-table1 recorded-anukf-table2 recorded-nespm-table1 recorded-weights
+.PHONY: setup run test smoke table1 table2 anukf-table1 anukf-table2 nespm-table1 weights sweep-misalignment sweep-heading gp-ukf bench clean check-data recorded-table1 recorded-table2 recorded-anukf-table1 recorded-anukf-table2 recorded-nespm-table1 recorded-weights
 
 setup: $(VENV)/.installed
 
@@ -55,9 +55,9 @@ anukf-table1 anukf-table2 nespm-table1: setup $(WEIGHTS)
 	$(NESPM) mc --config experiments/$@.toml --jobs $(JOBS) $(DATA_OPT) $(WEIGHTS_OPT) --out results/$@$(SUFFIX)
 	$(NESPM) report results/$@$(SUFFIX)
 
-sweep-misalignment: setup
-	$(NESPM) sweep --config experiments/sweep-misalignment.toml --jobs $(JOBS) $(DATA_OPT) --out results/sweep-misalignment$(if $(DATA),-data,)
-	$(NESPM) report results/sweep-misalignment$(if $(DATA),-data,)
+sweep-misalignment sweep-heading: setup
+	$(NESPM) sweep --config experiments/$@.toml --jobs $(JOBS) $(DATA_OPT) --out results/$@$(if $(DATA),-data,)
+	$(NESPM) report results/$@$(if $(DATA),-data,) --baseline ukf-nespm
 
 # gp-ukf.md Tables 3 and 4: GP-UKF vs ideal UKF, 20 simulated REMUS 100 helix runs of 800 s.
 gp-ukf: setup

@@ -29,7 +29,7 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
-FILTERS = ("ins", "ekf", "ukf", "ukf-nespm", "anekf", "anukf", "anukf-nespm")
+FILTERS = ("ins", "ekf", "ukf", "ukf-nespm", "anekf", "anukf", "anukf-nespm", "ckf", "ckf-nespm", "iekf")
 SIZES = (1, 8, 32, 100)
 
 

@@ -15,7 +15,7 @@ import pytest
 
 import nespm_cli.filters.ckf  # noqa: F401  (registers ckf and ckf-nespm)
 from nespm_cli.data.corruption import CorruptionConfig
-from nespm_cli.filters import FilterConfig, NavState
+from nespm_cli.filters import FilterConfig
 from nespm_cli.filters.ckf import CKF, CKFNespm
 from nespm_cli.filters.cubature import cubature_moments, cubature_offsets, cubature_weight
 from nespm_cli.filters.ekf import EKF
@@ -23,7 +23,7 @@ from nespm_cli.filters.protocol import ImuData
 from nespm_cli.filters.registry import get_filter, is_builtin
 from nespm_cli.experiments.metrics import run_metrics
 
-from test_filters import TINY, make_inputs, run, short_truth, vrmse
+from test_filters import TINY, make_inputs, run, short_truth, subset, vrmse
 
 EPS = np.finfo(float).eps
 N = 12
@@ -51,11 +51,6 @@ def random_cov(rng: np.random.Generator, n: int = N) -> tuple[np.ndarray, np.nda
     S = G @ G.T
     d = np.sqrt(np.diag(S))
     return stds[:, None] * (S / np.outer(d, d)) * stds[None, :], stds
-
-
-def subset(inp: dict, sl: slice) -> dict:
-    nav0 = NavState(*(getattr(inp["nav0"], a)[sl] for a in ("pos", "v_n", "C_bn", "b_a", "b_g")))
-    return dict(inp, f=inp["f"][sl], w=inp["w"][sl], dvl=inp["dvl"][sl], nav0=nav0)
 
 
 # --- 0. registration ------------------------------------------------------------------------------

@@ -74,6 +74,12 @@ def make_inputs(truth, runs, corruption: CorruptionConfig = CorruptionConfig(), 
     return {"f": f, "w": w, "dvl": dvl, "nav0": nav0, "mask": mask}
 
 
+def subset(inp: dict, sl: slice) -> dict:
+    """The inputs of the runs ``sl`` of a prepared batch."""
+    nav0 = NavState(*(getattr(inp["nav0"], a)[sl] for a in ("pos", "v_n", "C_bn", "b_a", "b_g")))
+    return dict(inp, f=inp["f"][sl], w=inp["w"][sl], dvl=inp["dvl"][sl], nav0=nav0)
+
+
 def run(kind: str, cfg: FilterConfig, truth, inp: dict):
     """``(FilterOutput, EpochErrors, seconds)`` of one filter on prepared inputs."""
     e = truth.epoch_index
@@ -381,12 +387,7 @@ def test_batch_invariance(short, short_default, kind):
     truth, inp = short
     full = short_default[kind][0]
 
-    def part(sl):
-        nav0 = NavState(*(getattr(inp["nav0"], a)[sl] for a in ("pos", "v_n", "C_bn", "b_a", "b_g")))
-        return run(kind, FilterConfig(), truth, dict(inp, f=inp["f"][sl], w=inp["w"][sl], dvl=inp["dvl"][sl],
-                                                       nav0=nav0))[0]
-
-    halves = [part(slice(0, 4)), part(slice(4, 8))]
+    halves = [run(kind, FilterConfig(), truth, subset(inp, sl))[0] for sl in (slice(0, 4), slice(4, 8))]
     for a in ("pos", "v_n", "C_bn", "P6", "P_diag", "b_a", "b_g", "diverged"):
         joined = np.concatenate([getattr(h, a) for h in halves])
         # per-run arithmetic only (batched matmul / LAPACK loop over matrices): bit-identical

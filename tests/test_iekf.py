@@ -19,10 +19,12 @@ import numpy as np
 import pytest
 
 import nespm_cli.filters.iekf  # noqa: F401  (registers "iekf")
-from nespm_cli.data.corruption import CorruptionConfig, draw, dvl_noise, imu_errors
-from nespm_cli.data.embedded import embedded_track
-from nespm_cli.experiments.metrics import epoch_errors, run_metrics
-from nespm_cli.filters import FilterConfig, NavState, initial_nav, run_filter
+from test_filters import make_inputs, subset
+from test_filters import run as filters_run
+from test_filters import short_truth as filters_short_truth
+from nespm_cli.data.corruption import CorruptionConfig
+from nespm_cli.experiments.metrics import run_metrics
+from nespm_cli.filters import FilterConfig, NavState
 from nespm_cli.filters.iekf import (
     common_from_invariant,
     covariance_to_common,
@@ -41,7 +43,6 @@ from nespm_cli.filters.registry import get_filter
 from nespm_cli.nav.earth import gravity_n, radii, transport_rates
 from nespm_cli.nav.rotations import attitude_minus, exp_so3, skew
 from nespm_cli.nav.strapdown import na_cycle
-from nespm_cli.nav.synthesis import synthesize
 
 TRACK = 5
 EPOCHS = 81  # 80 s of the embedded track
@@ -49,47 +50,15 @@ RUNS = 8
 FIELDS = ("pos", "v_n", "C_bn", "P6", "P_diag", "b_a", "b_g", "diverged")
 
 
-# --- inputs (what experiments.mc.simulate does, on a truncated track) ----------------------------
+# --- inputs: tests/test_filters.py's (what experiments.mc.simulate does, on a truncated track) -----
 
 def short_truth(epochs: int = EPOCHS):
-    tr = embedded_track(TRACK)
-    s = slice(0, epochs)
-    return synthesize(dataclasses.replace(tr, t=tr.t[s], pos=tr.pos[s], v_n=tr.v_n[s], euler=tr.euler[s],
-                                          dvl=tr.dvl[s]))
-
-
-def make_inputs(truth, runs, clean: bool = False, corruption: CorruptionConfig = CorruptionConfig()) -> dict:
-    """Corrupted IMU (default protocol unless ``corruption``), synthetic DVL (zero lever arm),
-    initial solution; the same unit draws for the same runs whatever the scale."""
-    e = truth.epoch_index
-    runs = np.asarray(runs)
-    R = len(runs)
-    real = draw(0, TRACK, runs, float(truth.t[e[-1]] - truth.t[e[0]]), corruption)
-    C_t, v_t, p_t = truth.C_bn[e], truth.v_n[e], truth.pos[e]
-    dvl = np.broadcast_to((np.swapaxes(C_t, -1, -2) @ v_t[..., None])[..., 0], (R, len(e), 3))
-    if clean:
-        f = np.broadcast_to(truth.f_b, (R,) + truth.f_b.shape)
-        w = np.broadcast_to(truth.w_ib_b, (R,) + truth.w_ib_b.shape)
-        nav0 = initial_nav(p_t[0], v_t[0], C_t[0], np.zeros((R, 3)), np.zeros((R, 3)))
-    else:
-        dvl = dvl + dvl_noise(real, len(e))
-        ef, ew = imu_errors(real, truth.t)
-        f, w = truth.f_b + ef, truth.w_ib_b + ew
-        nav0 = initial_nav(p_t[0], v_t[0], C_t[0], real.dv0, real.dpsi0)
-    mask = np.ones(len(e), dtype=bool)
-    mask[0] = False
-    return {"f": f, "w": w, "dvl": dvl, "nav0": nav0, "mask": mask}
-
-
-def subset(inp: dict, sl) -> dict:
-    nav0 = NavState(*(getattr(inp["nav0"], a)[sl] for a in ("pos", "v_n", "C_bn", "b_a", "b_g")))
-    return dict(inp, f=inp["f"][sl], w=inp["w"][sl], dvl=inp["dvl"][sl], nav0=nav0)
+    return filters_short_truth(epochs, TRACK)
 
 
 def run(kind: str, cfg: FilterConfig, truth, inp: dict):
-    e = truth.epoch_index
-    out = run_filter(kind, cfg, inp["f"], inp["w"], truth.dt, e, inp["dvl"], inp["mask"], inp["nav0"])
-    return out, epoch_errors(out, truth.v_n[e], truth.C_bn[e], truth.pos[e])
+    """``(FilterOutput, EpochErrors)`` of one filter on prepared inputs."""
+    return filters_run(kind, cfg, truth, inp)[:2]
 
 
 @pytest.fixture(scope="module")
