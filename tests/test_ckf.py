@@ -23,17 +23,11 @@ from nespm_cli.filters.protocol import ImuData
 from nespm_cli.filters.registry import get_filter, is_builtin
 from nespm_cli.experiments.metrics import run_metrics
 
-from test_filters import TINY, make_inputs, run, short_truth, subset, vrmse
+from test_filters import TINY, assert_halves_equal_whole, random_cov, make_inputs, run, short_truth, vrmse
+from test_filters import short  # noqa: F401  (the fixture: 60 s truth, runs 0-7)
 
 EPS = np.finfo(float).eps
 N = 12
-
-
-@pytest.fixture(scope="module")
-def short():
-    """60 s truth and the default-protocol inputs of runs 0-7."""
-    truth = short_truth()
-    return truth, make_inputs(truth, np.arange(8))
 
 
 @pytest.fixture(scope="module")
@@ -41,16 +35,6 @@ def short_default(short):
     """ekf, ckf, ckf-nespm with the default tuning on runs 0-7 as one batch: {filter: (out, err, s)}."""
     truth, inp = short
     return {k: run(k, FilterConfig(), truth, inp) for k in ("ekf", "ckf", "ckf-nespm")}
-
-
-def random_cov(rng: np.random.Generator, n: int = N) -> tuple[np.ndarray, np.ndarray]:
-    """SPD (n, n) with stds log-spaced 1e-9 .. 0.3 (shuffled) and a random dense correlation."""
-    stds = np.logspace(-9, np.log10(0.3), n)
-    rng.shuffle(stds)
-    G = rng.normal(size=(n, 2 * n))
-    S = G @ G.T
-    d = np.sqrt(np.diag(S))
-    return stds[:, None] * (S / np.outer(d, d)) * stds[None, :], stds
 
 
 # --- 0. registration ------------------------------------------------------------------------------
@@ -232,13 +216,7 @@ def test_nees_sanity(short_default):
 @pytest.mark.parametrize("kind", ["ckf", "ckf-nespm"])
 def test_batch_invariance(short, short_default, kind):
     truth, inp = short
-    full = short_default[kind][0]
-    halves = [run(kind, FilterConfig(), truth, subset(inp, sl))[0] for sl in (slice(0, 4), slice(4, 8))]
-    for a in ("pos", "v_n", "C_bn", "P6", "P_diag", "b_a", "b_g", "diverged"):
-        joined = np.concatenate([getattr(h, a) for h in halves])
-        ref = getattr(full, a)
-        # per-run arithmetic only (batched matmul / LAPACK loop over matrices): measured bit-identical
-        assert np.allclose(joined, ref, rtol=0, atol=1e-12), (kind, a, np.abs(joined - ref).max())
+    assert_halves_equal_whole(kind, truth, inp, short_default[kind][0])
 
 
 # --- 7. large initial misalignment ---------------------------------------------------------------

@@ -109,7 +109,7 @@ def short_default(short):
 
 # --- 1. unscented transform -------------------------------------------------------------------
 
-def _random_cov(rng, n=12):
+def random_cov(rng, n=12):
     """SPD (n, n) with stds log-spaced 1e-9 .. 0.3 (shuffled) and a random correlation."""
     stds = np.logspace(-9, np.log10(0.3), n)
     rng.shuffle(stds)
@@ -124,7 +124,7 @@ def _random_cov(rng, n=12):
 def test_ut_linear_map_exact(alpha, amap):
     rng = np.random.default_rng(7)
     n = 12
-    P, stds = _random_cov(rng, n)
+    P, stds = random_cov(rng, n)
     A = {"identity": np.eye(n), "dense": rng.normal(size=(n, n)), "wide": rng.normal(size=(3, n))}[amap]
     ut = UTWeights(n, alpha, 2.0, 0.0)
     X = sigma_offsets(np.linalg.cholesky(P)[None], ut)
@@ -386,11 +386,15 @@ def test_divergence_is_recorded(short, short_default, kind):
 def test_batch_invariance(short, short_default, kind):
     truth, inp = short
     full = short_default[kind][0]
+    assert_halves_equal_whole(kind, truth, inp, full)
 
+
+def assert_halves_equal_whole(kind: str, truth, inp: dict, full) -> None:
+    """Runs 0-3 and 4-7 as two batches give the bits of the 8-run batch ``full``: per-run
+    arithmetic only (the compiled loop per run, LAPACK's loop over matrices)."""
     halves = [run(kind, FilterConfig(), truth, subset(inp, sl))[0] for sl in (slice(0, 4), slice(4, 8))]
     for a in ("pos", "v_n", "C_bn", "P6", "P_diag", "b_a", "b_g", "diverged"):
         joined = np.concatenate([getattr(h, a) for h in halves])
-        # per-run arithmetic only (batched matmul / LAPACK loop over matrices): bit-identical
         assert np.array_equal(joined, getattr(full, a)), (kind, a, np.abs(joined - getattr(full, a)).max())
 
 

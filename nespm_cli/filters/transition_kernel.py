@@ -17,7 +17,16 @@ import math
 import numpy as np
 
 from nespm_cli.nav.earth import A, E2, F, GAMMA_E, K_SOMIGLIANA
-from nespm_cli.nav.kernels import GRAV_M, cycle_t, exp_so3_s, load_t, matmul3, njit, store_t
+from nespm_cli.nav.kernels import GRAV_M, cycle_t, exp_t, load_t, matrix_t, mul_t, njit, state_t, store_t
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def identity_plus_dt(M, dt):
+    """``M ← I + M dt`` in place for the top six rows (6, 12) of F."""
+    for i in range(6):
+        for k in range(12):
+            M[i, k] *= dt
+        M[i, i] += 1.0
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -77,11 +86,7 @@ def system_top_s(x, f0, f1, f2, M, dt):
         for k in range(3):
             M[i, 6 + k] = -x[6 + 3 * i + k]
             M[3 + i, 9 + k] = -x[6 + 3 * i + k]
-    # I + F dt
-    for i in range(6):
-        for k in range(12):
-            M[i, k] *= dt
-        M[i, i] += 1.0
+    identity_plus_dt(M, dt)
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -130,10 +135,7 @@ def invariant_top_s(x, M, dt, S):
     for i in range(3):
         for k in range(3):
             M[3 + i, 3 + k] = (J[i, 0] * V[0, k] + J[i, 1] * V[1, k] + J[i, 2] * V[2, k]) - T[i, k]
-    for i in range(6):
-        for k in range(12):
-            M[i, k] *= dt
-        M[i, i] += 1.0
+    identity_plus_dt(M, dt)
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -183,8 +185,6 @@ def transition_span(pos, v, C, b_a, b_g, f, w, dt, j0, j1, Phi, invariant):
 def points_span(pos, v, C, b_a, b_g, X, f, w, dt, j0, j1, pos_o, v_o, C_o):
     """The mean and the 2n offsets ``X`` (R, 2n, 12) of each run through steps ``[j0, j1)``
     (ukf-nespm.md eqs 35-38) into ``pos_o``, ``v_o`` (R, 2n+1, 3), ``C_o`` (R, 2n+1, 3, 3)."""
-    E = np.empty((3, 3))
-    v0, C0 = np.empty(3), np.empty((3, 3))
     S = X.shape[1] + 1
     for r in range(pos.shape[0]):
         for s in range(S):
@@ -194,11 +194,8 @@ def points_span(pos, v, C, b_a, b_g, X, f, w, dt, j0, j1, pos_o, v_o, C_o):
                 ba0, ba1, ba2, bg0, bg1, bg2 = b_a[r, 0], b_a[r, 1], b_a[r, 2], b_g[r, 0], b_g[r, 1], b_g[r, 2]
             else:
                 d = X[r, s - 1]
-                for i in range(3):
-                    v0[i] = v[r, i] + d[i]
-                exp_so3_s(d[3], d[4], d[5], E)
-                matmul3(E, C[r], C0)
-                x = load_t(pos[r], v0, C0)
+                x = state_t(pos[r, 0], pos[r, 1], pos[r, 2], v[r, 0] + d[0], v[r, 1] + d[1], v[r, 2] + d[2],
+                            mul_t(exp_t(d[3], d[4], d[5]), matrix_t(C[r])))
                 ba0, ba1, ba2 = b_a[r, 0] + d[6], b_a[r, 1] + d[7], b_a[r, 2] + d[8]
                 bg0, bg1, bg2 = b_g[r, 0] + d[9], b_g[r, 1] + d[10], b_g[r, 2] + d[11]
             for j in range(j0, j1):  # eq 38, the point compensating its own biases

@@ -46,8 +46,8 @@ def available() -> bool:
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def exp_so3_s(p0, p1, p2, E):
-    """``exp([p x])`` into ``E`` (3, 3) (rotations.exp_so3: series below 0.01 rad, Rodrigues above)."""
+def exp_t(p0, p1, p2):
+    """``exp([p x])`` as a 9-tuple, row-major (rotations.exp_so3: series below 0.01 rad, Rodrigues above)."""
     th2 = p0 * p0 + p1 * p1 + p2 * p2
     if th2 >= SERIES2:
         th = math.sqrt(th2)
@@ -57,52 +57,20 @@ def exp_so3_s(p0, p1, p2, E):
         a = 1.0 - th2 / 6.0 * (1.0 - th2 / 20.0 * (1.0 - th2 / 42.0))
         b = 0.5 - th2 / 24.0 * (1.0 - th2 / 30.0 * (1.0 - th2 / 56.0))
     d = 1.0 - b * th2
-    E[0, 0] = b * (p0 * p0) + d
-    E[0, 1] = -(p2 * a) + b * (p0 * p1)
-    E[0, 2] = p1 * a + b * (p0 * p2)
-    E[1, 0] = p2 * a + b * (p1 * p0)
-    E[1, 1] = b * (p1 * p1) + d
-    E[1, 2] = -(p0 * a) + b * (p1 * p2)
-    E[2, 0] = -(p1 * a) + b * (p2 * p0)
-    E[2, 1] = p0 * a + b * (p2 * p1)
-    E[2, 2] = b * (p2 * p2) + d
+    return (b * (p0 * p0) + d, -(p2 * a) + b * (p0 * p1), p1 * a + b * (p0 * p2),
+            p2 * a + b * (p1 * p0), b * (p1 * p1) + d, -(p0 * a) + b * (p1 * p2),
+            -(p1 * a) + b * (p2 * p0), p0 * a + b * (p2 * p1), b * (p2 * p2) + d)
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def matmul3(X, Y, out):
-    """``out = X @ Y`` for (3, 3) matrices (``out`` distinct from both)."""
-    for i in range(3):
-        for k in range(3):
-            out[i, k] = X[i, 0] * Y[0, k] + X[i, 1] * Y[1, k] + X[i, 2] * Y[2, k]
-
-
-@njit(cache=True, error_model="numpy", inline="always")
-def exp_mul_t(c00, c01, c02, c10, c11, c12, c20, c21, c22, p0, p1, p2):
-    """``C @ exp([p x])`` as a 9-tuple, row-major (eqs 24 and 31; rotations.exp_so3 and products.mat_mul)."""
-    th2 = p0 * p0 + p1 * p1 + p2 * p2
-    if th2 >= SERIES2:
-        th = math.sqrt(th2)
-        a = math.sin(th) / th
-        b = (1.0 - math.cos(th)) / (th * th)
-    else:  # also for NaN, as the reference
-        a = 1.0 - th2 / 6.0 * (1.0 - th2 / 20.0 * (1.0 - th2 / 42.0))
-        b = 0.5 - th2 / 24.0 * (1.0 - th2 / 30.0 * (1.0 - th2 / 56.0))
-    d = 1.0 - b * th2
-    e00 = b * (p0 * p0) + d
-    e01 = -(p2 * a) + b * (p0 * p1)
-    e02 = p1 * a + b * (p0 * p2)
-    e10 = p2 * a + b * (p1 * p0)
-    e11 = b * (p1 * p1) + d
-    e12 = -(p0 * a) + b * (p1 * p2)
-    e20 = -(p1 * a) + b * (p2 * p0)
-    e21 = p0 * a + b * (p2 * p1)
-    e22 = b * (p2 * p2) + d
-    return ((c00 * e00 + c01 * e10) + c02 * e20, (c00 * e01 + c01 * e11) + c02 * e21,
-            (c00 * e02 + c01 * e12) + c02 * e22,
-            (c10 * e00 + c11 * e10) + c12 * e20, (c10 * e01 + c11 * e11) + c12 * e21,
-            (c10 * e02 + c11 * e12) + c12 * e22,
-            (c20 * e00 + c21 * e10) + c22 * e20, (c20 * e01 + c21 * e11) + c22 * e21,
-            (c20 * e02 + c21 * e12) + c22 * e22)
+def mul_t(X, Y):
+    """``X @ Y`` of two row-major 9-tuples, summed as products.mat_mul: ``(x0 y0 + x1 y1) + x2 y2``."""
+    return ((X[0] * Y[0] + X[1] * Y[3]) + X[2] * Y[6], (X[0] * Y[1] + X[1] * Y[4]) + X[2] * Y[7],
+            (X[0] * Y[2] + X[1] * Y[5]) + X[2] * Y[8],
+            (X[3] * Y[0] + X[4] * Y[3]) + X[5] * Y[6], (X[3] * Y[1] + X[4] * Y[4]) + X[5] * Y[7],
+            (X[3] * Y[2] + X[4] * Y[5]) + X[5] * Y[8],
+            (X[6] * Y[0] + X[7] * Y[3]) + X[8] * Y[6], (X[6] * Y[1] + X[7] * Y[4]) + X[8] * Y[7],
+            (X[6] * Y[2] + X[7] * Y[5]) + X[8] * Y[8])
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -140,8 +108,8 @@ def cycle_t(x, f0, f1, f2, w0, w1, w2, dt):
     p0 = (w0 - ((c00 * u0 + c10 * u1) + c20 * u2)) * half
     p1 = (w1 - ((c01 * u0 + c11 * u1) + c21 * u2)) * half
     p2 = (w2 - ((c02 * u0 + c12 * u1) + c22 * u2)) * half
-    s00, s01, s02, s10, s11, s12, s20, s21, s22 = exp_mul_t(c00, c01, c02, c10, c11, c12, c20, c21, c22,
-                                                            p0, p1, p2)
+    C = (c00, c01, c02, c10, c11, c12, c20, c21, c22)
+    s00, s01, s02, s10, s11, s12, s20, s21, s22 = mul_t(C, exp_t(p0, p1, p2))
     # gravity (earth.gravity_n)
     s2 = sl * sl
     g0 = GAMMA_E * (1.0 + K_SOMIGLIANA * s2) / math.sqrt(1.0 - E2 * s2)
@@ -163,15 +131,25 @@ def cycle_t(x, f0, f1, f2, w0, w1, w2, dt):
     p0 = (w0 - ((c00 * u0 + c10 * u1) + c20 * u2)) * dt
     p1 = (w1 - ((c01 * u0 + c11 * u1) + c21 * u2)) * dt
     p2 = (w2 - ((c02 * u0 + c12 * u1) + c22 * u2)) * dt
-    C1 = exp_mul_t(c00, c01, c02, c10, c11, c12, c20, c21, c22, p0, p1, p2)
-    return (lat1, lon1, h1, n0, n1, n2) + C1 + e
+    return (lat1, lon1, h1, n0, n1, n2) + mul_t(C, exp_t(p0, p1, p2)) + e
 
 
 @njit(cache=True, error_model="numpy", inline="always")
 def load_t(pos, v, C):
     """The 25-tuple of :func:`cycle_t` from arrays ``pos``, ``v`` (3,), ``C`` (3, 3)."""
-    return ((pos[0], pos[1], pos[2], v[0], v[1], v[2], C[0, 0], C[0, 1], C[0, 2], C[1, 0], C[1, 1], C[1, 2],
-             C[2, 0], C[2, 1], C[2, 2]) + earth_t(pos[0], pos[2], v[0], v[1]))
+    return state_t(pos[0], pos[1], pos[2], v[0], v[1], v[2], matrix_t(C))
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def matrix_t(C):
+    """A (3, 3) array as a row-major 9-tuple."""
+    return (C[0, 0], C[0, 1], C[0, 2], C[1, 0], C[1, 1], C[1, 2], C[2, 0], C[2, 1], C[2, 2])
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def state_t(lat, lon, h, v0, v1, v2, C):
+    """The 25-tuple of :func:`cycle_t` of a state (``C`` a row-major 9-tuple)."""
+    return (lat, lon, h, v0, v1, v2) + C + earth_t(lat, h, v0, v1)
 
 
 @njit(cache=True, error_model="numpy", inline="always")
