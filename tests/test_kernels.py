@@ -153,3 +153,16 @@ def test_kernels_option_is_checked(capsys, monkeypatch):
     rc, out, err = cli(capsys, "run", "--track", "5", "--kernels", "fortran")
     assert_one_error_line(rc, out, err, "--kernels", "fortran")
     monkeypatch.delenv("NESPM_KERNELS", raising=False)
+
+
+def test_without_numba_auto_falls_back_and_numba_mode_says_why(monkeypatch):
+    """A machine without numba: ``auto`` runs the NumPy reference, ``--kernels numba`` is a
+    one-line error naming the fix."""
+    from nespm_cli.filters import kernels
+
+    monkeypatch.delenv("NESPM_KERNELS", raising=False)
+    monkeypatch.setattr(kernels, "numba_installed", lambda: False)
+    assert not kernels.compiled_enabled() and kernels.kernel_backend() == "numpy"
+    with use_kernels("numba"):
+        with pytest.raises(NespmError, match="numba is not installed.*--kernels numpy"):
+            kernels.compiled_enabled()
