@@ -3,8 +3,10 @@
 The NumPy functions of :mod:`.earth`, :mod:`.rotations` and :mod:`.strapdown` are the
 reference; the functions here compute the same formulas, in the same order and with the
 same branches, on the scalars of one state, so a compiled loop over runs, sigma points and
-IMU steps agrees with the reference to round-off (tests/test_kernels.py: 1e-9 on whole
-filter runs, in practice ~1e-13). Each compiled function is cached on disk
+IMU steps agrees with the reference: bit for bit for the cycle itself (the reference's 3x3
+products are elementwise sums in the same order, :mod:`.products`), and to 1e-9 on whole
+filter runs (tests/test_kernels.py; measured 0 for the sigma-point filters, ~1e-14 for the
+Φ-based ones). Each compiled function is cached on disk
 (``cache=True``: next to this file in ``__pycache__``, or in ``NUMBA_CACHE_DIR``), so a
 machine compiles once.
 
@@ -13,9 +15,10 @@ language or a build step, it is maintained on PyPI with wheels for every platfor
 and its on-disk cache makes the compile a one-time cost. Without numba the filters run
 the NumPy reference (:func:`available` is False).
 
-Shapes: ``pos`` (3,) ``[lat, lon, h]`` [rad, rad, m]; ``v`` (3,) NED [m/s]; ``C`` (3, 3)
-body-to-NED; IMU ``f`` (3,) [m/s²], ``w`` (3,) [rad/s]; ``dt`` [s]. Output arrays are
-written in place (``*_out``) so the loops allocate nothing.
+A state travels through the loops as a 25-tuple of floats (kept in registers):
+``(lat, lon, h)`` [rad, rad, m], ``v_n`` (3) [m/s], ``C_bn`` (9, row-major) and its earth
+quantities (10, :func:`earth_t`); :func:`load_t` / :func:`store_t` convert from and to arrays
+``pos`` (3,), ``v`` (3,), ``C`` (3, 3). IMU ``f`` [m/s²], ``w`` [rad/s] per step, ``dt`` [s].
 """
 from __future__ import annotations
 
