@@ -324,6 +324,11 @@ class Cell:
     columns: tuple = ()
 
 
+def timing_key(tag: str, number: int, filt: str, first: int) -> str:
+    """The key of one filter's chunk in the manifest's ``chunk_seconds``: ``<tag><track>-<filter>-<first run>``."""
+    return f"{tag}{number}-{filt}-{first}"
+
+
 def chunk_key(cell: Cell, number: int, first: int) -> str:
     """The name of a chunk in progress reports: ``<tag><track>-<first run>``."""
     return f"{cell.tag}{number}-{first:06d}"
@@ -368,7 +373,7 @@ def run_chunk(cell: Cell, number: int, first: int, out_dir: str, last: int | Non
         # series first: a metrics file marks the chunk complete
         write_parquet_atomic(series, chunks / _chunk_name("series", number, name, first, tag))
         write_parquet_atomic(df, chunks / _chunk_name("metrics", number, name, first, tag))
-        timings[f"{tag}{number}-{name}-{first}"] = secs
+        timings[timing_key(tag, number, name, first)] = secs
     return timings
 
 
@@ -503,7 +508,7 @@ def recover_timings(chunk_seconds: dict, tasks: list, chunks: Path) -> None:
     ``seconds`` column (seconds per run)."""
     for c, n, f0, _ in tasks:
         for filt in c.spec.filters:
-            key = f"{c.tag}{n}-{filt}-{f0}"
+            key = timing_key(c.tag, n, filt, f0)
             path = chunks / _chunk_name("metrics", n, filt, f0, c.tag)
             if key not in chunk_seconds and path.exists():
                 chunk_seconds[key] = float(pd.read_parquet(path, columns=["seconds"])["seconds"].sum())

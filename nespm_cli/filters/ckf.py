@@ -17,68 +17,35 @@ steps and the points are offsets (R, 24, 12) around the navigation solution.
   ``ErrorStateFilter.points_through_cycle`` (compiled, or the NumPy reference: the same bits).
 
 Both update with the measurement's nonlinear model ``h`` on the cubature points (DVL:
-anukf.md eq 33), ``P ← P − K S Kᵀ``, and feed the estimate back.
+anukf.md eq 33), ``P ← P − K S Kᵀ``, and feed the estimate back. The filter steps are the
+UKF's (:mod:`.ukf`); only the point set differs (:class:`CubatureRule`).
 """
 from __future__ import annotations
 
 import numpy as np
 
 from nespm_cli.filters.cubature import cubature_moments, cubature_offsets
-from nespm_cli.filters.measurements import Measurement
-from nespm_cli.filters.model import BA, BG
-from nespm_cli.filters.protocol import ErrorStateFilter
 from nespm_cli.filters.registry import register
-from nespm_cli.nav.rotations import attitude_minus
+from nespm_cli.filters.ukf import UKF, UKFNespm
+
+
+class CubatureRule:
+    """The third-degree spherical-radial point set for the sigma-point filters of :mod:`.ukf`."""
+
+    def offsets(self, L: np.ndarray) -> np.ndarray:
+        """The 2n cubature offsets (R, 2n, 12) ``±√n L[:, i]``."""
+        return cubature_offsets(L)
+
+    def point_moments(self, dx: np.ndarray, dz: np.ndarray | None = None):
+        """Moments with the equal weights 1/(2n) (:func:`nespm_cli.filters.cubature.cubature_moments`)."""
+        return cubature_moments(dx, dz)
 
 
 @register("ckf")
-class CKF(ErrorStateFilter):
+class CKF(CubatureRule, UKF):
     """Closed-loop error-state CKF, cubature points through the linearised transition Φ."""
-
-    adaptive_of = None
-    needs_noise_std = False
-
-    def propagate(self, j0: int, j1: int, k: int = 0) -> None:
-        Q = self.process_noise(self.span(j0, j1), k)  # before the solution moves
-        Phi = self.transition(j0, j1)  # moves self.nav through steps [j0, j1)
-        X = cubature_offsets(self.cholesky())  # (R, 2n, 12)
-        Y = X @ np.swapaxes(Phi, -1, -2)  # deviations from the image of the mean (0)
-        m, P = cubature_moments(Y)
-        self.P = P + Q
-        self.feedback(m)
-        self.symmetrize()
-
-    def update(self, measurement: Measurement, j_last: int) -> None:
-        nav = self.nav
-        nu = measurement.innovation(nav)  # (R, m)
-        X = cubature_offsets(self.cholesky())  # (R, 2n, 12)
-        dz = measurement.h(X, nav)  # (R, 2n, m): h(x) − h(0)
-        m, _, mz, Pzz, Pxz = cubature_moments(X, dz)
-        S = Pzz + measurement.R
-        K = np.swapaxes(np.linalg.solve(S, np.swapaxes(Pxz, -1, -2)), -1, -2)  # Pxz S⁻¹
-        x = m + (K @ (nu - mz)[..., None])[..., 0]
-        self.P = self.P - K @ S @ np.swapaxes(K, -1, -2)
-        self.symmetrize()
-        self.feedback(x)
 
 
 @register("ckf-nespm")
-class CKFNespm(CKF):
+class CKFNespm(CubatureRule, UKFNespm):
     """CKF whose cubature points each run the full strapdown over the span (eqs 35-40)."""
-
-    adaptive_of = None
-    needs_noise_std = False
-
-    def propagate(self, j0: int, j1: int, k: int = 0) -> None:
-        Q = self.process_noise(self.span(j0, j1), k)
-        nav = self.nav
-        X = cubature_offsets(self.cholesky())  # (R, 2n, 12)
-        pos, v, C = self.points_through_cycle(X, j0, j1)  # eqs 35-38, compiled where the base is
-        dv = v[:, 1:] - v[:, :1]  # eq 39
-        dpsi = attitude_minus(C[:, 1:], C[:, :1])  # eq 40: ⊖
-        Y = np.concatenate([dv, dpsi, X[..., BA], X[..., BG]], axis=-1)  # biases: constant over the span
-        m, P = cubature_moments(Y)
-        nav.pos, nav.v_n, nav.C_bn = pos[:, 0], v[:, 0], C[:, 0]
-        self.feedback(m)
-        self.P = P + Q
-        self.symmetrize()

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from nespm_cli.filters.model import joseph_update
 from nespm_cli.filters.protocol import ErrorStateFilter
 from nespm_cli.filters.registry import register
 
@@ -24,15 +25,5 @@ class EKF(ErrorStateFilter):
 
     def update(self, measurement, j_last: int) -> None:
         nav = self.nav
-        nu = measurement.innovation(nav)
-        Rm = measurement.R
-        H = measurement.H(nav)
-        PHt = self.P @ np.swapaxes(H, -1, -2)
-        S = H @ PHt + Rm
-        K = np.linalg.solve(S, np.swapaxes(PHt, -1, -2))
-        K = np.swapaxes(K, -1, -2)
-        x = (K @ nu[..., None])[..., 0]
-        IKH = self.eye - K @ H
-        self.P = IKH @ self.P @ np.swapaxes(IKH, -1, -2) + K @ Rm @ np.swapaxes(K, -1, -2)
-        self.symmetrize()
+        x, self.P = joseph_update(self.P, measurement.H(nav), measurement.innovation(nav), measurement.R)
         self.feedback(x)

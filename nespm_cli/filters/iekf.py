@@ -34,14 +34,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from nespm_cli.filters import kernels
 from nespm_cli.filters.measurements import DvlMeasurement, Measurement
-from nespm_cli.filters.model import BA, BG, DPSI, DV, N_STATES, FilterConfig, NavState
+from nespm_cli.filters.model import (BA, BG, DPSI, DV, N_STATES, FilterConfig, NavState, invariant_system_matrix,
+                                     joseph_update)
 from nespm_cli.filters.protocol import ErrorStateFilter, ImuData
 from nespm_cli.filters.registry import register
-from nespm_cli.nav.earth import d_w_en_d_v, gravity_n, radii, transport_rates
 from nespm_cli.nav.rotations import exp_so3, exp_so3_minus_identity, log_so3, skew
-from nespm_cli.nav.strapdown import cross, na_cycle
+from nespm_cli.nav.strapdown import cross
 
 #: below this squared angle [rad²] the Jacobian coefficients use their series (exact to double
 #: precision: the first omitted term is θ⁸/3.6e6 ≈ 3e-23 relative)
@@ -163,38 +162,6 @@ def covariance_to_invariant(P: np.ndarray, v_n: np.ndarray) -> np.ndarray:
 
 # --- Jacobians ---------------------------------------------------------------------------------
 
-def invariant_system_matrix(pos: np.ndarray, v_n: np.ndarray, C_bn: np.ndarray) -> np.ndarray:
-    """Continuous right-invariant error matrix ``F_inv`` (B, 12, 12), ``ξ̇ = F_inv ξ`` (docs/iekf.md).
-
-    ``F_inv = T⁻¹ F T + T⁻¹ Ṫ`` with the common F (:func:`nespm_cli.filters.model.system_matrix`),
-    worked out in closed form; the specific force cancels (the group-affine part)::
-
-        ρ̇ = −[(2ω_ie + ω_en)×] ρ + ([g×] + [v×][ω_ie×]) φ − C b_a − [v×] C b_g
-        φ̇ = −J ρ + (J [v×] − [ω_in×]) φ − C b_g            (J = ∂ω_en/∂v, ω_in = ω_ie + ω_en)
-
-    The earth-rate, transport-rate and Coriolis terms are not group-affine; they are kept as
-    first-order terms. Gravity's position dependence and the position couplings of the earth
-    and transport rates are dropped (position is not a state), as in the common F.
-
-    Args:
-        pos: (B, 3) [lat, lon, h]; v_n: (B, 3) [m/s]; C_bn: (B, 3, 3), the solution before the step.
-    """
-    lat, h = pos[..., 0], pos[..., 2]
-    R_N, R_E = radii(lat)
-    w_ie, w_en = transport_rates(lat, h, v_n, R_N, R_E)
-    J = d_w_en_d_v(pos)
-    V = skew(v_n)
-    F = np.zeros(v_n.shape[:-1] + (N_STATES, N_STATES))
-    F[..., DV, DV] = -skew(2.0 * w_ie + w_en)
-    F[..., DV, DPSI] = skew(gravity_n(pos)) + V @ skew(w_ie)
-    F[..., DV, BA] = -C_bn
-    F[..., DV, BG] = -V @ C_bn
-    F[..., DPSI, DV] = -J
-    F[..., DPSI, DPSI] = J @ V - skew(w_ie + w_en)
-    F[..., DPSI, BG] = -C_bn
-    return F
-
-
 def invariant_dvl_h(X: np.ndarray, C_bn: np.ndarray, lever: np.ndarray) -> np.ndarray:
     """DVL model (anukf.md eq 33) as its change from ξ = 0, for invariant points ``X`` (B, S, 12).
 
@@ -229,7 +196,10 @@ class IEKF(ErrorStateFilter):
 
     ``self.P`` (what :meth:`covariance` returns and :meth:`check` tests) is kept equal to
     ``T P_inv Tᵀ`` at the current solution's velocity (:func:`covariance_to_common`).
+    ``transition`` accumulates Φ_inv (``invariant_error``).
     """
+
+    invariant_error = True
 
     def __init__(self, cfg: FilterConfig, nav0: NavState, imu: ImuData, noise_std=None):
         super().__init__(cfg, nav0, imu, noise_std)
@@ -238,26 +208,9 @@ class IEKF(ErrorStateFilter):
     def _sync(self) -> None:
         self.P = covariance_to_common(self.P_inv, self.nav.v_n)
 
-    def invariant_transition(self, j0: int, j1: int) -> np.ndarray:
-        """Move the solution through steps ``[j0, j1)`` (na_cycle) and return
-        ``Φ_inv = Π (I + F_inv dt)`` (R, 12, 12), F_inv on the solution before each step
-        (compiled where :attr:`compiled`, :func:`nespm_cli.filters.kernels.transition`)."""
-        if self.compiled:
-            n = self.contiguous_nav()
-            return kernels.transition(n.pos, n.v_n, n.C_bn, n.b_a, n.b_g, self.f, self.w, self.dt, j0, j1,
-                                      invariant=True)
-        Phi = np.broadcast_to(self.eye, self.P_inv.shape).copy()
-        for j in range(j0, j1):
-            f, w = self.imu(j)
-            n = self.nav
-            F = invariant_system_matrix(n.pos, n.v_n, n.C_bn)
-            Phi = (self.eye + F * self.dt[j]) @ Phi
-            n.pos, n.v_n, n.C_bn = na_cycle(n.pos, n.v_n, n.C_bn, f, w, self.dt[j])
-        return Phi
-
     def propagate(self, j0: int, j1: int, k: int = 0) -> None:
         Q = self.process_noise(self.span(j0, j1), k)  # common coordinates, at the attitude before the span
-        Phi = self.invariant_transition(j0, j1)
+        Phi = self.transition(j0, j1)  # Φ_inv: invariant_error is set
         # Q is added at the end of the span (as the EKF's P ← Φ P Φᵀ + Q): mapped with T there
         Q_inv = covariance_to_invariant(np.broadcast_to(Q, self.P_inv.shape), self.nav.v_n)
         self.P_inv = Phi @ self.P_inv @ _swap(Phi) + Q_inv
@@ -272,17 +225,9 @@ class IEKF(ErrorStateFilter):
 
     def update(self, measurement: Measurement, j_last: int) -> None:
         nav = self.nav
-        nu = measurement.innovation(nav)  # z − h(X_nav), the same innovation as the EKF's
-        Rm = measurement.R
-        H = self.measurement_jacobian(measurement)
-        P = self.P_inv
-        PHt = P @ _swap(H)
-        S = H @ PHt + Rm
-        K = _swap(np.linalg.solve(S, _swap(PHt)))
-        xi = (K @ nu[..., None])[..., 0]
-        IKH = self.eye - K @ H
-        P = IKH @ P @ _swap(IKH) + K @ Rm @ _swap(K)  # Joseph form
-        self.P_inv = 0.5 * (P + _swap(P))
+        # the EKF's innovation z − h(X_nav) with the invariant Jacobian and covariance
+        xi, self.P_inv = joseph_update(self.P_inv, self.measurement_jacobian(measurement),
+                                       measurement.innovation(nav), measurement.R)
         invariant_feedback(nav, xi)
         self._sync()
 

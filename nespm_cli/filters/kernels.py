@@ -45,12 +45,16 @@ def numba_installed() -> bool:
     return importlib.util.find_spec("numba") is not None
 
 
-def kernel_mode() -> str:
-    """The requested mode: the innermost :func:`use_kernels`, else ``$NESPM_KERNELS``, else ``auto``."""
-    mode = _override[-1] if _override else os.environ.get(ENV, "auto") or "auto"
+def checked_mode(mode: str) -> str:
+    """``mode`` if it is one of :data:`MODES`, else a one-line NespmError."""
     if mode not in MODES:
         raise NespmError(f"--kernels / {ENV}: unknown mode {mode!r}; choose {', '.join(MODES)}")
     return mode
+
+
+def kernel_mode() -> str:
+    """The requested mode: the innermost :func:`use_kernels`, else ``$NESPM_KERNELS``, else ``auto``."""
+    return checked_mode(_override[-1] if _override else os.environ.get(ENV, "auto") or "auto")
 
 
 def compiled_enabled() -> bool:
@@ -73,18 +77,14 @@ def kernel_backend() -> str:
 def set_kernel_mode(mode: str) -> None:
     """Set ``$NESPM_KERNELS`` (this process and the worker processes it starts); checks ``mode``
     and, for ``numba``, that numba is installed."""
-    if mode not in MODES:
-        raise NespmError(f"--kernels: unknown mode {mode!r}; choose {', '.join(MODES)}")
-    os.environ[ENV] = mode
+    os.environ[ENV] = checked_mode(mode)
     compiled_enabled()
 
 
 @contextmanager
 def use_kernels(mode: str) -> Iterator[None]:
     """Run the enclosed filters with ``mode`` (one of :data:`MODES`) in this process."""
-    if mode not in MODES:
-        raise NespmError(f"--kernels: unknown mode {mode!r}; choose {', '.join(MODES)}")
-    _override.append(mode)
+    _override.append(checked_mode(mode))
     try:
         yield
     finally:
@@ -108,7 +108,7 @@ def strapdown(pos, v_n, C_bn, b_a, b_g, f, w, dt, j0: int, j1: int) -> None:
 def transition(pos, v_n, C_bn, b_a, b_g, f, w, dt, j0: int, j1: int, invariant: bool = False) -> np.ndarray:
     """Steps ``[j0, j1)`` in place as :func:`strapdown`, returning Φ (R, 12, 12) = Π (I + F dt),
     F (:func:`nespm_cli.filters.model.system_matrix`, or with ``invariant`` the right-invariant
-    :func:`nespm_cli.filters.iekf.invariant_system_matrix`) on the solution before each step."""
+    :func:`nespm_cli.filters.model.invariant_system_matrix`) on the solution before each step."""
     from nespm_cli.filters import transition_kernel as tk
 
     Phi = np.empty((pos.shape[0], 12, 12))

@@ -19,7 +19,7 @@ import numpy as np
 from nespm_cli.data.corruption import NOMINAL_ACC_NOISE, NOMINAL_GYRO_NOISE
 from nespm_cli.learn.processnet import VALIDITY_CLIP
 from nespm_cli.nav.dvl import dvl_velocity
-from nespm_cli.nav.earth import d_w_en_d_v, radii, transport_rates
+from nespm_cli.nav.earth import d_w_en_d_v, gravity_n, radii, transport_rates
 from nespm_cli.nav.rotations import attitude_plus, exp_so3, exp_so3_minus_identity, skew
 from nespm_cli.nav.strapdown import cross
 
@@ -147,6 +147,38 @@ def system_matrix(pos: np.ndarray, v_n: np.ndarray, C_bn: np.ndarray, f_b: np.nd
     return F
 
 
+def invariant_system_matrix(pos: np.ndarray, v_n: np.ndarray, C_bn: np.ndarray) -> np.ndarray:
+    """Continuous right-invariant error matrix ``F_inv`` (B, 12, 12), ``ξ̇ = F_inv ξ`` (docs/iekf.md; the error of ``iekf``).
+
+    ``F_inv = T⁻¹ F T + T⁻¹ Ṫ`` with the common F (:func:`nespm_cli.filters.model.system_matrix`),
+    worked out in closed form; the specific force cancels (the group-affine part)::
+
+        ρ̇ = −[(2ω_ie + ω_en)×] ρ + ([g×] + [v×][ω_ie×]) φ − C b_a − [v×] C b_g
+        φ̇ = −J ρ + (J [v×] − [ω_in×]) φ − C b_g            (J = ∂ω_en/∂v, ω_in = ω_ie + ω_en)
+
+    The earth-rate, transport-rate and Coriolis terms are not group-affine; they are kept as
+    first-order terms. Gravity's position dependence and the position couplings of the earth
+    and transport rates are dropped (position is not a state), as in the common F.
+
+    Args:
+        pos: (B, 3) [lat, lon, h]; v_n: (B, 3) [m/s]; C_bn: (B, 3, 3), the solution before the step.
+    """
+    lat, h = pos[..., 0], pos[..., 2]
+    R_N, R_E = radii(lat)
+    w_ie, w_en = transport_rates(lat, h, v_n, R_N, R_E)
+    J = d_w_en_d_v(pos)
+    V = skew(v_n)
+    F = np.zeros(v_n.shape[:-1] + (N_STATES, N_STATES))
+    F[..., DV, DV] = -skew(2.0 * w_ie + w_en)
+    F[..., DV, DPSI] = skew(gravity_n(pos)) + V @ skew(w_ie)
+    F[..., DV, BA] = -C_bn
+    F[..., DV, BG] = -V @ C_bn
+    F[..., DPSI, DV] = -J
+    F[..., DPSI, DPSI] = J @ V - skew(w_ie + w_en)
+    F[..., DPSI, BG] = -C_bn
+    return F
+
+
 def process_noise(cfg: FilterConfig, dt_imu: float, span: float) -> np.ndarray:
     """Discrete Q (12, 12) over ``span`` seconds: G Q* G^T · span (anukf.md eqs 30-32).
 
@@ -183,6 +215,23 @@ def dvl_H(nav: NavState, lever_arm: np.ndarray) -> np.ndarray:
     H[..., :, DPSI] = Ct @ skew(nav.v_n)
     H[..., :, BG] = skew(np.broadcast_to(lever_arm, nav.v_n.shape))
     return H
+
+
+def joseph_update(P: np.ndarray, H: np.ndarray, nu: np.ndarray, Rm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Linearised Kalman update in Joseph form, batched: ``(x, P⁺)``.
+
+    ``P`` (B, n, n), ``H`` (B, m, n), innovation ``nu`` (B, m), ``Rm`` (m, m) or (B, m, m);
+    ``K = P Hᵀ S⁻¹`` (S = H P Hᵀ + R, solved, not inverted), ``x = K ν`` (B, n),
+    ``P⁺ = (I − K H) P (I − K H)ᵀ + K R Kᵀ`` symmetrized. Used by ``ekf`` (common error) and
+    ``iekf`` (invariant error: its own H and P).
+    """
+    PHt = P @ np.swapaxes(H, -1, -2)
+    S = H @ PHt + Rm
+    K = np.swapaxes(np.linalg.solve(S, np.swapaxes(PHt, -1, -2)), -1, -2)
+    x = (K @ nu[..., None])[..., 0]
+    IKH = np.eye(P.shape[-1]) - K @ H
+    P = IKH @ P @ np.swapaxes(IKH, -1, -2) + K @ Rm @ np.swapaxes(K, -1, -2)
+    return x, 0.5 * (P + np.swapaxes(P, -1, -2))
 
 
 def initial_nav(pos: np.ndarray, v_true: np.ndarray, C_true: np.ndarray, dv0: np.ndarray, dpsi0: np.ndarray) -> NavState:

@@ -33,7 +33,8 @@ from nespm_cli.errors import NespmError
 from nespm_cli.filters import kernels
 from nespm_cli.filters.adaptive import adaptive_q
 from nespm_cli.filters.measurements import Measurement
-from nespm_cli.filters.model import BA, BG, DPSI, DV, N_STATES, FilterConfig, NavState, feedback, process_noise, system_matrix
+from nespm_cli.filters.model import (BA, BG, DPSI, DV, N_STATES, FilterConfig, NavState, feedback,
+                                     invariant_system_matrix, process_noise, system_matrix)
 from nespm_cli.filters.unscented import UTWeights, safe_cholesky
 from nespm_cli.nav.products import mat_mul
 from nespm_cli.nav.rotations import exp_so3
@@ -116,6 +117,10 @@ class ErrorStateFilter(Filter):
     them by themselves).
     """
 
+    #: the error whose dynamics ``transition`` accumulates: False the common x of model.py
+    #: (system_matrix), True the right-invariant ξ of iekf.py (model.invariant_system_matrix)
+    invariant_error: bool = False
+
     def __init__(self, cfg: FilterConfig, nav0: NavState, imu: ImuData, noise_std=None):
         if self.needs_noise_std and noise_std is None:
             raise NespmError(f"filter {self.name} needs the network noise std (noise_std)")
@@ -183,15 +188,18 @@ class ErrorStateFilter(Filter):
 
     def transition(self, j0: int, j1: int) -> np.ndarray:
         """Move the solution through steps ``[j0, j1)`` and return Φ = Π (I + F dt) (R, 12, 12),
-        F evaluated on the solution before each step (:func:`nespm_cli.filters.model.system_matrix`)."""
+        F evaluated on the solution before each step: :func:`nespm_cli.filters.model.system_matrix`,
+        or :func:`~nespm_cli.filters.model.invariant_system_matrix` where ``invariant_error``."""
         if self.compiled:
             n = self.contiguous_nav()
-            return kernels.transition(n.pos, n.v_n, n.C_bn, n.b_a, n.b_g, self.f, self.w, self.dt, j0, j1)
+            return kernels.transition(n.pos, n.v_n, n.C_bn, n.b_a, n.b_g, self.f, self.w, self.dt, j0, j1,
+                                      invariant=self.invariant_error)
         Phi = np.broadcast_to(self.eye, self.P.shape).copy()
         for j in range(j0, j1):
             f, w = self.imu(j)
             n = self.nav
-            F = system_matrix(n.pos, n.v_n, n.C_bn, f)
+            F = (invariant_system_matrix(n.pos, n.v_n, n.C_bn) if self.invariant_error
+                 else system_matrix(n.pos, n.v_n, n.C_bn, f))
             Phi = (self.eye + F * self.dt[j]) @ Phi
             n.pos, n.v_n, n.C_bn = na_cycle(n.pos, n.v_n, n.C_bn, f, w, self.dt[j])
         return Phi

@@ -91,7 +91,7 @@ def system_top_s(x, f0, f1, f2, M, dt):
 
 @njit(cache=True, error_model="numpy", inline="always")
 def invariant_top_s(x, M, dt, S):
-    """Rows 0-5 of ``I + F_inv dt`` into ``M`` (6, 12): F_inv of iekf.invariant_system_matrix.
+    """Rows 0-5 of ``I + F_inv dt`` into ``M`` (6, 12): F_inv of model.invariant_system_matrix.
 
     ρ̇ = −[(2ω_ie + ω_en)×] ρ + ([g×] + [v×][ω_ie×]) φ − C b_a − [v×] C b_g
     φ̇ = −J ρ + (J [v×] − [ω_in×]) φ − C b_g.      ``S`` (5, 3, 3) scratch.

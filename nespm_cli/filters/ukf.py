@@ -21,16 +21,26 @@ from nespm_cli.nav.rotations import attitude_minus
 
 @register("ukf")
 class UKF(ErrorStateFilter):
-    """Closed-loop error-state UKF, sigma points through the linearised transition Φ."""
+    """Closed-loop error-state UKF, sigma points through the linearised transition Φ.
+
+    The point set is two methods, :meth:`offsets` and :meth:`point_moments` (the scaled UT
+    here); ``ckf`` and ``ckf-nespm`` are these classes with the cubature rule instead.
+    """
+
+    def offsets(self, L: np.ndarray) -> np.ndarray:
+        """Outer point offsets (R, S, 12) from Cholesky factors ``L`` (R, 12, 12) of P."""
+        return sigma_offsets(L, self.ut)
+
+    def point_moments(self, dx: np.ndarray, dz: np.ndarray | None = None):
+        """Mean offset and covariance of point deviations ``dx`` (and images ``dz``): ``(m, P)``
+        or ``(m, P, mz, Pzz, Pxz)`` (:func:`nespm_cli.filters.unscented.moments`)."""
+        return moments(dx, self.ut, dz)
 
     def propagate(self, j0: int, j1: int, k: int = 0) -> None:
-        span = self.span(j0, j1)
-        Q = self.process_noise(span, k)
+        Q = self.process_noise(self.span(j0, j1), k)  # before the solution moves
         Phi = self.transition(j0, j1)
-        L = self.cholesky()
-        X = sigma_offsets(L, self.ut)
-        Y = X @ np.swapaxes(Phi, -1, -2)
-        m, P = moments(Y, self.ut)
+        X = self.offsets(self.cholesky())
+        m, P = self.point_moments(X @ np.swapaxes(Phi, -1, -2))
         self.P = P + Q
         self.feedback(m)
         self.symmetrize()
@@ -38,13 +48,11 @@ class UKF(ErrorStateFilter):
     def update(self, measurement, j_last: int) -> None:
         nav = self.nav
         nu = measurement.innovation(nav)
-        Rm = measurement.R
-        L = self.cholesky()
-        X = sigma_offsets(L, self.ut)
-        dz = measurement.h(X, nav)
-        m, _, mz, Pzz, Pxz = moments(X, self.ut, dz)
-        S = Pzz + Rm
-        K = np.swapaxes(np.linalg.solve(S, np.swapaxes(Pxz, -1, -2)), -1, -2)
+        X = self.offsets(self.cholesky())
+        dz = measurement.h(X, nav)  # (R, S, m): h(x) − h(0)
+        m, _, mz, Pzz, Pxz = self.point_moments(X, dz)
+        S = Pzz + measurement.R
+        K = np.swapaxes(np.linalg.solve(S, np.swapaxes(Pxz, -1, -2)), -1, -2)  # Pxz S⁻¹
         x = m + (K @ (nu - mz)[..., None])[..., 0]
         self.P = self.P - K @ S @ np.swapaxes(K, -1, -2)
         self.symmetrize()
@@ -56,16 +64,14 @@ class UKFNespm(UKF):
     """UKF whose sigma points each run the full strapdown over the span (eqs 35-40)."""
 
     def propagate(self, j0: int, j1: int, k: int = 0) -> None:
-        span = self.span(j0, j1)
-        Q = self.process_noise(span, k)
+        Q = self.process_noise(self.span(j0, j1), k)
         nav = self.nav
-        L = self.cholesky()
-        X = sigma_offsets(L, self.ut)  # (R, 2n, 12)
+        X = self.offsets(self.cholesky())  # (R, S, 12)
         pos, v, C = self.points_through_cycle(X, j0, j1)  # eqs 35-38
         dv = v[:, 1:] - v[:, :1]  # eq 39
         dpsi = attitude_minus(C[:, 1:], C[:, :1])  # eq 40: ⊖
-        Y = np.concatenate([dv, dpsi, X[..., BA], X[..., BG]], axis=-1)
-        m, P = moments(Y, self.ut)
+        Y = np.concatenate([dv, dpsi, X[..., BA], X[..., BG]], axis=-1)  # biases: constant over the span
+        m, P = self.point_moments(Y)
         nav.pos, nav.v_n, nav.C_bn = pos[:, 0], v[:, 0], C[:, 0]
         self.feedback(m)
         self.P = P + Q

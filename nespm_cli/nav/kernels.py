@@ -13,7 +13,7 @@ machine compiles once.
 Why numba: it compiles this plain-Python arithmetic to machine code without a second
 language or a build step, it is maintained on PyPI with wheels for every platform NumPy has,
 and its on-disk cache makes the compile a one-time cost. Without numba the filters run
-the NumPy reference (:func:`available` is False).
+the NumPy reference (:func:`nespm_cli.filters.kernels.compiled_enabled` is False).
 
 A state travels through the loops as a 25-tuple of floats (kept in registers):
 ``(lat, lon, h)`` [rad, rad, m], ``v_n`` (3) [m/s], ``C_bn`` (9, row-major) and its earth
@@ -28,7 +28,7 @@ import numpy as np
 
 from nespm_cli.nav.earth import A, B, E2, F, GAMMA_E, K_SOMIGLIANA, MU, OMEGA_IE
 
-try:  # numba is a dependency; without it the NumPy reference runs (available() is False)
+try:  # numba is a dependency; without it the filters run the NumPy reference (filters.kernels)
     import numba
     from numba import njit
 except ImportError:  # pragma: no cover - exercised only where numba is not installed
@@ -41,11 +41,6 @@ except ImportError:  # pragma: no cover - exercised only where numba is not inst
 
 SERIES2 = 1e-4  # rotations._SERIES2: squared angle below which the exp series is used
 GRAV_M = OMEGA_IE**2 * A**2 * B / MU  # gravity_n's m
-
-
-def available() -> bool:
-    """Whether numba is installed (the compiled loop can run)."""
-    return numba is not None
 
 
 @njit(cache=True, error_model="numpy", inline="always")
