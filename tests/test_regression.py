@@ -1,4 +1,4 @@
-"""Seeded regression values: every built-in filter's per-run numbers, pinned to 1e-9.
+"""Seeded regression values: every built-in filter's per-run numbers, pinned per filter family.
 
 Configuration (all of it determines the numbers):
 
@@ -7,24 +7,55 @@ Configuration (all of it determines the numbers):
   chunks of 2, every other option at its default (nominal scenario, constant schedule,
   recorded DVL, synthetic IMU, the packaged ProcessNet weights);
 - all 10 filters of ``nespm_cli.filters.FILTERS`` in one command, with ``--jobs 2`` (worker
-  processes); then one filter each, with ``--jobs 1`` (in-process), for
+  processes); then one or two filters each, with ``--jobs 1`` (in-process), for
   ``--schedule dynamic`` (anukf-nespm), ``--scenario outage --outage-start 15
-  --outage-length 10`` (ekf) and ``--dvl synthetic`` (ukf).
+  --outage-length 10`` (ekf), ``--dvl synthetic`` (ukf) and ``--alpha 0.5`` (ukf-nespm and
+  anukf-nespm: the sigma points through the navigation cycle with well-conditioned weights).
 
 EXPECTED holds, per (case, filter), the per-run VRMSE [m/s], MRMSE [rad] and mean NEES of
 metrics.parquet, and the mean over the 4 runs of each (ins has no covariance: NaN NEES).
 
 These are regression values of the current implementation, NOT theoretical or published
 values: they only say that the numbers have not changed. First computed at commit 2541d01;
-re-pinned with issue 15 (the compiled time loop), when the navigation cycle's 3x3 products
-became elementwise sums (nav/products.py, no BLAS) and the meridian radius ``den**1.5`` became
-``den * sqrt(den)``: round-off changes of one ulp that moved ins/ekf/ukf by <= 7e-12 relative,
-the adaptive EKF/UKF by <= 7e-10, and the NESPM filters by <= 4e-7 (their mean weighs the sigma
-points' round-off by ~4e4 at alpha = 1e-3), and added iekf, ckf and ckf-nespm (issue 16). The
-values are the same bits with ``--kernels numba`` and ``--kernels numpy``. They were checked to be bit-identical
-between two runs and between --jobs 1 and --jobs 2 (results do not depend on --jobs by design).
-A change that moves any of them (filters, corruption draws, synthesis, metrics, track cut...)
-must explain in its commit why the numbers change, and update them here in the same commit.
+re-pinned with issue 15 (the compiled time loop) on a machine whose OpenBLAS ran its SkylakeX
+kernels; ``alpha-0.5`` added with issue 21.
+
+Tolerances: how far the CPU and the BLAS build move these numbers, measured. The last bits of
+BLAS/LAPACK (Cholesky, batched products, solves) differ between OpenBLAS's kernels; the filters
+carry them over the track, and a filter's conditioning decides how far they grow.
+``benchmarks/blas_spread.py`` runs these four commands (and the real-data job of
+tests/test_real_regression.py) in fresh processes under ``OPENBLAS_CORETYPE`` = Haswell, Zen,
+Sandybridge, Nehalem and Prescott, and with NumPy's runtime SIMD dispatch cut to its baseline
+(``NPY_DISABLE_CPU_FEATURES``), and compares every per-run number with the default kernel's
+(2026-12-02, a 2-vCPU AMD EPYC, NumPy 2.4.6 with OpenBLAS 0.3.31; SkylakeX cannot run there, and
+the pins, made under SkylakeX, sit 1.2e-8 from the Haswell numbers for ukf-nespm). Largest
+relative difference over every variant and column:
+
+============================  ===========  ===========================================
+family                        measured     why, and the tolerance (about 30x, rounded up)
+============================  ===========  ===========================================
+ins, ekf, ukf, ckf,           2.9e-12      weights of order one: round-off stays round-off
+ckf-nespm, iekf, outage,                   -> REL_LINEAR = 1e-9
+synthetic DVL, alpha 0.5
+anekf, anukf, anukf-nespm     1.7e-9       Q from ProcessNet (batched products) feeds P, the
+at alpha 0.5                               gain and back -> REL_ADAPTIVE = 1e-7
+ukf-nespm, anukf-nespm at     4.8e-6       the scaled UT at alpha = 1e-3: the outer weights
+alpha = 1e-3 (nominal,                     are 1 / (2 alpha² n) = 4.2e4 and the centre
+dynamic)                                   weight -1e6, so every last-bit change of the sigma
+                                           points' images reaches the mean 4e4 times larger
+                                           -> REL_NESPM = 2e-4
+============================  ===========  ===========================================
+
+So the tight pin on the NESPM code (points through the cycle, eqs 35-40) is the ``alpha-0.5``
+case; at the papers' alpha = 1e-3 its numbers are pinned only as closely as the arithmetic
+determines them. Bit-identity stays where it is a property of the code (tests/test_mc.py: jobs;
+tests/test_kernels.py: compiled vs NumPy loop in one process), never of the machine. Nothing in
+the tests sets OPENBLAS_CORETYPE or similar: the measurement above is a one-off, re-run with the
+script when a filter changes.
+
+A change that moves any of them beyond its tolerance (filters, corruption draws, synthesis,
+metrics, track cut...) must explain in its commit why the numbers change, and update them here
+in the same commit.
 
 Cost: ~10-20 s (the ten filters over 40 epochs are one batch per chunk).
 """
@@ -42,8 +73,17 @@ from nespm_cli.filters import FILTERS
 
 SEED, TRACK, EPOCHS, RUNS, CHUNK = 7, 5, 40, 4, 2
 OUTAGE_START, OUTAGE_LENGTH = 15.0, 10.0
-REL = 1e-9
+REL_LINEAR, REL_ADAPTIVE, REL_NESPM = 1e-9, 1e-7, 2e-4  # measured spread x ~30 (module docstring)
 NAN = math.nan
+
+
+def tolerance(case: str, filt: str) -> float:
+    """The relative tolerance of a (case, filter) pin: its family's (module docstring)."""
+    if filt in ("ukf-nespm", "anukf-nespm") and case != "alpha-0.5":
+        return REL_NESPM
+    if filt in ("anekf", "anukf", "anukf-nespm"):
+        return REL_ADAPTIVE
+    return REL_LINEAR
 
 #: case -> (extra mc options, --jobs)
 CASES = {
@@ -52,6 +92,7 @@ CASES = {
     "outage": (["--filters", "ekf", "--scenario", "outage", "--outage-start", str(OUTAGE_START),
                 "--outage-length", str(OUTAGE_LENGTH)], 1),
     "synthetic-dvl": (["--filters", "ukf", "--dvl", "synthetic"], 1),
+    "alpha-0.5": (["--filters", "ukf-nespm,anukf-nespm", "--alpha", "0.5"], 1),
 }
 
 # Regression values of the current implementation (see the module docstring): seed 7, the first
@@ -135,6 +176,18 @@ EXPECTED = {
         "nees": [8.083254700626046, 3.8290303709231175, 3.742079752812548, 4.54202976482762],
         "mean": {"vrmse": 0.0505672186791483, "mrmse": 0.0012901177792454359, "nees": 5.049098647297333},
     },
+    ("alpha-0.5", "ukf-nespm"): {
+        "vrmse": [0.037360046936767824, 0.05514908739125348, 0.08302973579334244, 0.04552333890192978],
+        "mrmse": [0.0023849953830132067, 0.0019762997177470223, 0.0014027149613455951, 0.0014253667575027356],
+        "nees": [5.049488414115253, 2.9312787494926282, 1.2868244102794184, 1.9221989355557052],
+        "mean": {"vrmse": 0.05526555225582338, "mrmse": 0.0017973442049021402, "nees": 2.7974476273607514},
+    },
+    ("alpha-0.5", "anukf-nespm"): {
+        "vrmse": [0.03735453280951566, 0.05514581924941126, 0.08302783711641538, 0.04551804286728759],
+        "mrmse": [0.0023858841506471627, 0.0019768700242118425, 0.0014027327023875748, 0.0014257365304508904],
+        "nees": [5.049854807713025, 2.9317267285495117, 1.2863980000643902, 1.922100525110827],
+        "mean": {"vrmse": 0.05526155801065747, "mrmse": 0.0017978058519243676, "nees": 2.797520015359438},
+    },
 }
 
 pytestmark = pytest.mark.usefixtures("no_env_data_dir")
@@ -159,6 +212,14 @@ def _rows(results: dict, case: str, filt: str) -> pd.DataFrame:
     return m[m["filter"] == filt].sort_values("run").reset_index(drop=True)
 
 
+def test_tolerance_families():
+    """The wide tolerance is for the badly conditioned NESPM mean only; everything else is tight."""
+    assert tolerance("nominal", "ukf-nespm") == REL_NESPM == tolerance("dynamic", "anukf-nespm")
+    assert tolerance("alpha-0.5", "ukf-nespm") == REL_LINEAR and tolerance("nominal", "ckf-nespm") == REL_LINEAR
+    assert tolerance("nominal", "anekf") == REL_ADAPTIVE == tolerance("alpha-0.5", "anukf-nespm")
+    assert {tolerance(c, f) for c, f in EXPECTED if f in ("ins", "ekf", "ukf", "ckf", "iekf")} == {REL_LINEAR}
+
+
 def test_every_builtin_filter_is_pinned():
     """A new built-in filter needs its regression values here."""
     assert sorted(f for case, f in EXPECTED if case == "nominal") == sorted(FILTERS)
@@ -169,12 +230,13 @@ def test_every_builtin_filter_is_pinned():
 def test_regression_values(results, case, filt):
     m = _rows(results, case, filt)
     exp = EXPECTED[(case, filt)]
+    rel = tolerance(case, filt)
     assert m["run"].tolist() == list(range(RUNS))
     assert (m["seed"] == SEED).all() and (m["n_samples"] == EPOCHS).all() and not m["diverged"].any()
     for col in ("vrmse", "mrmse", "nees"):
         got = m[col].to_numpy(float)
-        assert got.tolist() == pytest.approx(exp[col], rel=REL, abs=0, nan_ok=True), col
-        assert float(np.mean(got)) == pytest.approx(exp["mean"][col], rel=REL, abs=0, nan_ok=True), f"mean {col}"
+        assert got.tolist() == pytest.approx(exp[col], rel=rel, abs=0, nan_ok=True), col
+        assert float(np.mean(got)) == pytest.approx(exp["mean"][col], rel=rel, abs=0, nan_ok=True), f"mean {col}"
 
 
 def test_the_variant_options_took_effect(results):
@@ -183,7 +245,9 @@ def test_the_variant_options_took_effect(results):
     assert opts["nominal"]["corruption"]["schedule"] == "constant"
     assert opts["dynamic"]["corruption"]["schedule"] == "dynamic"
     assert opts["outage"]["scenario"] == "outage" and opts["synthetic-dvl"]["dvl"] == "synthetic"
-    for case, filt in (("dynamic", "anukf-nespm"), ("outage", "ekf"), ("synthetic-dvl", "ukf")):
+    assert opts["alpha-0.5"]["filter_config"]["alpha"] == 0.5
+    for case, filt in (("dynamic", "anukf-nespm"), ("outage", "ekf"), ("synthetic-dvl", "ukf"),
+                       ("alpha-0.5", "ukf-nespm")):
         assert not np.array_equal(_rows(results, case, filt)["vrmse"], _rows(results, "nominal", filt)["vrmse"]), case
     e = pd.read_parquet(results["outage"] / "epochs.parquet")
     t = e["t"].to_numpy()
