@@ -21,11 +21,13 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from nespm_cli.data.plausibility import printable
 from nespm_cli.data.track import Track
 from nespm_cli.errors import NespmError
 
@@ -125,45 +127,123 @@ def check_drift(flag: str, value: float) -> float:
     return value
 
 
+TRACK_KEY = re.compile(r"[0-9]+")  # a track key: ASCII digits only ("²".isdigit() is True)
+
+
+class _DuplicateKey(ValueError):
+    """A JSON object names one key twice (``json`` would silently keep the last)."""
+
+
+def _unique_object(pairs: list) -> dict:
+    out = {}
+    for k, v in pairs:
+        if k in out:
+            raise _DuplicateKey(k)
+        out[k] = v
+    return out
+
+
+def _number(where: str, key: str, value) -> float:
+    """``value`` (of ``key``) as a float; a JSON number only: a boolean, string, null, list or
+    object is refused (``float(true)`` would be 1.0 s), so is an integer beyond float range."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise NespmError(f"{where}, key {key!r}: expected a number, got {_json_kind(value)}")
+    try:
+        return float(value)
+    except OverflowError:
+        raise NespmError(f"{where}, key {key!r}: number out of range") from None
+
+
+def _json_kind(value) -> str:
+    """What a JSON value is, for a message: ``the boolean true``, ``the string '1.5'``, ``null``, ..."""
+    if isinstance(value, bool):
+        return f"the boolean {str(value).lower()}"
+    if isinstance(value, str):
+        return f"the string {printable(value, 40)!r}"
+    if value is None:
+        return "null"
+    if isinstance(value, list):
+        return f"a list of {len(value)}"
+    return "an object" if isinstance(value, dict) else f"the number {value!r}"
+
+
 def read_corrections(path: str | Path) -> dict[int, Corrections]:
     """Per-track corrections from a ``corrections.json`` written by ``nespm check``.
 
-    Format: ``{"tracks": {"5": {"imu_axes": "x,-y,z", "imu_time_offset": -0.03,
-    "dvl_time_offset": 0.0, "window": [20.0, 400.0]}, ...}}`` (every key optional).
+    Format: ``{"tracks": {"5": {"imu_axes": "x,-y,z", "imu_time_offset": -0.03, "imu_time_drift": 0.0,
+    "dvl_time_offset": 0.0, "window": [20.0, 400.0]}, ...}}`` (every key of a track optional;
+    offsets [s], drift [s/s], window [s] of the GT file's time or null).
+
+    Raises NespmError (one line naming the file, and the track and key where there is one) on an
+    unreadable file, text that is not UTF-8 or not JSON (nesting too deep included), a key that
+    appears twice in one object, a track key that is not a track number (ASCII digits), two keys
+    of one track (``"5"`` and ``"05"``), an unknown key, or a value of the wrong type (a boolean,
+    string or null where a number is expected; ``imu_axes`` a string; ``window`` null or a list
+    of two numbers) or out of range.
     """
     p = Path(path)
+    name = f"--corrections {p}"
     try:
-        raw = json.loads(p.read_text())
+        raw = json.loads(p.read_text(encoding="utf-8"), object_pairs_hook=_unique_object)
     except OSError as exc:
-        raise NespmError(f"--corrections {p}: cannot read ({exc.strerror})") from None
+        raise NespmError(f"{name}: cannot read ({exc.strerror or exc})") from None
+    except UnicodeDecodeError as exc:
+        raise NespmError(f"{name}: not UTF-8 text (byte {exc.start}: {exc.reason})") from None
+    except _DuplicateKey as exc:
+        raise NespmError(f"{name}: key {printable(exc.args[0], 40)!r} appears twice in one object") from None
+    except RecursionError:
+        raise NespmError(f"{name}: not valid JSON (nested too deeply)") from None
     except ValueError as exc:
-        raise NespmError(f"--corrections {p}: not valid JSON ({exc})") from None
+        raise NespmError(f"{name}: not valid JSON ({printable(exc, 100)})") from None
     tracks = raw.get("tracks") if isinstance(raw, dict) else None
     if not isinstance(tracks, dict):
-        raise NespmError(f"--corrections {p}: expected an object with a 'tracks' object")
-    out = {}
+        raise NespmError(f"{name}: expected an object with a 'tracks' object")
+    out: dict[int, Corrections] = {}
+    keys: dict[int, str] = {}
     known = {f.name for f in dataclasses.fields(Corrections)}
     for key, val in tracks.items():
-        if not (str(key).isdigit() and isinstance(val, dict)):
-            raise NespmError(f"--corrections {p}: track {key!r}: expected a track number and an object")
+        shown = printable(key, 40)
+        if not TRACK_KEY.fullmatch(key):
+            raise NespmError(f"{name}: key {shown!r} under 'tracks' is not a track number (ASCII digits, e.g. \"5\")")
+        n = int(key)
+        if n in keys:
+            raise NespmError(f"{name}: keys {keys[n]!r} and {shown!r} are both track {n}; keep one")
+        keys[n] = key
+        where = f"{name}: track {shown}"
+        if not isinstance(val, dict):
+            raise NespmError(f"{where}: expected an object, got {_json_kind(val)}")
         bad = set(val) - known
         if bad:
-            raise NespmError(f"--corrections {p}: track {key}: unknown key {sorted(bad)[0]!r} "
+            raise NespmError(f"{where}: unknown key {printable(sorted(bad)[0], 40)!r} "
                              f"(known: {', '.join(sorted(known))})")
+        axes = val.get("imu_axes", IDENTITY_AXES)
+        if not isinstance(axes, str):
+            raise NespmError(f"{where}, key 'imu_axes': expected a string like \"x,-y,z\", got {_json_kind(axes)}")
+        window = val.get("window")
+        if window is not None:
+            if not (isinstance(window, list) and len(window) == 2):
+                raise NespmError(f"{where}, key 'window': expected null or [START, END] in seconds, "
+                                 f"got {_json_kind(window)}")
+            window = tuple(_number(where, "window", w) for w in window)
+            if not (math.isfinite(window[0]) and math.isfinite(window[1]) and window[0] < window[1]):
+                raise NespmError(f"{where}, key 'window': [{window[0]:g}, {window[1]:g}]: START and END must be "
+                                 "finite with START < END")
         try:
             c = Corrections(
-                imu_axes=str(val.get("imu_axes", IDENTITY_AXES)),
-                imu_time_offset=check_offset("imu_time_offset", val.get("imu_time_offset", 0.0)),
-                imu_time_drift=check_drift("imu_time_drift", val.get("imu_time_drift", 0.0)),
-                dvl_time_offset=check_offset("dvl_time_offset", val.get("dvl_time_offset", 0.0)),
-                window=None if val.get("window") is None else parse_window(":".join(map(str, val["window"]))),
+                imu_axes=axes,
+                imu_time_offset=check_offset("imu_time_offset",
+                                             _number(where, "imu_time_offset", val.get("imu_time_offset", 0.0))),
+                imu_time_drift=check_drift("imu_time_drift",
+                                           _number(where, "imu_time_drift", val.get("imu_time_drift", 0.0))),
+                dvl_time_offset=check_offset("dvl_time_offset",
+                                             _number(where, "dvl_time_offset", val.get("dvl_time_offset", 0.0))),
+                window=window,
             )
             axes_matrix(c.imu_axes)
         except NespmError as exc:
-            raise NespmError(f"--corrections {p}: track {key}: {exc}") from None
-        except (TypeError, ValueError) as exc:
-            raise NespmError(f"--corrections {p}: track {key}: bad value ({exc})") from None
-        out[int(key)] = c
+            msg = str(exc)
+            raise NespmError(msg if msg.startswith(where) else f"{where}: {msg}") from None
+        out[n] = c
     return out
 
 
@@ -184,9 +264,17 @@ def resolve(tracks, imu: str, corrections: str | None = None, imu_axes: str = ID
     each overridden for every track by an option given with a non-default value.
 
     With a synthesized IMU (``imu != "recorded"``) the file's IMU corrections are ignored and
-    the IMU options are refused. Raises NespmError (one line) on a bad value.
+    the IMU options are refused. Raises NespmError (one line) on a bad value, and when a file is
+    given that has no entry for one of ``tracks`` (a track the check did not see is not silently
+    left uncorrected).
     """
     per_track = read_corrections(corrections) if corrections else {}
+    if corrections:
+        missing = [int(n) for n in tracks if int(n) not in per_track]
+        if missing:
+            have = ", ".join(map(str, sorted(per_track))) or "none"
+            raise NespmError(f"--corrections {Path(corrections)}: no entry for track {missing[0]} (the file has "
+                             f"tracks: {have}); run `nespm check` on that track, or leave out --corrections")
     axes_matrix(imu_axes)
     imu_off = check_offset("--imu-time-offset", imu_time_offset)
     imu_drift = check_drift("--imu-time-drift", imu_time_drift)

@@ -98,32 +98,69 @@ def _check_dir(path: Path, origin: str = "") -> None:
 def available_tracks(data_dir: Path | None) -> list[int]:
     """Sorted track numbers in ``data_dir`` (``TrajectoryN`` sub-folders); None -> embedded [1..6].
 
-    Raises :class:`NespmError` if the folder does not exist or holds no ``TrajectoryN`` folder.
+    Raises :class:`NespmError` if the folder does not exist, holds no ``TrajectoryN`` folder, or
+    holds two folders of one track (``Trajectory7`` and ``Trajectory07``).
     """
     if data_dir is None:
         from nespm_cli.data.embedded import EMBEDDED_TRACKS
 
         return list(EMBEDDED_TRACKS)
-    data_dir = Path(data_dir)
+    return sorted(_track_dirs(Path(data_dir)))
+
+
+def _track_dirs(data_dir: Path) -> dict[int, Path]:
+    """``{N: data_dir/TrajectoryN}`` with N as spelled in the folder name (``Trajectory07`` is 7)."""
     _check_dir(data_dir)
-    numbers = sorted(
-        int(m.group(1))
-        for p in data_dir.iterdir()
-        if p.is_dir() and (m := _TRACK_DIR.fullmatch(p.name))
-    )
-    if not numbers:
-        raise NespmError(
-            f"{data_dir}: no TrajectoryN folders found "
-            "(expected TrajectoryN/GT_trajectoryN.csv and TrajectoryN/DVL_trajectoryN.csv)"
-        )
-    return numbers
+    found: dict[int, Path] = {}
+    for p in sorted(data_dir.iterdir()):
+        if (m := _TRACK_DIR.fullmatch(p.name)) and p.is_dir():
+            if (n := int(m.group(1))) in found:
+                raise NespmError(f"{data_dir}: {found[n].name} and {p.name} are both track {n}; keep one of them")
+            found[n] = p
+    if not found:
+        raise NespmError(f"{data_dir}: no TrajectoryN folders found "
+                         "(expected TrajectoryN/GT_trajectoryN.csv and TrajectoryN/DVL_trajectoryN.csv)")
+    return found
+
+
+def track_files(number: int, data_dir: str | Path | None, imu: bool = False) -> list[Path]:
+    """The files track ``number`` of ``data_dir`` is read from by :func:`load_track`: its GT and DVL
+    file (and IMU file with ``imu``, whether or not it exists), as spelled in the folder
+    (``Trajectory07/GT_trajectory07.csv`` or ``.../GT_trajectory7.csv``; a missing file under the
+    folder's spelling). ``data_dir`` None: the embedded tracks, no files (``$NESPM_DATA_DIR`` is not
+    consulted: pass a resolved folder). Raises :class:`NespmError` as :func:`load_track` does on an
+    unknown track or an ambiguous folder."""
+    if data_dir is None:
+        return []
+    gt, dvl, imu_path = _track_paths(number, Path(data_dir).expanduser())
+    return [gt, dvl] + ([imu_path] if imu else [])
+
+
+def _track_paths(number: int, folder: Path) -> tuple[Path, Path, Path]:
+    """``(GT, DVL, IMU)`` paths of track ``number``: each ``{KIND}_trajectoryN.csv`` found in its
+    folder with N equal to ``number`` (leading zeros allowed), else the name spelled like the folder."""
+    dirs = _track_dirs(folder)
+    if number not in dirs:
+        raise NespmError(f"{folder}: no track {number} (available: {', '.join(map(str, sorted(dirs)))})")
+    tdir = dirs[number]
+    names = sorted(p.name for p in tdir.iterdir())
+    out = []
+    for kind in ("GT", "DVL", "IMU"):
+        pat = re.compile(rf"{kind}_trajectory(\d+)\.csv")
+        hits = [n for n in names if (m := pat.fullmatch(n)) and int(m.group(1)) == number]
+        if len(hits) > 1:
+            raise NespmError(f"{tdir}: {hits[0]} and {hits[1]} are both the {kind} file of track {number}; keep one")
+        out.append(tdir / (hits[0] if hits else f"{kind}_trajectory{tdir.name[len('Trajectory'):]}.csv"))
+    return out[0], out[1], out[2]
 
 
 def load_track(number: int, data_dir: str | Path | None = None, *, warnings: str | None = None) -> Track:
     """Load and validate track ``number`` from ``data_dir`` (None -> ``$NESPM_DATA_DIR`` -> embedded).
 
+    The files are those of :func:`track_files` (folder and file names may carry leading zeros).
     Raises :class:`NespmError` (one line, naming the file and first bad data row / column) on an
-    unknown track number, a missing or empty file, a missing column, non-numeric text, NaN/inf,
+    unknown track number, two folders or files of one track, a missing or empty file, a missing
+    column, non-numeric text, NaN/inf,
     time not strictly increasing, GT/DVL epochs that differ, |lat| > pi/2, |lon| > pi, or a speed
     >= 20 m/s; and, for the IMU file if present (:func:`_check_imu`), on a median time step
     outside (:data:`IMU_MIN_STEP`, :data:`IMU_MAX_STEP`) s (10 Hz - 2 kHz; e.g. time in ms), a
@@ -143,13 +180,8 @@ def load_track(number: int, data_dir: str | Path | None = None, *, warnings: str
         from nespm_cli.data.embedded import embedded_track
 
         return embedded_track(number)
-    numbers = available_tracks(folder)
-    if number not in numbers:
-        raise NespmError(f"{folder}: no track {number} (available: {_fmt_numbers(numbers)})")
-    tdir = folder / f"Trajectory{number}"
-    gt_path = tdir / f"GT_trajectory{number}.csv"
-    dvl_path = tdir / f"DVL_trajectory{number}.csv"
-    imu_path = tdir / f"IMU_trajectory{number}.csv"
+    gt_path, dvl_path, imu_path = _track_paths(number, folder)
+    tdir = gt_path.parent
 
     gt = _read_table(gt_path, GT_COLUMNS)
     _check_time(gt_path, gt[:, 0])
@@ -174,16 +206,8 @@ def load_track(number: int, data_dir: str | Path | None = None, *, warnings: str
         raise NespmError(errors[0].text)
     plausibility.emit(findings, warnings)
 
-    return Track(
-        number=number,
-        t=gt[:, 0],
-        pos=gt[:, [2, 1, 3]],
-        v_n=gt[:, 4:7],
-        euler=gt[:, 7:10],
-        dvl=dvl[:, 1:4],
-        imu=imu,
-        source=str(tdir),
-    )
+    return Track(number=number, t=gt[:, 0], pos=gt[:, [2, 1, 3]], v_n=gt[:, 4:7], euler=gt[:, 7:10],
+                 dvl=dvl[:, 1:4], imu=imu, source=str(tdir))
 
 
 def load_tracks(
@@ -222,15 +246,7 @@ def _write_csv(path: Path, data: np.ndarray, columns: tuple[str, ...]) -> None:
     write_atomic(path, lambda tmp: frame.to_csv(tmp, index=False, float_format="%.17g"))
 
 
-def _fmt_numbers(numbers: list[int]) -> str:
-    return ", ".join(str(n) for n in numbers)
-
-
 # ----------------------------------------------------------------------------- validation
-
-
-def _one_line(text: str, limit: int = 100) -> str:
-    return printable(text, limit)
 
 
 QUOTE_LIMIT = 40  # characters of file content quoted in a message (printable only)
@@ -256,9 +272,9 @@ def _read_table(path: Path, columns: tuple[str, ...]) -> np.ndarray:
     except pd.errors.EmptyDataError:
         raise NespmError(f"{path}: empty file") from None
     except (pd.errors.ParserError, UnicodeDecodeError, ValueError) as exc:
-        raise NespmError(f"{path}: not a readable CSV file ({_one_line(exc)})") from None
+        raise NespmError(f"{path}: not a readable CSV file ({printable(exc, 100)})") from None
     except Exception as exc:  # noqa: BLE001 - any other parser failure is a bad file, not a crash
-        raise NespmError(f"{path}: not a readable CSV file ({type(exc).__name__}: {_one_line(exc)})") from None
+        raise NespmError(f"{path}: not a readable CSV file ({type(exc).__name__}: {printable(exc, 100)})") from None
     df.columns = [str(c).strip() for c in df.columns]
     for col in columns:
         if col not in df.columns:

@@ -5,6 +5,7 @@ What the filters do with that std (Q of eqs 43-48) is :mod:`nespm_cli.filters.ad
 """
 from __future__ import annotations
 
+import dataclasses
 from functools import lru_cache
 from importlib import resources
 from pathlib import Path
@@ -13,6 +14,7 @@ import numpy as np
 
 from nespm_cli.errors import NespmError
 
+from nespm_cli.learn.processnet import VALIDITY_CLIP
 from nespm_cli.learn.training import load_processnet, predict_noise_std
 
 WINDOW = 100  # IMU steps per ProcessNet window (anukf.md: w = 100)
@@ -23,18 +25,111 @@ def default_weights() -> Path:
     return Path(str(resources.files("nespm_cli.learn") / "processnet.npz"))
 
 
+#: the reference windows of :func:`check_weights`: the IMU steps of the first DVL intervals of
+#: embedded track 5 (synthesized, exact) plus white noise of 1x and 4x the nominal std
+REFERENCE_TRACK = 5
+REFERENCE_WINDOWS = 20
+REFERENCE_SEED = 20240601
+REFERENCE_LEVELS = (1.0, 4.0)  # multiples of the nominal std
+
+
 @lru_cache(maxsize=4)
 def load_weights(path: str | None):
-    """``(acc_net, gyro_net, meta)`` from ``path`` (None: the packaged default); cached per process."""
+    """``(acc_net, gyro_net, meta)`` from ``path`` (None: the packaged default); cached per process.
+
+    The networks are checked before they are used (:func:`check_weights`); every failure, a
+    missing, corrupt or foreign file included, is a NespmError naming the file.
+    """
     p = Path(path) if path else default_weights()
     if not p.is_file():
         raise NespmError(f"--weights {p}: no such file (train one with `nespm train`)")
     try:
-        return load_processnet(p)
-    except NespmError:
-        raise
+        nets = load_processnet(p)
+    except NespmError as exc:
+        msg = str(exc)
+        raise NespmError(f"--weights {msg}" if msg.startswith(f"{p}:") else f"--weights {p}: {msg}") from None
     except Exception as exc:  # a corrupt or foreign .npz
         raise NespmError(f"--weights {p}: not a ProcessNet file ({type(exc).__name__}: {exc})") from None
+    check_weights(nets[0], nets[1], f"--weights {p}")
+    return nets
+
+
+def reference_windows() -> tuple[np.ndarray, np.ndarray]:
+    """The deterministic windows the weights are checked on: ``(f, w)``, each
+    (len(REFERENCE_LEVELS), REFERENCE_WINDOWS, WINDOW, 3) [m/s², rad/s].
+
+    Level i is the exact synthesized IMU of the first :data:`REFERENCE_WINDOWS` DVL intervals of
+    embedded track :data:`REFERENCE_TRACK` plus white noise of ``REFERENCE_LEVELS[i]`` times the
+    nominal std per 100 Hz sample (one draw, seed :data:`REFERENCE_SEED`, scaled per level).
+    """
+    from nespm_cli.data.corruption import NOMINAL_ACC_NOISE, NOMINAL_GYRO_NOISE
+    from nespm_cli.data.embedded import embedded_track
+    from nespm_cli.nav.synthesis import synthesize
+
+    tr = embedded_track(REFERENCE_TRACK)
+    s = slice(0, REFERENCE_WINDOWS + 1)
+    truth = synthesize(dataclasses.replace(tr, t=tr.t[s], pos=tr.pos[s], v_n=tr.v_n[s], euler=tr.euler[s],
+                                           dvl=tr.dvl[s], imu=None))
+    rng = np.random.default_rng(REFERENCE_SEED)
+    out = []
+    for clean, nominal in ((truth.f_b, NOMINAL_ACC_NOISE), (truth.w_ib_b, NOMINAL_GYRO_NOISE)):
+        noise = rng.standard_normal(clean.shape)
+        levels = np.stack([clean + k * nominal * noise for k in REFERENCE_LEVELS])  # (L, M, 3)
+        out.append(interval_windows(levels, truth.epoch_index))
+    return out[0], out[1]
+
+
+def check_weights(acc_net, gyro_net, name: str) -> None:
+    """Refuse networks the adaptive filters would silently misuse; ``name`` starts every message.
+
+    Checks, per network: every parameter a finite floating-point array and the normalizer's
+    scales finite and positive; then on :func:`reference_windows` (1x and 4x the nominal noise
+    std) the predicted std, in multiples of the nominal std
+    (:data:`nespm_cli.data.corruption.NOMINAL_ACC_NOISE`, ``NOMINAL_GYRO_NOISE``), must be finite,
+    not all at or beyond the validity clip :data:`nespm_cli.learn.processnet.VALIDITY_CLIP`
+    (the filters would replace every value by a bound), and larger on average at 4x than at 1x.
+    Mean outputs at 1x / 4x: the packaged weights 1.05 / 4.06 (acc), 1.04 / 4.07 (gyro); weights of
+    `nespm train --tracks 1 --test-tracks 5 --runs 2 --epochs 1` 3.40 / 3.82 and 3.66 / 4.20. About
+    30 ms (0.1 s with the reference track built), once per process (:func:`load_weights` is cached).
+    """
+    from nespm_cli.data.corruption import NOMINAL_ACC_NOISE, NOMINAL_GYRO_NOISE
+
+    lo, hi = VALIDITY_CLIP
+    windows = reference_windows()
+    for sensor, net, x, nominal in (("acc", acc_net, windows[0], NOMINAL_ACC_NOISE),
+                                    ("gyro", gyro_net, windows[1], NOMINAL_GYRO_NOISE)):
+        what = f"{name}: {sensor} network"
+        for key, arr in net.params.items():
+            a = np.asarray(arr)
+            if not np.issubdtype(a.dtype, np.floating):
+                raise NespmError(f"{what}: parameter {key} has dtype {a.dtype}, expected floating point")
+            bad = int(a.size - np.count_nonzero(np.isfinite(a)))
+            if bad:
+                raise NespmError(f"{what}: parameter {key} holds {bad} non-finite value{'s' if bad != 1 else ''} "
+                                 f"(NaN or inf) of {a.size}")
+        norm = net.normalizer
+        if norm is None or not all(np.isfinite(v) and v > 0 for v in (norm.in_scale, norm.out_scale)):
+            raise NespmError(f"{what}: normalizer scales must be finite and positive, got "
+                             f"{None if norm is None else (norm.in_scale, norm.out_scale)}")
+        try:
+            with np.errstate(all="ignore"):
+                p = net.predict_std(x.reshape((-1,) + x.shape[-2:])).reshape(x.shape[:2] + (3,)) / nominal
+        except NespmError as exc:
+            raise NespmError(f"{what}: {exc}") from None
+        except Exception as exc:  # a network the file describes but that cannot run
+            raise NespmError(f"{what}: cannot run on {WINDOW}-sample windows ({type(exc).__name__}: {exc})") from None
+        if not np.isfinite(p).all():
+            raise NespmError(f"{what}: {int((~np.isfinite(p)).sum())} of {p.size} outputs on the reference windows "
+                             "are non-finite")
+        if not ((p > lo) & (p < hi)).any():
+            raise NespmError(f"{what}: every output on the reference windows is at or beyond the validity clip "
+                             f"{lo:g}-{hi:g} x nominal (range {p.min():.4g}-{p.max():.4g}); the adaptive filters "
+                             "would use the clip bounds only")
+        m1, m4 = float(p[0].mean()), float(p[-1].mean())
+        if not m4 > m1:
+            raise NespmError(f"{what}: does not read the noise level: mean output {m1:.4g} x nominal at "
+                             f"{REFERENCE_LEVELS[0]:g}x the nominal noise, {m4:.4g} at {REFERENCE_LEVELS[-1]:g}x "
+                             "(must increase)")
 
 
 def interval_windows(x: np.ndarray, epoch_index: np.ndarray) -> np.ndarray:

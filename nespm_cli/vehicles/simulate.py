@@ -18,6 +18,9 @@ generator set-up; the dynamics, sensors and controllers are vectorized over runs
 """
 from __future__ import annotations
 
+import hashlib
+import json
+import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -28,7 +31,9 @@ from nespm_cli.nav.earth import radii
 from nespm_cli.nav.rotations import euler_to_dcm
 from nespm_cli.nav.strapdown import na_cycle_inverse
 from nespm_cli.nav.synthesis import integrate_position
+from nespm_cli.data.atomic import write_atomic
 from nespm_cli.data.tracks import Track, write_akit
+from nespm_cli.errors import NespmError
 from nespm_cli.vehicles.guidance import GuidanceGains, GuidanceState, Helix, control_step
 from nespm_cli.vehicles.remus100 import IPHI, IPSI, ITHETA, IU, IW, IX, IZ, Remus100, Remus100Params
 from nespm_cli.nav.rotations import wrap_angle
@@ -314,6 +319,81 @@ def to_track(
     )
 
 
+#: the marker :func:`write_tracks` leaves in a folder it wrote: the options its tracks came from
+MARKER = ".nespm-simulate.json"
+_TRACK_ENTRY = re.compile(r"Trajectory(\d*).*")
+
+
+def simulate_record(result: SimResult, first_number: int = 1, lat0: float = LAT0, lon0: float = LON0,
+                    dvl: str = "measured") -> dict:
+    """The content of :data:`MARKER` for writing ``result`` with these options (JSON-ready).
+
+    ``options`` are what determine the written files: ``runs`` (count), ``run_indices`` (noise
+    streams), ``duration_s`` [s], ``seed``, ``first_number``, ``dvl``, ``lat0`` / ``lon0`` [rad], the
+    three rates [Hz] and ``model`` (SHA-256 of the helix and vehicle parameters); ``tracks`` and
+    ``folders`` name what is written.
+    """
+    numbers = [first_number + i for i in range(result.x.shape[0])]
+    model = hashlib.sha256(repr((result.helix, result.params)).encode()).hexdigest()[:16]
+    options = {"runs": len(numbers), "run_indices": [int(r) for r in result.runs],
+               "duration_s": float(result.t_fine[-1]), "seed": int(result.seed), "first_number": int(first_number),
+               "dvl": dvl, "lat0": float(lat0), "lon0": float(lon0), "integration_hz": result.integration_hz,
+               "control_hz": result.control_hz, "output_hz": result.output_hz, "model": model}
+    return {"kind": "nespm-simulate", "version": 1, "options": options, "tracks": numbers,
+            "folders": [f"Trajectory{n}" for n in numbers]}
+
+
+def check_simulate_folder(folder: str | Path, record: dict) -> None:
+    """Refuse (NespmError, one line) to write ``record`` (:func:`simulate_record`) into ``folder`` when
+    it holds a ``Trajectory*`` entry that an earlier :func:`write_tracks` with the same options did
+    not write (its :data:`MARKER` lists it and records the same ``options``): e.g. real tracks. A
+    missing folder or one without ``Trajectory*`` entries is fine. Writes nothing."""
+    folder = Path(folder)
+    if folder.exists() and not folder.is_dir():
+        raise NespmError(f"{folder}: exists and is not a folder; nothing was written")
+    if not folder.exists():
+        return
+    try:
+        entries = [p.name for p in folder.iterdir() if _TRACK_ENTRY.fullmatch(p.name)]
+    except OSError as exc:
+        raise NespmError(f"{folder}: cannot list the folder ({exc.strerror or exc}); nothing was written") from None
+    entries.sort(key=_entry_order)
+    if not entries:
+        return
+    marker, why = _read_marker(folder / MARKER)
+    if marker is not None:
+        old = marker.get("options") if isinstance(marker.get("options"), dict) else {}
+        diff = [k for k in record["options"] if old.get(k) != record["options"][k]]
+        ours = set(marker.get("folders") or []) if not diff else set()
+        why = (f"{MARKER} records {diff[0]} {old.get(diff[0])!r}, not {record['options'][diff[0]]!r}" if diff
+               else f"{MARKER} does not list it")
+    else:
+        ours = set()
+    for name in entries:
+        if name not in ours:
+            raise NespmError(f"{folder}: holds {name}, which nespm simulate did not write with these options "
+                             f"({why}); nothing was written: choose a new or empty folder")
+
+
+def _entry_order(name: str) -> tuple[int, str]:
+    """Sort key of a ``Trajectory*`` name: by track number (none first), then by name."""
+    digits = _TRACK_ENTRY.fullmatch(name).group(1)
+    return (int(digits) if digits else -1, name)
+
+
+def _read_marker(path: Path) -> tuple[dict | None, str]:
+    """``(marker, "")`` or ``(None, why not)``: the :data:`MARKER` of a folder."""
+    if not path.is_file():
+        return None, f"no {MARKER} in the folder"
+    try:
+        marker = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError, RecursionError):
+        return None, f"{MARKER} is unreadable"
+    if not (isinstance(marker, dict) and marker.get("kind") == "nespm-simulate"):
+        return None, f"{MARKER} is not a nespm simulate marker"
+    return marker, ""
+
+
 def write_tracks(
     result: SimResult,
     folder: str | Path,
@@ -326,7 +406,18 @@ def write_tracks(
 
     Run i (batch position) becomes track ``first_number + i`` (:func:`to_track`,
     :func:`nespm_cli.data.tracks.write_akit`). Returns the written ``TrajectoryN`` folders.
+
+    First, before anything is written, :func:`check_simulate_folder` refuses a folder holding
+    ``Trajectory*`` entries that this function did not write with the same options (e.g. real
+    data: never overwritten). Then the marker :data:`MARKER` (:func:`simulate_record`: seed,
+    duration, runs, first number, DVL mode, origin, rates, track folders) is written, then the
+    tracks; the same call again rewrites the same files.
     """
+    folder = Path(folder)
+    record = simulate_record(result, first_number, lat0, lon0, dvl)
+    check_simulate_folder(folder, record)
+    folder.mkdir(parents=True, exist_ok=True)
+    write_atomic(folder / MARKER, lambda tmp: tmp.write_text(json.dumps(record, indent=2) + "\n", encoding="utf-8"))
     return [
         write_akit(to_track(result, i, first_number + i, lat0, lon0, dvl), folder)
         for i in range(result.x.shape[0])
