@@ -24,11 +24,14 @@ first order, ``x = T(v_nav) ξ`` with ``δv = ρ − [v×] φ`` (:func:`common_f
 :meth:`IEKF.covariance` returns ``T P_inv Tᵀ``, so the engine's P6 / P_diag and the NEES are in
 the common coordinates like every other filter's.
 
-Public array-level functions (what a compiled kernel needs): :func:`invariant_system_matrix`
-(F_inv), :func:`invariant_dvl_H` (H_inv), :func:`invariant_dvl_h`, :func:`invariant_retraction`
-(the feedback), :func:`common_from_invariant`, :func:`invariant_from_common`,
-:func:`covariance_to_common`, :func:`covariance_to_invariant`, :func:`invariant_log`,
-:func:`so3_left_jacobian`, :func:`so3_left_jacobian_inverse`.
+Public array-level functions: the filter uses :func:`invariant_dvl_H` (H_inv),
+:func:`invariant_retraction` (the feedback), :func:`common_from_invariant`,
+:func:`covariance_to_common`, :func:`covariance_to_invariant`, :func:`so3_left_jacobian` (F_inv is
+:func:`nespm_cli.filters.model.invariant_system_matrix`, compiled in
+:mod:`nespm_cli.filters.transition_kernel`); :func:`invariant_dvl_h` (the nonlinear DVL model in
+these coordinates), :func:`invariant_log` (the inverse of the retraction),
+:func:`invariant_from_common` and :func:`so3_left_jacobian_inverse` are the exact maps the tests
+check the Jacobians and the feedback against (tests/test_iekf.py).
 """
 from __future__ import annotations
 

@@ -111,8 +111,7 @@ class ErrorStateFilter(Filter):
 
     Attributes available to subclasses: ``cfg``; ``nav`` (:class:`NavState`, R runs);
     ``P`` (R, 12, 12); ``bad`` (R,) divergence mask; ``f``, ``w`` (R, M, 3), ``dt`` (M,)
-    the IMU; ``R`` the number of runs; ``ut`` the scaled-UT weights of ``cfg``; ``lever`` (3,)
-    [m]; ``dt_imu`` the median IMU step [s]; ``eye`` I₁₂; ``compiled`` whether the IMU-rate
+    the IMU; ``R`` the number of runs; ``ut`` the scaled-UT weights of ``cfg``; ``dt_imu`` the median IMU step [s]; ``eye`` I₁₂; ``compiled`` whether the IMU-rate
     loops run compiled (:mod:`nespm_cli.filters.kernels`; ``strapdown`` and ``transition`` use
     them by themselves).
     """
@@ -133,7 +132,6 @@ class ErrorStateFilter(Filter):
         self.P = np.broadcast_to(cfg.p0(), (R, N_STATES, N_STATES)).copy()
         self.bad = np.zeros(R, dtype=bool)
         self.ut = UTWeights(N_STATES, cfg.alpha, cfg.beta, cfg.kappa)
-        self.lever = np.asarray(cfg.lever_arm, dtype=float)
         self.dt_imu = float(np.median(imu.dt))
         self.eye = np.eye(N_STATES)
         self.compiled = kernels.compiled_enabled()

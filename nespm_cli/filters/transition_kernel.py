@@ -16,8 +16,7 @@ import math
 
 import numpy as np
 
-from nespm_cli.nav.earth import A, E2, F, GAMMA_E, K_SOMIGLIANA
-from nespm_cli.nav.kernels import GRAV_M, cycle_t, exp_t, load_t, matrix_t, mul_t, njit, state_t, store_t
+from nespm_cli.nav.kernels import cycle_t, exp_t, gravity_t, load_t, matrix_t, mul_t, njit, state_t, store_t
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -98,11 +97,7 @@ def invariant_top_s(x, M, dt, S):
     """
     lat, h = x[0], x[2]
     R_N, R_E = x[17], x[18]
-    sl = x[15]
-    s2 = sl * sl
-    g0 = GAMMA_E * (1.0 + K_SOMIGLIANA * s2) / math.sqrt(1.0 - E2 * s2)
-    gN = -8.08e-9 * h * math.sin(2.0 * lat)
-    gD = g0 * (1.0 - 2.0 / A * (1.0 + F + GRAV_M - 2.0 * F * s2) * h + 3.0 * h * h / A**2)
+    gN, gD = gravity_t(lat, h, x[15])
     V, W, J, T = S[0], S[1], S[2], S[3]
     skew_s(x[3], x[4], x[5], V)
     skew_s(x[19], x[20], x[21], W)

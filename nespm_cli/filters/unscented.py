@@ -36,11 +36,6 @@ class UTWeights:
         return 0.5 / self.c
 
     @property
-    def w0_mean(self) -> float:
-        """Centre mean weight lambda / (n + lambda) (eq 5)."""
-        return 1.0 - self.n / self.c
-
-    @property
     def Wc(self) -> float:
         """Sum of all covariance weights: 1 + (1 − alpha² + beta) (eq 6 with Wan & van der Merwe's sign)."""
         return 2.0 - self.alpha**2 + self.beta

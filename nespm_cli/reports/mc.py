@@ -565,9 +565,11 @@ def _definitions(ref: str, n_boot: int, seed: int, practical_pct: float = PRACTI
   *overconfident* (its covariance is too small), below *conservative*. The band is for one
   epoch's NEES averaged over n runs; each run's epoch average fluctuates less, so the band is a
   lenient test: a mean outside it is a clear inconsistency.
-- **diverged**: runs whose covariance became non-finite or not positive definite or whose
-  velocity error exceeded the divergence limit, out of all runs; they are left out of every
-  error number.
+- **diverged**: runs whose state or covariance became non-finite (or not positive definite),
+  whose speed exceeded 50 m/s, whose attitude error exceeded `--diverge-att-deg` (45 deg) after
+  `--diverge-after` (60 s), or whose NEES averaged over `--diverge-window` (30 s) exceeded
+  `--diverge-nees` (1000) after that, out of all runs (the reason per run is `diverged_reason`
+  in metrics.parquet); they are left out of every error number.
 """
 
 

@@ -474,8 +474,3 @@ class Remus100:
         """Straight-line surge speed [m/s] where thrust balances axial drag: ``k_T n^2 = -Xuu u^2``."""
         p = self.params
         return float(np.sqrt(p.k_thrust * rpm * abs(rpm) / -p.Xuu))
-
-    def rpm_for_speed(self, u: np.ndarray | float) -> np.ndarray:
-        """Inverse of :meth:`steady_speed`: the feed-forward rpm for surge speed ``u`` [m/s]."""
-        p = self.params
-        return np.sqrt(-p.Xuu / p.k_thrust) * np.asarray(u, dtype=float)

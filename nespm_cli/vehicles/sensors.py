@@ -135,9 +135,3 @@ def measure(x: np.ndarray, xi: np.ndarray, suite: SensorSuite) -> np.ndarray:
     y[..., I_PSI_MEAS] = wrap_angle(y[..., I_PSI_MEAS])
     return quantize(y, suite.lo, suite.hi, suite.bits)
 
-
-def measure_with(x: np.ndarray, rng: np.random.Generator, suite: SensorSuite | None = None) -> np.ndarray:
-    """Convenience: :func:`measure` with draws from one Generator (shape of ``x[..., :10]``)."""
-    suite = SensorSuite() if suite is None else suite
-    xi = rng.standard_normal(np.shape(x)[:-1] + (len(MEASUREMENT_NAMES),))
-    return measure(x, xi, suite)
