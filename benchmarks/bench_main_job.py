@@ -93,14 +93,14 @@ def split(runs: int) -> dict:
     import cProfile
     import pstats
 
-    from nespm_cli.experiments import mc
+    from nespm_cli.experiments import inputs, mc, spec as spec_mod
 
-    spec = mc.validate(mc.Spec(tracks=(5,), runs=runs, chunk_size=runs))
-    parts = {"synthesis": ("prepared",), "corruption": ("draw", "imu_errors", "dvl_noise", "initial_nav"),
+    spec = spec_mod.validate(spec_mod.Spec(tracks=(5,), runs=runs, chunk_size=runs))
+    parts = {"synthesis": ("prepared_version",), "corruption": ("draw", "imu_errors", "dvl_noise", "initial_nav"),
              "filters": ("run_filter",),
-             "assembling results": ("epoch_errors", "divergence", "run_metrics", "q_factors", "write_parquet_atomic",
+             "assembling results": ("epoch_errors", "divergence", "run_metrics", "q_factors", "write_chunk",
                                     "DataFrame.__init__")}
-    mc.prepared.cache_clear()
+    inputs.prepared_version.cache_clear()
     with tempfile.TemporaryDirectory() as tmp:
         (Path(tmp) / "chunks").mkdir()
         prof = cProfile.Profile()

@@ -22,7 +22,9 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def batch_cost(data_dir: str | None, filt: str, sizes=(1, 32)) -> dict:
     """Wall seconds of one filter over track 5 for a batch of each size (median of 3)."""
-    from nespm_cli.experiments.mc import Spec, prepared, simulate, validate
+    from nespm_cli.experiments.inputs import prepared
+    from nespm_cli.experiments.mc import simulate
+    from nespm_cli.experiments.spec import Spec, validate
 
     spec = validate(Spec(tracks=(5,), runs=max(sizes), filters=(filt,), data_dir=data_dir))
     prepared(5, spec.data_dir, spec.imu)  # synthesis outside the timing

@@ -64,7 +64,7 @@ def run_once(name: str, args, noise_std) -> float:
 
 
 def noise_for(name: str, args):
-    from nespm_cli.experiments.mc import needs_noise_std
+    from nespm_cli.experiments.spec import needs_noise_std
     from nespm_cli.learn.noise_model import predict_interval_std
 
     if not needs_noise_std(name):

@@ -20,7 +20,7 @@ from typer.exceptions import Abort, Exit, TyperException
 from nespm_cli.data.corruption import CorruptionConfig
 from nespm_cli.errors import NespmError
 from nespm_cli.experiments.gp_ukf import GPSpec
-from nespm_cli.experiments.mc import Spec
+from nespm_cli.experiments.spec import Spec
 from nespm_cli.experiments.metrics import DivergenceRule
 from nespm_cli.filters import FilterConfig
 from nespm_cli.reports.stats import PRACTICAL_PCT
@@ -87,7 +87,7 @@ def _spec(**kw):
     import dataclasses
 
     from nespm_cli.experiments.metrics import DivergenceRule
-    from nespm_cli.experiments.mc import Spec, couple_filter
+    from nespm_cli.experiments.spec import Spec, couple_filter
 
     _warning_mode(kw.pop("data_warnings"))
     corr = _corruption(kw)
@@ -326,8 +326,9 @@ def run(
 
 
 def _run_many(tracks_: str, runs: int, filters_: str, jobs: int, chunk_size: int,
-              no_progress: bool, backend: str, scheduler: Optional[str], config: Optional[str] = None, **kw):
+              no_progress: bool, backend: str, scheduler: Optional[str], **kw):
     """Shared body of mc and sweep: build the spec, run, print the summary line."""
+    kw.pop("config")  # always None: --config is expanded before parsing (_expand_config); declared for --help
     spec = _spec(tracks=_tracks(tracks_), runs=runs, filters=_filters(filters_), chunk_size=chunk_size, **kw)
     t0 = time.perf_counter()
     return spec, t0, dict(jobs=jobs, progress=not no_progress, argv=["nespm", *_ARGV],
@@ -380,7 +381,7 @@ def report(
     from nespm_cli.reports.dispatch import write_report
 
     path = write_report(out_dir, baseline, n_boot=n_boot, practical_pct=practical, beside=tuple(beside or ()))
-    typer.echo(path.read_text())
+    typer.echo(path.read_text(encoding="utf-8"))
     typer.echo(f"wrote {path}")
 
 
@@ -522,28 +523,51 @@ def gp_ukf_cmd(
 _REPEATED = ("--filter-plugin",)  # options given once per value
 
 
-def _expand_config(argv: list[str]) -> list[str]:
-    """Replace ``--config FILE`` by the options in the TOML file, placed before the rest
-    of the command line so that explicit options override the file."""
-    if "--config" not in argv:
-        return argv
-    i = argv.index("--config")
-    if i + 1 >= len(argv):
-        raise NespmError("--config needs a file")
-    path = Path(argv[i + 1])
+def _config_paths(argv: list[str]) -> tuple[list[str], list[str]]:
+    """``(config files, argv without them)``: every ``--config FILE`` and ``--config=FILE``, in order."""
+    paths, rest, i = [], [], 0
+    while i < len(argv):
+        a = argv[i]
+        if a == "--config":
+            if i + 1 >= len(argv) or argv[i + 1].startswith("--"):
+                raise NespmError("--config needs a file")
+            paths.append(argv[i + 1])
+            i += 2
+            continue
+        if a.startswith("--config="):
+            if not a[len("--config="):]:
+                raise NespmError("--config needs a file")
+            paths.append(a[len("--config="):])
+            i += 1
+            continue
+        rest.append(a)
+        i += 1
+    return paths, rest
+
+
+def _config_options(path: Path) -> list[str]:
+    """The options of one TOML config file, as command-line words (one-line errors naming the file)."""
     try:
         import tomllib
     except ModuleNotFoundError:  # Python 3.10
         import tomli as tomllib
     try:
-        cfg = tomllib.loads(path.read_text())
+        text = path.read_bytes().decode("utf-8")
+        cfg = tomllib.loads(text)
     except OSError as exc:
         raise NespmError(f"--config {path}: cannot read ({exc.strerror})") from None
+    except UnicodeDecodeError as exc:
+        raise NespmError(f"--config {path}: not UTF-8 text (byte 0x{exc.object[exc.start]:02x} at offset "
+                         f"{exc.start})") from None
     except tomllib.TOMLDecodeError as exc:
         raise NespmError(f"--config {path}: not valid TOML ({str(exc).splitlines()[0]})") from None
+    except RecursionError:
+        raise NespmError(f"--config {path}: nested too deeply") from None
     opts: list[str] = []
     for key, val in cfg.items():
         flag = "--" + key.replace("_", "-")
+        if isinstance(val, dict):
+            raise NespmError(f"--config {path}: [{key}] is a table; options are top-level keys (runs = 100)")
         if isinstance(val, bool):
             opts += [flag] if val else []
         elif isinstance(val, list) and flag in _REPEATED:
@@ -552,7 +576,17 @@ def _expand_config(argv: list[str]) -> list[str]:
             opts += [flag] + [str(v) for v in val]
         else:
             opts += [flag, str(val)]
-    rest = argv[:i] + argv[i + 2:]
+    return opts
+
+
+def _expand_config(argv: list[str]) -> list[str]:
+    """Replace every ``--config FILE`` (or ``--config=FILE``) by the options in the TOML file,
+    in the order given, placed before the rest of the command line: a later file overrides an
+    earlier one, and explicit options override both."""
+    paths, rest = _config_paths(argv)
+    if not paths:
+        return argv
+    opts = [w for p in paths for w in _config_options(Path(p))]
     cmd = 1 if rest and not rest[0].startswith("-") else 0
     return rest[:cmd] + opts + rest[cmd:]
 
@@ -583,11 +617,12 @@ MAX_MESSAGE = 400  # characters of an error line
 
 
 def one_line(text: str) -> str:
-    """The first line of ``text``, printable (:func:`nespm_cli.data.plausibility.printable`),
-    at most :data:`MAX_MESSAGE` characters."""
+    """``text`` as one printable line (:func:`nespm_cli.data.plausibility.printable`: a newline in a
+    path becomes a space), at most :data:`MAX_MESSAGE` characters, cut in the middle so that both
+    the start and the reason at the end survive a long path."""
     from nespm_cli.data.plausibility import printable
 
-    return printable((str(text).splitlines() or [""])[0], MAX_MESSAGE)
+    return printable(str(text), MAX_MESSAGE, cut="middle")
 
 
 def os_error_line(exc: OSError) -> str:
@@ -612,6 +647,9 @@ def main(argv: list[str] | None = None) -> int:
     import warnings
 
     warnings.showwarning = _show_warning
+    for stream in (sys.stdout, sys.stderr):  # an ASCII locale (LC_ALL=C) prints '?' for ±, σ, ², never fails
+        if hasattr(stream, "reconfigure") and (stream.encoding or "").lower().replace("-", "") != "utf8":
+            stream.reconfigure(errors="replace")
     try:
         argv = list(sys.argv[1:] if argv is None else [str(a) for a in argv])
         _ARGV = list(argv)

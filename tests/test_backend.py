@@ -31,7 +31,8 @@ from conftest import assert_one_error_line, chunk_mtimes, console_script, nespm,
 from nespm_cli.experiments.backend import check_backend, parallel_map
 from nespm_cli.errors import NespmError
 from nespm_cli.filters.kernels import numba_installed
-from nespm_cli.experiments.mc import Cell, Spec, run_chunk
+from nespm_cli.experiments.mc import Cell, run_chunk
+from nespm_cli.experiments.spec import Spec
 
 KEY = ["track", "filter", "run"]
 EPOCHS = 40

@@ -352,7 +352,7 @@ def test_cli_defaults_are_the_library_defaults():
     """One source of defaults: the options' defaults build exactly the library's default Spec."""
     from nespm_cli import cli as cli_mod
     from nespm_cli.data.corruption import CorruptionConfig
-    from nespm_cli.experiments.mc import Spec, couple_filter
+    from nespm_cli.experiments.spec import Spec, couple_filter
     from nespm_cli.filters import FilterConfig
 
     kw = {name: d for name, _, d, _, _ in cli_mod._COMMON}

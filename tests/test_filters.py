@@ -22,7 +22,8 @@ import pytest
 
 from nespm_cli.data.corruption import CorruptionConfig, draw, dvl_noise, imu_errors
 from nespm_cli.data.embedded import embedded_track
-from nespm_cli.experiments.mc import Spec, simulate
+from nespm_cli.experiments.mc import simulate
+from nespm_cli.experiments.spec import Spec
 from nespm_cli.filters import FilterConfig, NavState, initial_nav, run_filter
 from nespm_cli.filters.model import dvl_H, dvl_h
 from nespm_cli.filters.unscented import UTWeights, moments, sigma_offsets

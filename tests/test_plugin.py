@@ -20,7 +20,8 @@ import pytest
 
 from nespm_cli.errors import NespmError
 from nespm_cli.experiments.metrics import run_metrics
-from nespm_cli.experiments.mc import Spec, simulate
+from nespm_cli.experiments.mc import simulate
+from nespm_cli.experiments.spec import Spec
 from nespm_cli.filters import FILTERS, FilterConfig, initial_nav, run_filter
 from nespm_cli.filters.ekf import EKF
 from nespm_cli.filters.protocol import ErrorStateFilter, Filter

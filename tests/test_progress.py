@@ -6,7 +6,8 @@ import io
 import numpy as np
 
 from conftest import nespm
-from nespm_cli.experiments.mc import Spec, simulate, validate
+from nespm_cli.experiments.mc import simulate
+from nespm_cli.experiments.spec import Spec, validate
 from nespm_cli.experiments.progress import Progress, epoch_reporter, fmt_seconds, read_reports
 
 

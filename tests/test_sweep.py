@@ -8,7 +8,7 @@ import pytest
 from conftest import cli
 from nespm_cli.cli import main
 from nespm_cli.data.corruption import draw
-from nespm_cli.experiments.mc import Spec, couple_filter
+from nespm_cli.experiments.spec import Spec, couple_filter
 from nespm_cli.filters import FilterConfig
 from nespm_cli.experiments.sweep import PARAMS, sweep_cells
 

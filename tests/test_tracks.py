@@ -165,7 +165,7 @@ def test_write_akit_is_atomic_and_leaves_no_temporaries(tmp_path: Path) -> None:
         tmp.write_text("partial")
         raise OSError("disk full")
 
-    with pytest.raises(OSError, match="disk full"):
+    with pytest.raises(NespmError, match="GT_trajectory3.csv: cannot write \\(disk full\\)"):
         write_atomic(target, boom)
     assert target.read_text() == before
     assert sorted(p.name for p in folder.iterdir()) == ["DVL_trajectory3.csv", "GT_trajectory3.csv"]

@@ -108,10 +108,11 @@ class Finding:
         return printable(f"{head}: {self.message}", limit=1000)
 
 
-def printable(text: object, limit: int = 60) -> str:
+def printable(text: object, limit: int = 60, cut: str = "end") -> str:
     """``text`` as one printable line: whitespace runs -> one space; every other non-printable character
     (NUL, control and format characters) -> ``?``, a run of n of them -> ``?xn``; cut to ``limit``
-    characters (ending in ``...`` when cut)."""
+    characters: at the end (``cut="end"``, ending in ``...``) or in the middle (``cut="middle"``: the
+    start and the end kept, e.g. a long path's head and the reason after it)."""
     s = str(text)
     out = []
     bad = 0
@@ -132,7 +133,10 @@ def printable(text: object, limit: int = 60) -> str:
     if bad:
         out.append("?" if bad == 1 else f"?x{bad}")
     s = "".join(out).strip()
-    if len(s) > limit:
+    if len(s) > limit and cut == "middle" and limit > 40:
+        keep = limit - 5
+        s = s[: keep // 3] + " ... " + s[len(s) - (keep - keep // 3):]
+    elif len(s) > limit:
         s = s[: max(limit - 3, 0)] + "..."
     return s
 

@@ -34,6 +34,7 @@ import time
 import uuid
 import warnings
 from collections.abc import Callable, Iterator
+from pathlib import Path
 
 from nespm_cli.errors import NespmError
 
@@ -66,6 +67,13 @@ def check_backend(backend: str) -> None:
             import distributed  # noqa: F401
         except ImportError:
             raise NespmError(f"--backend dask needs the 'distributed' package: {INSTALL_HINT}") from None
+
+
+def check_scheduler(backend: str, scheduler: str | None) -> None:
+    """A scheduler address only means something to the dask backend: refuse it with loky."""
+    if scheduler and backend != "dask":
+        raise NespmError(f"--scheduler {scheduler}: only the dask backend uses a scheduler; add --backend dask "
+                         "or drop --scheduler")
 
 
 def parallel_map(fn: Callable, args: list[tuple], jobs: int, backend: str = "loky",
@@ -118,7 +126,15 @@ def in_worker(parent: int, fn: Callable, args: tuple):
         from nespm_cli.data.plausibility import DataWarning
 
         warnings.filterwarnings("ignore", category=DataWarning)  # the parent said it once, before the run
+        warnings.filterwarnings("ignore", message="numba cannot cache")  # the parent says it (nav.kernels)
     return fn(*args)
+
+
+def worker_died(exc: BaseException) -> bool:
+    """Whether ``exc`` says a worker process died under a chunk (killed by the system, e.g. the
+    OOM killer): loky's ``TerminatedWorkerError`` / a broken pool, Dask's ``KilledWorker``."""
+    names = {c.__name__ for c in type(exc).__mro__}
+    return bool(names & {"TerminatedWorkerError", "BrokenProcessPool", "KilledWorker"})
 
 
 def _die_with_parent(parent: int) -> None:
@@ -252,7 +268,7 @@ def _connect(scheduler: str | None, jobs: int, n_tasks: int):
         import json
 
         try:
-            address = json.loads(open(address).read())["address"]
+            address = json.loads(Path(address).read_text(encoding="utf-8"))["address"]
         except (OSError, ValueError, KeyError, TypeError) as exc:
             raise NespmError(f"--scheduler {scheduler or address}: not a readable Dask scheduler file "
                              f"({_one_line(exc)})") from None
@@ -290,10 +306,14 @@ def _ignore_sigint_plugin():
 
 def _call(fn: Callable, args: tuple):
     """Run one chunk on a worker; name the worker's host in the errors the user must act on."""
+    from nespm_cli.data.atomic import WriteError
     from nespm_cli.errors import NespmError as _NespmError
 
     try:
         return fn(*args)
+    except WriteError as exc:  # typically the --out folder is not shared with this worker
+        raise _NespmError(f"{exc} (on Dask worker host {socket.gethostname()}; --out and --data-dir must be on a "
+                          "filesystem every worker sees at the same path)") from None
     except _NespmError as exc:
         first = str(exc).splitlines()[0] if str(exc) else repr(exc)
         raise _NespmError(f"{first} (on Dask worker host {socket.gethostname()})") from None

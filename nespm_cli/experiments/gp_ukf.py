@@ -38,6 +38,7 @@ import numpy as np
 import pandas as pd
 
 from nespm_cli.errors import NespmError
+from nespm_cli.experiments.chunks import write_chunk
 from nespm_cli.experiments.store import ResultsFolder, Task, write_atomic, write_parquet_atomic
 from nespm_cli.filters.gp_ukf import DeviationModel, GPUKFModels, gp_ukf, ideal_ukf, narx_training_data
 from nespm_cli.learn.gp import GPModel, theta_default
@@ -417,14 +418,14 @@ def state_errors(est: np.ndarray, truth: np.ndarray) -> np.ndarray:
     return e
 
 
-def run_chunk(spec: GPSpec, first: int, out_dir: str) -> tuple[str, dict]:
-    """Compute one chunk (the filters whose metrics file is missing) and write its files;
-    return ``(chunk key, timings)``."""
+def run_chunk(spec: GPSpec, first: int, out_dir: str, experiment: str = "", filters: tuple = FILTERS) -> tuple[str, dict]:
+    """Compute one chunk of ``filters`` and write its files (carrying the folder's ``experiment``
+    digest, :mod:`nespm_cli.experiments.chunks`); return ``(chunk key, timings)``."""
     from threadpoolctl import threadpool_limits
 
     chunks = Path(out_dir) / "chunks"
     runs = np.arange(first, min(first + spec.chunk_size, spec.runs))
-    todo = [f for f in FILTERS if not (chunks / _chunk_name("metrics", f, first)).exists()]
+    todo = list(filters)
     timings: dict = {}
     key = f"{first:06d}"
     if not todo:
@@ -473,23 +474,26 @@ def run_chunk(spec: GPSpec, first: int, out_dir: str) -> tuple[str, dict]:
             series["cross_track"] = sim.cross_track[:, k].ravel()
             series["diverged"] = np.repeat(res.diverged, K)
             # series first: a metrics file marks the chunk complete
-            write_parquet_atomic(pd.DataFrame(series), chunks / _chunk_name("series", name, first))
-            write_parquet_atomic(metrics, chunks / _chunk_name("metrics", name, first))
+            write_chunk(pd.DataFrame(series), chunks / _chunk_name("series", name, first), experiment)
+            write_chunk(metrics, chunks / _chunk_name("metrics", name, first), experiment)
             timings[f"{name}-{first}"] = round(secs, 3)
     return key, timings
 
 
 # --- the runner -------------------------------------------------------------------------------
 
-def assemble(out: Path) -> tuple[pd.DataFrame, pd.DataFrame]:
-    """Concatenate the chunk files into metrics.parquet and epochs.parquet (sorted)."""
-    chunks = out / "chunks"
+def assemble(folder: ResultsFolder, firsts: list[int]) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """``metrics.parquet`` and ``epochs.parquet`` (sorted) from exactly the expected chunk files,
+    each verified (:meth:`ResultsFolder.verified`)."""
+    out = folder.out
     order = {f: i for i, f in enumerate(FILTERS)}
     sidx = {s: i for i, s in enumerate(STATE_NAMES)}
-    metrics = pd.concat([pd.read_parquet(p) for p in sorted(chunks.glob("metrics-*.parquet"))], ignore_index=True)
+    metrics = pd.concat([pd.read_parquet(p) for p in folder.verified(
+        [_chunk_name("metrics", f, f0) for f in FILTERS for f0 in firsts])], ignore_index=True)
     metrics = metrics.sort_values(["filter", "run", "state"], key=lambda c: c.map(order) if c.name == "filter"
                                   else (c.map(sidx) if c.name == "state" else c), kind="stable").reset_index(drop=True)
-    epochs = pd.concat([pd.read_parquet(p) for p in sorted(chunks.glob("series-*.parquet"))], ignore_index=True)
+    epochs = pd.concat([pd.read_parquet(p) for p in folder.verified(
+        [_chunk_name("series", f, f0) for f in FILTERS for f0 in firsts])], ignore_index=True)
     epochs = epochs.sort_values(["filter", "run", "epoch"], key=lambda c: c.map(order) if c.name == "filter" else c,
                                 kind="stable").reset_index(drop=True)
     write_parquet_atomic(metrics, out / "metrics.parquet")
@@ -507,7 +511,7 @@ def run_gp_experiment(out_dir: str | Path, runs: int = 20, seed: int = 0, durati
     ``rk4_substeps``, ``p0_std``). ``jobs``, ``backend`` and ``scheduler`` do not change the
     results. Schema of the outputs: docs/gp-ukf.md.
     """
-    from nespm_cli.experiments.backend import check_backend
+    from nespm_cli.experiments.backend import check_backend, check_scheduler
 
     unknown = set(options) - {f.name for f in dataclasses.fields(GPSpec)}
     if unknown:
@@ -517,6 +521,7 @@ def run_gp_experiment(out_dir: str | Path, runs: int = 20, seed: int = 0, durati
     if jobs < 1:
         raise NespmError(f"--jobs must be at least 1, got {jobs}")
     check_backend(backend)
+    check_scheduler(backend, scheduler)
     out = Path(out_dir)
     opts = {"experiment": EXPERIMENT, **spec.as_dict()}
     if (out / "models.npz").exists() and not (out / "manifest.json").exists():
@@ -525,8 +530,14 @@ def run_gp_experiment(out_dir: str | Path, runs: int = 20, seed: int = 0, durati
     folder.manifest.setdefault("training", None)
 
     firsts = list(range(0, spec.runs, spec.chunk_size))
-    todo = [Task(f"{f0:06d}", (spec, f0, str(out.resolve())), 1) for f0 in firsts
-            if any(not folder.done(_chunk_name("metrics", f, f0)) for f in FILTERS)]
+    folder.ignore_strays({_chunk_name(k, f, f0) for k in ("metrics", "series") for f in FILTERS for f0 in firsts})
+
+    def missing(f0: int) -> tuple:
+        return tuple(f for f in FILTERS if not (folder.done(_chunk_name("metrics", f, f0))
+                                                and folder.done(_chunk_name("series", f, f0))))
+
+    todo = [Task(f"{f0:06d}", (spec, f0, str(out.resolve()), folder.experiment, fs), 1)
+            for f0 in firsts for fs in [missing(f0)] if fs]
     bar = None
     if progress and not (out / "models.npz").exists():
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
@@ -553,7 +564,7 @@ def run_gp_experiment(out_dir: str | Path, runs: int = 20, seed: int = 0, durati
     folder.manifest["training"] = info
     folder.save()
     folder.run(run_chunk, todo, jobs, backend, scheduler, "gp-ukf", progress, unit="chunks")
-    metrics, _ = assemble(out)
+    metrics, _ = assemble(folder, firsts)
     folder.finish(chunks=len(firsts))
     return metrics
 

@@ -52,7 +52,7 @@ def epoch_reporter(folder: str | Path, key: str, total: int) -> Callable[[int], 
         try:
             path.parent.mkdir(exist_ok=True)  # never the folder above: a worker that cannot see --out must fail
             tmp = path.with_name(f".{key}.{os.getpid()}.tmp")
-            tmp.write_text(f"{done} {total}")
+            tmp.write_text(f"{done} {total}", encoding="ascii")
             os.replace(tmp, path)
         except OSError:
             pass
@@ -71,7 +71,7 @@ def read_reports(folder: str | Path) -> dict[str, tuple[int, int]]:
         if p.name.startswith("."):
             continue
         try:
-            done, total = (int(x) for x in p.read_text().split())
+            done, total = (int(x) for x in p.read_text(encoding="ascii").split())
         except (OSError, ValueError):
             continue
         out[p.name] = (done, total)

@@ -10,7 +10,7 @@ import pandas as pd
 
 from nespm_cli.data.corruption import check_seed, CorruptionConfig, draw, imu_errors
 from nespm_cli.errors import NespmError
-from nespm_cli.experiments.mc import prepared
+from nespm_cli.experiments.inputs import prepared
 from nespm_cli.experiments.store import write_json_atomic, write_parquet_atomic
 from nespm_cli.data.tracks import available_tracks, resolve_data_dir
 
@@ -46,7 +46,7 @@ def write_realizations(tracks, runs: int, seed: int, config: CorruptionConfig, o
     meta = out / "realizations.json"
     if path.exists() or meta.exists():
         try:
-            old = json.loads(meta.read_text())
+            old = json.loads(meta.read_text(encoding="utf-8"))
         except (OSError, json.JSONDecodeError):
             old = None
         if old != options:

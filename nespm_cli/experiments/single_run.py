@@ -8,7 +8,8 @@ import numpy as np
 import pandas as pd
 
 from nespm_cli.errors import NespmError
-from nespm_cli.experiments.mc import Spec, corrections_for, prepared, simulate, validate
+from nespm_cli.experiments.mc import simulate
+from nespm_cli.experiments.spec import Spec, track_inputs, validate
 from nespm_cli.experiments.store import write_parquet_atomic
 from nespm_cli.experiments.metrics import divergence, run_metrics
 from nespm_cli.nav.rotations import dcm_to_euler
@@ -23,7 +24,7 @@ def run_single(spec: Spec, track: int, filt: str, run: int, clean: bool = False,
     ``out`` (optional): per-epoch time series as Parquet (CSV if it ends in .csv) with
     true and estimated velocity and attitude, errors, covariance diagonal and biases.
     """
-    from nespm_cli.experiments.mc import load_filters
+    from nespm_cli.experiments.spec import load_filters
     from nespm_cli.filters.registry import filter_names
     from nespm_cli.data.tracks import available_tracks, resolve_data_dir
 
@@ -39,7 +40,7 @@ def run_single(spec: Spec, track: int, filt: str, run: int, clean: bool = False,
     spec = validate(spec)  # before any progress line: a bad input's message is the only line
     imu = "synthesizing the 100 Hz IMU from the GT" if spec.imu == "synthetic" else "reading the recorded IMU"
     say(f"track {track}: {imu}")
-    _, truth0 = prepared(track, spec.data_dir, spec.imu, corrections_for(spec, track))
+    _, truth0 = track_inputs(spec, track)
     n = len(truth0.epoch_index) - 1
     tenth = max(n // 10, 1)
 

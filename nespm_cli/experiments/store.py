@@ -19,6 +19,7 @@ import shutil
 import subprocess
 import sys
 import time
+import warnings
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
@@ -30,9 +31,15 @@ import pandas as pd
 from nespm_cli import __version__
 from nespm_cli.data.atomic import write_atomic, write_text_atomic
 from nespm_cli.errors import NespmError
-from nespm_cli.experiments.progress import PROGRESS_DIR, Poller, Progress
+from nespm_cli.experiments.chunks import chunk_problem, experiment_digest
+from nespm_cli.experiments.progress import PROGRESS_DIR, Poller, Progress, read_reports
 
 LOCK_FILE = ".lock"  # OUT/.lock: held (flock) by the process writing the folder
+SAVE_EVERY_S = 2.0  # [s] the manifest's timings are saved at most this often while chunks finish
+
+
+class ChunkWarning(UserWarning):
+    """A file in ``chunks/`` that is not used (printed as one ``nespm: warning:`` line)."""
 
 
 # --- atomic files (nespm_cli.data.atomic) ---------------------------------------------------
@@ -116,19 +123,36 @@ def has_results(out: Path) -> bool:
 
 class FolderLock:
     """An exclusive lock on a results folder (``OUT/.lock``, ``flock``), held until :meth:`release`
-    or the process ends (the system releases it on kill -9 too)."""
+    or the process ends (the system releases it on kill -9 too).
+
+    The lock file is opened without following a symbolic link and must be a regular file: a
+    ``.lock`` that points elsewhere is refused, never written through.
+    """
 
     def __init__(self, out: Path) -> None:
         import fcntl
+        import stat
 
         out.mkdir(parents=True, exist_ok=True)
         self.path = out / LOCK_FILE
-        self.handle = open(self.path, "a+")
+        flags = os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0)
+        try:
+            fd = os.open(self.path, flags, 0o644)
+        except OSError as exc:
+            if self.path.is_symlink():
+                raise NespmError(f"{self.path}: is a symbolic link; nespm's lock must be a regular file "
+                                 "(remove it, or use another --out)") from None
+            raise NespmError(f"{self.path}: cannot open the folder lock ({exc.strerror or exc})") from None
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            os.close(fd)
+            raise NespmError(f"{self.path}: is not a regular file; nespm's lock must be one (remove it, or use "
+                             "another --out)")
+        self.handle = os.fdopen(fd, "r+")
         try:
             fcntl.flock(self.handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
             self.handle.seek(0)
-            pid = self.handle.read().strip() or "?"
+            pid = self.handle.read(32).strip() or "?"
             self.handle.close()
             raise NespmError(f"{out}: busy: another nespm process (pid {pid}) is writing this folder; wait "
                              "for it to finish, or use another --out") from None
@@ -142,6 +166,56 @@ class FolderLock:
             self.handle.close()
 
 
+def writer_pid(out: Path) -> str | None:
+    """The pid of a process holding ``out``'s lock now (it is being written), else None. Takes no lock."""
+    import fcntl
+
+    path = Path(out) / LOCK_FILE
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK)
+    except OSError:
+        return None
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+        except BlockingIOError:
+            return os.read(fd, 32).decode("ascii", "replace").strip() or "?"
+        except OSError:
+            return None
+        fcntl.flock(fd, fcntl.LOCK_UN)
+        return None
+    finally:
+        os.close(fd)
+
+
+#: what an experiment writes into its folder besides the manifest: never overwritten without one
+OUTPUT_NAMES = ("metrics.parquet", "epochs.parquet", "report.md", "figures", "chunks", "models.npz")
+
+
+def read_manifest(path: Path) -> dict:
+    """The manifest at ``path``, checked for the structure nespm relies on (one-line NespmError)."""
+    try:
+        old = json.loads(Path(path).read_text(encoding="utf-8"))
+    except (OSError, ValueError, RecursionError) as exc:
+        raise NespmError(f"{path}: unreadable manifest ({exc.__class__.__name__}); use a new --out folder") from None
+    if not isinstance(old, dict) or not isinstance(old.get("options"), dict):
+        raise NespmError(f"{path}: not a nespm manifest (expected an object with an 'options' object); "
+                         "use a new --out folder")
+    blocks = old.get("run_blocks")
+    if blocks is not None:
+        ok = isinstance(blocks, list) and blocks and all(
+            isinstance(b, list) and len(b) == 2 and all(isinstance(x, int) and not isinstance(x, bool) for x in b)
+            and 0 <= b[0] < b[1] for b in blocks)
+        ok = ok and all(a[1] == b[0] for a, b in zip(blocks, blocks[1:])) and blocks[0][0] == 0
+        if not ok:
+            raise NespmError(f"{path}: bad run_blocks {json.dumps(blocks)[:80]} (expected consecutive "
+                             "[start, end] run ranges from 0); use a new --out folder")
+    for key in ("chunk_seconds", "inputs"):
+        if key in old and not isinstance(old[key], dict):
+            raise NespmError(f"{path}: bad '{key}' (expected an object); use a new --out folder")
+    return old
+
+
 def check_existing(out: Path, options: dict, extendable: tuple[str, ...] = ()) -> dict | None:
     """The old manifest of ``out`` (None for a new folder); refuse another experiment's folder.
 
@@ -153,13 +227,12 @@ def check_existing(out: Path, options: dict, extendable: tuple[str, ...] = ()) -
     if mf.exists() and not has_results(out):
         return None
     if not mf.exists():
-        if (out / "chunks").exists() and any((out / "chunks").iterdir()):
-            raise NespmError(f"{out}: has chunk files but no manifest.json; use a new --out folder")
+        held = [n for n in OUTPUT_NAMES if (out / n).exists() and (n != "chunks" or any((out / n).iterdir()))]
+        if held:
+            raise NespmError(f"{out}: holds {held[0]} but no manifest.json (results of an unknown experiment); "
+                             "use a new --out folder")
         return None
-    try:
-        old = json.loads(mf.read_text())
-    except (OSError, json.JSONDecodeError) as exc:
-        raise NespmError(f"{mf}: unreadable manifest ({exc.__class__.__name__}); use a new --out folder") from None
+    old = read_manifest(mf)
     before = old.get("options", {})
     diff = sorted(k for k in set(before) | set(options) if before.get(k) != options.get(k))
     grown = [k for k in diff if k in extendable and isinstance(before.get(k), int) and options.get(k, 0) > before[k]]
@@ -183,7 +256,10 @@ def run_blocks(old: dict | None, runs: int) -> list[tuple[int, int]]:
     """
     if old is None:
         return [(0, runs)]
-    blocks = [tuple(b) for b in old.get("run_blocks") or [(0, int(old["options"]["runs"]))]]
+    default = [(0, old["options"]["runs"])] if isinstance(old["options"].get("runs"), int) else None
+    if not old.get("run_blocks") and default is None:
+        raise NespmError("manifest.json: neither run_blocks nor an integer options.runs; use a new --out folder")
+    blocks = [tuple(b) for b in old.get("run_blocks") or default]
     have = blocks[-1][1]
     return blocks + [(have, runs)] if runs > have else blocks
 
@@ -221,6 +297,8 @@ class ResultsFolder:
         self.manifest: dict = {}
         self.t0 = time.perf_counter()
         self.lock: FolderLock | None = None
+        self._saved = 0.0
+        self._warned: set[str] = set()
 
     def open(self, inputs: dict[str, str] | None = None, **extra) -> "ResultsFolder":
         """Lock the folder, check it against ``options`` and the ``inputs`` hashes
@@ -243,39 +321,88 @@ class ResultsFolder:
         self.t0 = time.perf_counter()
         return self
 
-    def save(self) -> None:
+    def save(self, every_s: float = 0.0) -> None:
+        """Write the manifest (atomically); with ``every_s``, only if the last write is older
+        (a study of thousands of chunks must not rewrite it thousands of times)."""
+        if every_s and time.monotonic() - self._saved < every_s:
+            return
         write_json_atomic(self.manifest, self.out / "manifest.json")
+        self._saved = time.monotonic()
+
+    @property
+    def experiment(self) -> str:
+        """The digest every chunk file of this experiment carries (:func:`chunks.experiment_digest`)."""
+        return experiment_digest(self.options, self.extendable)
 
     def path(self, name: str) -> Path:
         """The chunk file ``chunks/name``."""
         return self.chunks / name
 
     def done(self, name: str) -> bool:
-        return self.path(name).exists()
+        """Whether ``chunks/name`` is a finished chunk of this experiment. A file there that is
+        not (truncated, of another experiment, a copy) is named in a warning and computed again."""
+        problem = chunk_problem(self.path(name), self.experiment)
+        if problem is not None and problem != "missing" and name not in self._warned:
+            self._warned.add(name)
+            warnings.warn(f"{self.path(name)}: {problem}; computing it again", ChunkWarning, stacklevel=2)
+        return problem is None
+
+    def ignore_strays(self, expected: set[str]) -> list[str]:
+        """Warn once about files in ``chunks/`` that this experiment does not expect (leftovers of
+        another experiment, copies, foreign files); they are never read. Returns their names."""
+        strays = sorted(p.name for p in self.chunks.iterdir() if not p.name.startswith(".") and p.name not in expected)
+        if strays:
+            more = f" and {len(strays) - 3} more" if len(strays) > 3 else ""
+            warnings.warn(f"{self.chunks}: ignored {len(strays)} file(s) this experiment does not expect: "
+                          f"{', '.join(strays[:3])}{more}", ChunkWarning, stacklevel=2)
+        return strays
+
+    def verified(self, names: list[str]) -> list[Path]:
+        """The chunk files ``names`` (in order), each verified as a finished chunk of this
+        experiment; a missing or bad one is a one-line NespmError naming it."""
+        out = []
+        for name in names:
+            problem = chunk_problem(self.path(name), self.experiment)
+            if problem is not None:
+                raise NespmError(f"{self.path(name)}: {problem} (changed while this command ran?); re-run the "
+                                 "same command to compute it again")
+            out.append(self.path(name))
+        return out
 
     def run(self, fn: Callable, tasks: list[Task], jobs: int, backend: str, scheduler: str | None,
             label: str, progress: bool = True, unit: str = "filter-epochs") -> None:
         """Compute ``tasks`` (``fn(*task.args) -> (key, timings)``) where the backend says, with
-        a progress display fed by the workers' reports (:mod:`nespm_cli.experiments.progress`)."""
-        from nespm_cli.experiments.backend import parallel_map
+        a progress display fed by the workers' reports (:mod:`nespm_cli.experiments.progress`).
+
+        A worker process that dies (killed by the system, e.g. out of memory) ends the command
+        with one line naming the chunks it was computing; finished chunks are kept."""
+        from nespm_cli.experiments.backend import parallel_map, worker_died
 
         if not tasks:
             return
         units = {t.key: t.units for t in tasks}
+        finished: set[str] = set()
         results = parallel_map(fn, [t.args for t in tasks], jobs, backend, scheduler)
-        with Progress(label, sum(units.values()), len(tasks), unit=unit, enabled=progress) as bar, \
-                Poller(bar, self.chunks) as poller:
-            for key, timings in results:
-                self.manifest["chunk_seconds"].update(timings)
-                self.save()  # a killed run's finished chunks keep their timings
-                poller.finish(key)
-                bar.chunk_done(units.get(key, 0))
-                poller.poll()
-
-    def read(self, kind: str) -> pd.DataFrame:
-        """All chunk files ``chunks/<kind>-*.parquet``, concatenated in file-name order."""
-        return pd.concat([pd.read_parquet(p) for p in sorted(self.chunks.glob(f"{kind}-*.parquet"))],
-                         ignore_index=True)
+        try:
+            with Progress(label, sum(units.values()), len(tasks), unit=unit, enabled=progress) as bar, \
+                    Poller(bar, self.chunks) as poller:
+                for key, timings in results:
+                    finished.add(key)
+                    self.manifest["chunk_seconds"].update(timings)
+                    self.save(every_s=SAVE_EVERY_S)  # a killed run's timings come back from its chunks
+                    poller.finish(key)
+                    bar.chunk_done(units.get(key, 0))
+                    poller.poll()
+        except Exception as exc:
+            if not worker_died(exc):
+                raise
+            running = sorted(set(read_reports(self.chunks)) - finished) or sorted(set(units) - finished)
+            more = f" (and {len(running) - 2} more)" if len(running) > 2 else ""
+            raise NespmError(f"a worker process died while computing chunk {', '.join(running[:2])}{more} "
+                             "(killed by the system: memory may be the cause; try a smaller --chunk-size or "
+                             "fewer --jobs); finished chunks are kept, re-run the same command to resume") from None
+        finally:
+            self.save()
 
     def finish(self, chunks: int) -> None:
         old = self.old or {}

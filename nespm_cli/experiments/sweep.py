@@ -15,7 +15,8 @@ import numpy as np
 import pandas as pd
 
 from nespm_cli.errors import NespmError
-from nespm_cli.experiments.mc import Cell, Spec, couple_filter, run_cells, validate
+from nespm_cli.experiments.mc import Cell, run_cells
+from nespm_cli.experiments.spec import Spec, couple_filter, validate
 
 
 @dataclass(frozen=True)

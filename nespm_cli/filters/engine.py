@@ -38,13 +38,11 @@ from nespm_cli.filters import iekf  # noqa: F401
 from nespm_cli.filters.measurements import DvlMeasurement
 from nespm_cli.filters.model import FilterConfig, NavState
 from nespm_cli.filters.protocol import ImuData
-from nespm_cli.filters.registry import filter_names, get_filter
+from nespm_cli.filters.registry import filter_names, filter_source, get_filter
 from nespm_cli.nav.earth import radii, transport_rates
 
 #: the built-in filters' names (plugins: :func:`nespm_cli.filters.registry.filter_names`)
 FILTERS = filter_names(builtin_only=True)
-#: adaptive built-in filter -> its non-adaptive twin (same propagation and update, Q from ProcessNet)
-ADAPTIVE = {n: get_filter(n).adaptive_of for n in FILTERS if get_filter(n).adaptive_of}
 
 
 @dataclass
@@ -107,9 +105,10 @@ def run_filter(
     cls = get_filter(kind)
     if cls.needs_noise_std and noise_std is None:
         raise NespmError(f"filter {kind} needs the network noise std (noise_std)")
-    filt = cls(cfg, nav0, ImuData(f_meas, w_meas, dt), noise_std)
-    cov = cls.has_covariance
     R, N = nav0.v_n.shape[0], len(epoch_index)
+    call = guarded(kind, R)
+    filt = call(cls, "__init__", cfg, nav0, ImuData(f_meas, w_meas, dt), noise_std)
+    cov = cls.has_covariance
     out = FilterOutput(
         pos=np.empty((R, N, 3)), v_n=np.empty((R, N, 3)), C_bn=np.empty((R, N, 3, 3)),
         P6=np.full((R, N, 6, 6), np.nan), P_diag=np.full((R, N, 12), np.nan),
@@ -119,17 +118,19 @@ def run_filter(
     lever = np.asarray(cfg.lever_arm, dtype=float)
 
     def record(k):
-        n = filt.state()
-        out.pos[:, k], out.v_n[:, k], out.C_bn[:, k] = n.pos, n.v_n, n.C_bn
-        out.b_a[:, k], out.b_g[:, k] = n.b_a, n.b_g
+        n = call(filt.state, "state")
+        call(lambda: store(out, k, n), "state")
         if cov:
-            P = filt.covariance()
+            P = call(filt.covariance, "covariance")
+            if np.shape(P) != (R, 12, 12):
+                raise NespmError(f"filter {kind} ({filter_source(kind)}): covariance() returned shape {np.shape(P)}, "
+                                 f"expected ({R}, 12, 12)")
             out.P6[:, k] = P[:, :6, :6]
             out.P_diag[:, k] = np.einsum("...ii->...i", P)
 
     def measurement(k, j_last):
         """The DVL measurement of epoch ``k``, lever-arm rate from IMU step ``j_last``."""
-        nav = filt.state()
+        nav = call(filt.state, "state")
         w_nb = _w_nb(nav, w_meas[:, j_last] - nav.b_g)
         return DvlMeasurement(dvl[:, k], w_nb, lever, cfg.dvl_std)
 
@@ -142,16 +143,46 @@ def run_filter(
             j0, j1 = int(epoch_index[k]), int(epoch_index[k + 1])
             if imu_mode:
                 for j in range(j0, j1):
-                    filt.propagate(j, j + 1, k)
+                    call(filt.propagate, "propagate", j, j + 1, k)
             else:
-                filt.propagate(j0, j1, k)
+                call(filt.propagate, "propagate", j0, j1, k)
             if cov and dvl_mask[k + 1]:
-                filt.update(measurement(k + 1, j1 - 1), j1 - 1)
+                call(filt.update, "update", measurement(k + 1, j1 - 1), j1 - 1)
                 out.dvl_used[k + 1] = True
-            filt.check()
+            call(filt.check, "check")
             record(k + 1)
             if progress is not None:
                 progress(k + 1)
-    out.diverged = filt.diverged
+    out.diverged = np.asarray(call(lambda: filt.diverged, "diverged"), dtype=bool).reshape(R)
     out.noise_std = filt.noise_std
     return out
+
+
+def store(out: FilterOutput, k: int, nav: NavState) -> None:
+    """Record the solution ``nav`` of the R runs at epoch ``k``."""
+    out.pos[:, k], out.v_n[:, k], out.C_bn[:, k] = nav.pos, nav.v_n, nav.C_bn
+    out.b_a[:, k], out.b_g[:, k] = nav.b_a, nav.b_g
+
+
+def guarded(kind: str, R: int) -> Callable:
+    """``call(fn, method, *args)``: ``fn(*args)``, with any exception of a filter's code turned into
+    one line naming the filter, where it is defined and the method (``NESPM_DEBUG=1``: re-raised
+    as it is, with its traceback)."""
+    import os
+
+    def call(fn, method: str, *args):
+        try:
+            return fn(*args)
+        except NespmError:
+            raise
+        except Exception as exc:
+            if os.environ.get("NESPM_DEBUG"):
+                raise
+            where = f"filter {kind} ({filter_source(kind)})"
+            if isinstance(exc, NotImplementedError):
+                raise NespmError(f"{where}: {method} is not implemented (a filter implements __init__, propagate, "
+                                 "update, check, state, covariance and diverged: docs/plugins.md)") from None
+            text = " ".join(str(exc).split())[:160]
+            raise NespmError(f"{where}: {method} raised {exc.__class__.__name__}: {text} "
+                             f"({R} runs; NESPM_DEBUG=1 shows the traceback)") from None
+    return call

@@ -92,9 +92,29 @@ def filter_names(builtin_only: bool = False) -> tuple[str, ...]:
     return b if builtin_only else b + tuple(n for n in _FILTERS if not _is_builtin(n))
 
 
+def filter_source(name: str) -> str:
+    """Where filter ``name`` is defined: its module's file (or module name)."""
+    return _SOURCES.get(name, "?")
+
+
 def is_builtin(name: str) -> bool:
     """Whether ``name`` is one of nespm's own filters."""
     return _is_builtin(name)
+
+
+def plugin_files(name: str) -> list[Path]:
+    """The source files of filter ``name``'s code when it is a plugin (empty for a built-in):
+    the plugin file, or every ``.py`` file of the top-level package its module belongs to (a
+    module plugin or an entry point), sorted. Their hashes identify the code of an experiment."""
+    if name not in _FILTERS or _is_builtin(name):
+        return []
+    module = sys.modules.get(_FILTERS[name].__module__)
+    top = sys.modules.get(_FILTERS[name].__module__.split(".")[0])
+    roots = [Path(p) for p in getattr(top, "__path__", None) or []]
+    if roots and top is not None and not top.__name__.startswith("nespm_plugin_"):
+        return sorted({f.resolve() for r in roots for f in r.rglob("*.py") if "__pycache__" not in f.parts})
+    f = getattr(module, "__file__", None)
+    return [Path(f).resolve()] if f else []
 
 
 def _one_line(e: BaseException) -> str:
@@ -180,5 +200,5 @@ def discover_plugins() -> list[str]:
     return names
 
 
-__all__ = ["ENTRY_POINT_GROUP", "discover_plugins", "filter_names", "get_filter", "is_builtin",
-           "load_plugin", "register", "register_filter"]
+__all__ = ["ENTRY_POINT_GROUP", "discover_plugins", "filter_names", "filter_source", "get_filter", "is_builtin",
+           "filter_source", "load_plugin", "plugin_files", "register", "register_filter"]

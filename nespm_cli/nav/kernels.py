@@ -23,6 +23,7 @@ quantities (10, :func:`earth_t`); :func:`load_t` / :func:`store_t` convert from 
 from __future__ import annotations
 
 import math
+import warnings
 
 import numpy as np
 
@@ -30,14 +31,37 @@ from nespm_cli.nav.earth import A, B, E2, F, GAMMA_E, K_SOMIGLIANA, MU, OMEGA_IE
 
 try:  # numba is a dependency; without it the filters run the NumPy reference (filters.kernels)
     import numba
-    from numba import njit
 except ImportError:  # pragma: no cover - exercised only where numba is not installed
     numba = None
 
-    def njit(*args, **kwargs):
-        if args and callable(args[0]):
-            return args[0]
-        return lambda f: f
+#: why compiled kernels are not cached on disk in this process (empty: they are)
+NO_CACHE: list[str] = []
+
+
+class KernelCacheWarning(UserWarning):
+    """numba found no writable place to cache the compiled kernels (printed as one warning line)."""
+
+
+def njit(*args, **kwargs):
+    """``numba.njit`` that falls back to ``cache=False`` when numba finds no writable cache location
+    (a read-only install and no writable ``NUMBA_CACHE_DIR``): the kernels then compile in every
+    process instead of failing (:data:`NO_CACHE` says why). Without numba: the plain function."""
+    if numba is None:  # pragma: no cover
+        return args[0] if args and callable(args[0]) else (lambda f: f)
+
+    def deco(f):
+        try:
+            return numba.njit(**kwargs)(f)
+        except RuntimeError as exc:
+            if not kwargs.get("cache") or "cannot cache" not in str(exc):
+                raise
+            if not NO_CACHE:
+                NO_CACHE.append(str(exc))
+                warnings.warn("numba cannot cache the compiled kernels here (no writable cache location; set "
+                              "NUMBA_CACHE_DIR to a writable folder): they compile in every process (~6 s each)",
+                              KernelCacheWarning, stacklevel=3)
+            return numba.njit(**{**kwargs, "cache": False})(f)
+    return deco(args[0]) if args and callable(args[0]) else deco
 
 SERIES2 = 1e-4  # rotations._SERIES2: squared angle below which the exp series is used
 GRAV_M = OMEGA_IE**2 * A**2 * B / MU  # gravity_n's m
@@ -88,6 +112,16 @@ def earth_t(lat, h, vN, vE):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
+def gravity_t(lat, h, sl):
+    """``(g_N, g_D)`` [m/s²] of earth.gravity_n at latitude ``lat`` [rad] (``sl = sin lat``), height ``h`` [m]."""
+    s2 = sl * sl
+    g0 = GAMMA_E * (1.0 + K_SOMIGLIANA * s2) / math.sqrt(1.0 - E2 * s2)
+    gN = -8.08e-9 * h * math.sin(2.0 * lat)
+    gD = g0 * (1.0 - 2.0 / A * (1.0 + F + GRAV_M - 2.0 * F * s2) * h + 3.0 * h * h / A**2)
+    return gN, gD
+
+
+@njit(cache=True, error_model="numpy", inline="always")
 def cycle_t(x, f0, f1, f2, w0, w1, w2, dt):
     """One navigation cycle, ukf-nespm.md eqs 24-32 (strapdown.na_cycle), on scalars.
 
@@ -108,11 +142,7 @@ def cycle_t(x, f0, f1, f2, w0, w1, w2, dt):
     p2 = (w2 - ((c02 * u0 + c12 * u1) + c22 * u2)) * half
     C = (c00, c01, c02, c10, c11, c12, c20, c21, c22)
     s00, s01, s02, s10, s11, s12, s20, s21, s22 = mul_t(C, exp_t(p0, p1, p2))
-    # gravity (earth.gravity_n)
-    s2 = sl * sl
-    g0 = GAMMA_E * (1.0 + K_SOMIGLIANA * s2) / math.sqrt(1.0 - E2 * s2)
-    gN = -8.08e-9 * h * math.sin(2.0 * lat)
-    gD = g0 * (1.0 - 2.0 / A * (1.0 + F + GRAV_M - 2.0 * F * s2) * h + 3.0 * h * h / A**2)
+    gN, gD = gravity_t(lat, h, sl)
     # eqs 26-27: v_dot = C* f + g - (w_en + 2 w_ie) x v
     a0, a1, a2 = en0 + 2.0 * ie0, en1 + 2.0 * ie1, en2 + 2.0 * ie2
     vd0 = (((s00 * f0 + s01 * f1) + s02 * f2) + gN) - (a1 * v2 - a2 * v1)

@@ -8,6 +8,7 @@ otherwise a ``metrics.parquet`` with a ``param`` column is a sweep folder
 from __future__ import annotations
 
 import json
+import warnings
 from pathlib import Path
 
 from nespm_cli.errors import NespmError
@@ -23,7 +24,7 @@ def experiment_of(out_dir: Path) -> str:
     """``"gp-ukf"``, ``"sweep"`` or ``"mc"``: which report a results folder gets."""
     out_dir = Path(out_dir)
     try:
-        experiment = json.loads((out_dir / "manifest.json").read_text()).get("experiment")
+        experiment = json.loads((out_dir / "manifest.json").read_text(encoding="utf-8")).get("experiment")
     except (OSError, ValueError, AttributeError):
         experiment = None  # the mc loader reports a missing or unreadable manifest
     if experiment == "gp-ukf":
@@ -37,6 +38,30 @@ def experiment_of(out_dir: Path) -> str:
     return "sweep" if is_sweep else "mc"
 
 
+class UnfinishedWarning(UserWarning):
+    """The folder is being written, or its experiment did not finish (one ``nespm: warning:`` line)."""
+
+
+def warn_if_unfinished(out_dir: Path) -> None:
+    """Say so when ``out_dir`` is being written by another process (e.g. extended to more runs)
+    or its last run did not finish: the report then shows only the results assembled before."""
+    from nespm_cli.experiments.store import writer_pid
+
+    pid = writer_pid(out_dir)
+    if pid is not None:
+        warnings.warn(f"{out_dir}: another nespm process (pid {pid}) is writing this folder now; the report "
+                      "shows the results assembled before it started; report again when it has finished",
+                      UnfinishedWarning, stacklevel=3)
+        return
+    try:
+        finished = json.loads((out_dir / "manifest.json").read_text(encoding="utf-8")).get("finished", True)
+    except (OSError, ValueError, AttributeError, RecursionError):
+        return
+    if finished is None and (out_dir / "metrics.parquet").exists():
+        warnings.warn(f"{out_dir}: its last run did not finish (interrupted?); the report shows the results "
+                      "assembled before; re-run the same command to complete it", UnfinishedWarning, stacklevel=3)
+
+
 def write_report(out_dir: Path, reference: str | None = None, n_boot: int = 2000,
                  practical_pct: float = PRACTICAL_PCT, beside=()) -> Path:
     """Write ``out_dir/report.md`` and its figures; return the report path.
@@ -48,6 +73,7 @@ def write_report(out_dir: Path, reference: str | None = None, n_boot: int = 2000
     """
     check_practical_pct(practical_pct)
     out_dir = Path(out_dir)
+    warn_if_unfinished(out_dir)
     kind = experiment_of(out_dir)
     if kind == "gp-ukf":
         return write_gp_report(out_dir, n_boot=n_boot)  # --baseline does not apply

@@ -41,7 +41,7 @@ def read_results_folder(out_dir: Path, command: str = "mc",
     manifest: dict = {}
     if manifest_path.is_file():
         try:
-            manifest = json.loads(manifest_path.read_text())
+            manifest = json.loads(manifest_path.read_text(encoding="utf-8"))
         except (OSError, ValueError) as exc:
             raise NespmError(f"{manifest_path}: not valid JSON ({one_line(exc)})") from exc
         if not isinstance(manifest, dict):

@@ -1,0 +1,113 @@
+"""Chunk files of a results folder: written with their identity, verified before they are used.
+
+A chunk file (``OUT/chunks/<kind>-<...>.parquet``) is one filter's results for a block of
+runs. Each carries, in its Parquet key-value metadata under :data:`IDENTITY_KEY`, a small JSON
+record: the *experiment digest* (a SHA-256 of the folder's options without the options that may
+grow, :func:`experiment_digest`), the file's own name and its row count. A file counts as a
+finished chunk of an experiment only when it reads as Parquet and that record matches
+(:func:`chunk_problem`); anything else — a zero-byte or truncated file, a file of another
+experiment, a renamed or copied one, a "(conflicted copy)" — is named and never mixed into the
+results. Files are written atomically and synced first (:func:`nespm_cli.data.atomic.write_atomic`),
+so a crash cannot leave a partial chunk under a final name.
+
+Assembly reads exactly the chunks a folder expects, one at a time
+(:func:`concat_parquet`), so a table of any size is written with the memory of one chunk.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+from pathlib import Path
+
+import pandas as pd
+
+from nespm_cli.data.atomic import write_atomic
+from nespm_cli.errors import NespmError
+
+IDENTITY_KEY = b"nespm.chunk"
+
+
+def experiment_digest(options: dict, extendable: tuple[str, ...] = ()) -> str:
+    """SHA-256 (hex) of ``options`` without the ``extendable`` keys (canonical JSON)."""
+    core = {k: v for k, v in options.items() if k not in extendable}
+    text = json.dumps(core, sort_keys=True, separators=(",", ":"), default=str)
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()
+
+
+def write_chunk(df: pd.DataFrame, path: Path, experiment: str) -> None:
+    """Write ``df`` to ``path`` atomically, with its identity (``experiment`` digest, name, rows)."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    path = Path(path)
+    table = pa.Table.from_pandas(df, preserve_index=False)
+    ident = json.dumps({"experiment": experiment, "name": path.name, "rows": len(df)}).encode()
+    table = table.replace_schema_metadata({**(table.schema.metadata or {}), IDENTITY_KEY: ident})
+    write_atomic(path, lambda tmp: pq.write_table(table, tmp))
+
+
+def chunk_problem(path: Path, experiment: str) -> str | None:
+    """None when ``path`` is a complete chunk file of ``experiment``, else what is wrong with it
+    (``missing``, ``unreadable (...)``, ``written by another experiment``, ...)."""
+    import pyarrow.parquet as pq
+
+    path = Path(path)
+    if not path.exists():
+        return "missing"
+    if not path.is_file():
+        return "not a regular file"
+    try:
+        pf = pq.ParquetFile(path)
+        meta = pf.schema_arrow.metadata or {}
+        rows = pf.metadata.num_rows
+    except Exception as exc:  # zero bytes, truncated, not Parquet
+        return f"unreadable ({exc.__class__.__name__}: {' '.join(str(exc).split())[:80]})"
+    raw = meta.get(IDENTITY_KEY)
+    if raw is None:
+        return "has no nespm chunk identity (written by another program or an older nespm)"
+    try:
+        ident = json.loads(raw)
+        exp, name, n = ident["experiment"], ident["name"], int(ident["rows"])
+    except (ValueError, KeyError, TypeError):
+        return "has an unreadable chunk identity"
+    if exp != experiment:
+        return "was written by a different experiment"
+    if name != path.name:
+        return f"is a copy of chunk {name}"
+    if n != rows:
+        return f"holds {rows} rows where its writer wrote {n}"
+    return None
+
+
+def concat_parquet(paths: list[Path], out: Path) -> int:
+    """Write the rows of ``paths`` (in order, equal schemas) into ``out`` atomically, one file in
+    memory at a time; return the row count. The chunks' identities are not copied."""
+    import pyarrow.parquet as pq
+
+    total = 0
+
+    def write(tmp: Path) -> None:
+        nonlocal total
+        writer = None
+        try:
+            for p in paths:
+                table = pq.read_table(p)
+                table = table.replace_schema_metadata({k: v for k, v in (table.schema.metadata or {}).items()
+                                                       if k != IDENTITY_KEY})
+                if writer is None:
+                    writer = pq.ParquetWriter(tmp, table.schema)
+                elif table.schema != writer.schema:
+                    table = table.cast(writer.schema)
+                writer.write_table(table)
+                total += table.num_rows
+        finally:
+            if writer is not None:
+                writer.close()
+
+    if not paths:
+        raise NespmError(f"{out}: no chunk to assemble")
+    write_atomic(out, write)
+    return total
+
+
+__all__ = ["IDENTITY_KEY", "chunk_problem", "concat_parquet", "experiment_digest", "write_chunk"]

@@ -1,0 +1,231 @@
+"""The Monte Carlo experiment's specification: every option that determines its numbers, checked once.
+
+:class:`Spec` is what ``mc``, ``sweep``, ``run``, ``corrupt`` and the Python API run; :func:`validate`
+checks every option against its domain and the data before anything is written (one-line
+:class:`~nespm_cli.errors.NespmError`), resolves paths, per-track corrections and the filter tuning
+the filters will use. :func:`couple_filter` tells the filters the truth about the corruption (P0
+and Q from the injected errors): it lives here, not in the CLI, so the API and the CLI give the
+same numbers for the same options.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from nespm_cli.data.corrections import IDENTITY_AXES, Corrections, resolve
+from nespm_cli.data.corruption import CorruptionConfig, check_seed
+from nespm_cli.data.track import Track
+from nespm_cli.data.tracks import available_tracks, load_track, resolve_data_dir
+from nespm_cli.errors import NespmError
+from nespm_cli.experiments.inputs import prepared
+from nespm_cli.experiments.metrics import DivergenceRule
+from nespm_cli.filters import FilterConfig
+from nespm_cli.filters.adaptive import BIAS_MODES
+from nespm_cli.filters.registry import discover_plugins, filter_names, get_filter, load_plugin
+from nespm_cli.learn.noise_model import WINDOW, load_weights
+from nespm_cli.nav.synthesis import ImuTruth
+
+SCENARIOS = ("nominal", "outage")
+
+
+@dataclass(frozen=True)
+class Spec:
+    """Everything that determines an experiment's numbers (``jobs`` does not)."""
+
+    tracks: tuple = (5, 6)
+    runs: int = 100
+    filters: tuple = ("ekf", "ukf", "ukf-nespm")
+    scenario: str = "nominal"
+    seed: int = 0
+    chunk_size: int = 50
+    data_dir: str | None = None
+    imu: str = "synthetic"
+    dvl: str = "recorded"
+    dvl_lever_arm: tuple = (0.0, 0.0, 0.0)
+    dvl_r_std: float | None = None  # None: 0.02 synthetic, 0.1 recorded
+    outage_start: float = 180.0
+    outage_length: float = 20.0
+    imu_axes: str = IDENTITY_AXES  # recorded IMU axis mapping (data/corrections.py)
+    imu_time_offset: float = 0.0  # [s] recorded IMU stamp minus GT time
+    imu_time_drift: float = 0.0  # [s/s] growth of that offset with GT time (a clock-rate error)
+    dvl_time_offset: float = 0.0  # [s] DVL stamp minus GT time
+    window: str | None = None  # "START:END" [s] of the GT file time to use
+    corrections: str | None = None  # corrections.json (nespm check): per-track values of the four above
+    track_corrections: tuple = ()  # resolved by validate: ((track, Corrections), ...), what the runs use
+    divergence: DivergenceRule = field(default_factory=DivergenceRule)  # when a run counts as diverged
+    weights: str | None = None  # ProcessNet file of the adaptive filters; None: the packaged default
+    filter_plugins: tuple = ()  # user filter files or modules (docs/plugins.md), loaded before the filters run
+    corruption: CorruptionConfig = field(default_factory=CorruptionConfig)
+    filter_config: FilterConfig = field(default_factory=FilterConfig)
+
+    def as_dict(self) -> dict:
+        d = dataclasses.asdict(self)
+        d["tracks"] = list(self.tracks)
+        d["filters"] = list(self.filters)
+        return json.loads(json.dumps(d, default=list))
+
+
+def validate(spec: Spec) -> Spec:
+    """Check every option against the data; return the spec with ``data_dir`` resolved."""
+    check_domains(spec)
+    if spec.chunk_size < 1:
+        raise NespmError(f"--chunk-size must be at least 1, got {spec.chunk_size}")
+    spec = load_filters(spec)
+    for f in spec.filters:
+        if f not in filter_names():
+            raise NespmError(f"--filters: unknown filter {f!r}; choose from {', '.join(filter_names())}")
+    if len(set(spec.filters)) != len(spec.filters) or not spec.filters:
+        raise NespmError("--filters: give each filter once, at least one")
+    if spec.scenario not in SCENARIOS:
+        raise NespmError(f"--scenario: unknown scenario {spec.scenario!r}; choose from {', '.join(SCENARIOS)}")
+    if spec.imu not in ("synthetic", "recorded"):
+        raise NespmError(f"--imu: choose synthetic or recorded, got {spec.imu!r}")
+    if spec.dvl not in ("synthetic", "recorded"):
+        raise NespmError(f"--dvl: choose synthetic or recorded, got {spec.dvl!r}")
+    if spec.filter_config.time_update not in ("dvl", "imu"):
+        raise NespmError(f"--time-update: choose dvl or imu, got {spec.filter_config.time_update!r}")
+    fc = spec.filter_config
+    if fc.adaptive_bias not in BIAS_MODES:
+        raise NespmError(f"--adaptive-bias: choose {' or '.join(BIAS_MODES)}, got {fc.adaptive_bias!r}")
+    for flag, v in (("--tau", fc.tau), ("--tau-a", fc.tau_a), ("--tau-g", fc.tau_g)):
+        if v is not None and not (np.isfinite(v) and v > 0):
+            raise NespmError(f"{flag} must be a positive number of seconds, got {v:g}")
+    lo, hi = fc.q_clip
+    if not (np.isfinite(lo) and np.isfinite(hi) and 0 < lo <= 1 <= hi):
+        raise NespmError(f"--q-clip must satisfy 0 < low <= 1 <= high, got {lo:g} {hi:g}")
+    adaptive = any(needs_noise_std(f) for f in spec.filters)
+    if adaptive:
+        load_weights(spec.weights)  # a missing or foreign file fails now, in one line
+    elif spec.weights:
+        raise NespmError(f"--weights {spec.weights}: only the adaptive filters (anekf, anukf, anukf-nespm) use "
+                         "ProcessNet weights, and none is in --filters; drop --weights or add one")
+    d = resolve_data_dir(spec.data_dir)
+    have = available_tracks(d)
+    for n in spec.tracks:
+        if n not in have:
+            where = d if d is not None else "the embedded default"
+            raise NespmError(f"--tracks: no track {n} in {where}; available: {', '.join(map(str, have))}")
+    for n in spec.tracks:
+        load_track(n, d)  # validates every file up front
+    spec = dataclasses.replace(spec, data_dir=str(Path(d).resolve()) if d is not None else None,
+                               corrections=str(Path(spec.corrections).expanduser().resolve()) if spec.corrections else None,
+                               weights=(str(Path(spec.weights).expanduser().resolve())
+                                        if spec.weights and Path(spec.weights).expanduser().is_file() else spec.weights))
+    spec = dataclasses.replace(spec, track_corrections=resolve_corrections(spec))
+    durations = {n: track_inputs(spec, n)[0].duration
+                 for n in spec.tracks}
+    if adaptive and spec.imu == "recorded":  # one network window per DVL interval
+        for n in spec.tracks:
+            steps = np.diff(track_inputs(spec, n)[1].epoch_index)
+            if not np.all(steps >= WINDOW):
+                raise NespmError(f"--imu recorded: track {n} has {int(steps.min())}-{int(steps.max())} IMU steps "
+                                 f"per DVL interval; the adaptive filters need at least {WINDOW}")
+    if spec.scenario == "outage":
+        if spec.outage_length <= 0 or spec.outage_start <= 0:
+            raise NespmError("--outage-start and --outage-length must be positive")
+        for n in spec.tracks:
+            dur = durations[n]
+            if spec.outage_start + spec.outage_length > dur:
+                raise NespmError(
+                    f"--outage-start {spec.outage_start:g} + --outage-length {spec.outage_length:g} s "
+                    f"ends past track {n}'s end ({dur:.1f} s)"
+                )
+    return dataclasses.replace(spec, filter_config=filter_config(spec))  # what the filters use, recorded as such
+
+
+MAX_LEVER_ARM = 100.0  # [m] a DVL farther than this from the INS is a units or sign mistake
+
+
+def check_domains(spec: Spec) -> None:
+    """Every option's domain, before anything is read or written (one-line NespmError)."""
+    def finite(x) -> bool:
+        return x is not None and np.isfinite(x)
+
+    if spec.runs < 1:
+        raise NespmError(f"--runs must be at least 1, got {spec.runs}")
+    check_seed(spec.seed)
+    if len(set(spec.tracks)) != len(spec.tracks):
+        dup = next(n for n in spec.tracks if list(spec.tracks).count(n) > 1)
+        raise NespmError(f"--tracks: track {dup} is given more than once")
+    if any(n < 1 for n in spec.tracks):
+        raise NespmError(f"--tracks: track numbers are positive, got {min(spec.tracks)}")
+    fc = spec.filter_config
+    if not (finite(fc.alpha) and 0 < fc.alpha <= 1):
+        raise NespmError(f"--alpha must satisfy 0 < alpha <= 1 (the UKF's sigma-point spread), got {fc.alpha:g}")
+    if spec.dvl_r_std is not None and not (finite(spec.dvl_r_std) and spec.dvl_r_std > 0):
+        raise NespmError(f"--dvl-r-std must be a positive std [m/s], got {spec.dvl_r_std:g}")
+    for flag, v in (("--acc-bias-rw", fc.acc_bias_rw), ("--gyro-bias-rw", fc.gyro_bias_rw)):
+        if not (finite(v) and v >= 0):
+            raise NespmError(f"{flag} must be a finite random walk >= 0, got {v:g}")
+    lever = np.asarray(spec.dvl_lever_arm, dtype=float)
+    if lever.shape != (3,) or not np.all(np.isfinite(lever)) or np.abs(lever).max() > MAX_LEVER_ARM:
+        raise NespmError(f"--dvl-lever-arm must be three finite numbers within +-{MAX_LEVER_ARM:g} m, "
+                         f"got {' '.join(f'{x:g}' for x in lever.ravel())}")
+    for flag, v in (("--outage-start", spec.outage_start), ("--outage-length", spec.outage_length)):
+        if not finite(v):
+            raise NespmError(f"{flag} must be a finite number of seconds, got {v:g}")
+    d = spec.divergence
+    for flag, v in (("--diverge-att-deg", d.att_deg), ("--diverge-nees", d.nees), ("--diverge-window", d.window_s)):
+        if not (finite(v) and v > 0):
+            raise NespmError(f"{flag} must be a positive number, got {v:g}")
+    if not (finite(d.after_s) and d.after_s >= 0):
+        raise NespmError(f"--diverge-after must be a number of seconds >= 0, got {d.after_s:g}")
+
+
+def load_filters(spec: Spec) -> Spec:
+    """Import the spec's filter plugins and the installed ``nespm.filters`` entry points (in the
+    parent and again in every worker; idempotent); return the spec with plugin files as
+    absolute paths (module names stay as given)."""
+    discover_plugins()
+    plugins = []
+    for p in spec.filter_plugins:
+        load_plugin(p)
+        path = Path(str(p)).expanduser()
+        plugins.append(str(path.resolve()) if path.is_file() else str(p))
+    return dataclasses.replace(spec, filter_plugins=tuple(plugins))
+
+
+def needs_noise_std(name: str) -> bool:
+    """Whether filter ``name`` takes the ProcessNet noise std (the adaptive filters)."""
+    return bool(get_filter(name).needs_noise_std)
+
+
+def resolve_corrections(spec: Spec) -> tuple:
+    """``((track, Corrections), ...)`` for every track of ``spec`` (:func:`corrections.resolve`)."""
+    per = resolve(spec.tracks, spec.imu, spec.corrections, spec.imu_axes, spec.imu_time_offset,
+                  spec.dvl_time_offset, spec.window, spec.imu_time_drift)
+    return tuple(per.items())
+
+
+def corrections_for(spec: Spec, number: int) -> Corrections:
+    """The corrections track ``number`` runs with (resolved by :func:`validate`)."""
+    if spec.track_corrections:
+        return dict(spec.track_corrections)[number]
+    return dict(resolve_corrections(dataclasses.replace(spec, tracks=(number,))))[number]
+
+
+def track_inputs(spec: Spec, number: int) -> tuple[Track, ImuTruth]:
+    """Track ``number`` as ``spec`` runs it (its corrections applied) and its IMU-rate truth and
+    IMU (:func:`nespm_cli.experiments.inputs.prepared`: read once per process)."""
+    return prepared(number, spec.data_dir, spec.imu, corrections_for(spec, number))
+
+
+def filter_config(spec: Spec) -> FilterConfig:
+    r = spec.dvl_r_std if spec.dvl_r_std is not None else (0.02 if spec.dvl == "synthetic" else 0.1)
+    return dataclasses.replace(spec.filter_config, dvl_std=r, lever_arm=tuple(spec.dvl_lever_arm))
+
+
+def couple_filter(fcfg: FilterConfig, corr: CorruptionConfig) -> FilterConfig:
+    """The filter told the truth about the corruption: P0 from the initial-error and bias
+    std, Q's white noise from the injected per-sample noise (docs/filters.md)."""
+    att = [corr.misalignment_deg] * 3
+    if corr.heading_deg is not None:
+        att[2] = corr.heading_deg
+    return dataclasses.replace(
+        fcfg, p0_vel=(corr.vel_h_std, corr.vel_h_std, corr.vel_v_std), p0_att_deg=tuple(att),
+        p0_acc_bias=corr.acc_bias, p0_gyro_bias=corr.gyro_bias, acc_noise=corr.acc_noise,
+        gyro_noise=corr.gyro_noise)
