@@ -2,7 +2,7 @@
 
 Written only against nespm's public filter protocol (docs/plugins.md):
 ``nespm_cli.filters.protocol`` (the base class and its helpers), ``nespm_cli.filters.registry``
-(``register``) and ``nespm_cli.filters.measurements`` (the measurement interface).
+(``register``) and ``nespm_cli.sensors`` (the measurement interface).
 
 Run it beside the EKF::
 
@@ -10,7 +10,7 @@ Run it beside the EKF::
 
 The filter (Arasaratnam & Haykin 2009, third-degree spherical-radial cubature rule):
 
-* n = 12 error states; 2n cubature points ``ξ_i = ±√n · L[:, i]`` with ``P = L Lᵀ``
+* n error states (12 by default, any ``--state`` layout); 2n cubature points ``ξ_i = ±√n · L[:, i]`` with ``P = L Lᵀ``
   (the i-th column of the Cholesky factor), every weight ``1 / (2n)``; no centre point, no
   tuning parameters (unlike the scaled UT's α, β, κ).
 * Error-state, closed loop like the built-ins: the state mean is zero between steps, the
@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from nespm_cli.filters.measurements import Measurement
+from nespm_cli.sensors import Measurement
 from nespm_cli.filters.protocol import ErrorStateFilter
 from nespm_cli.filters.registry import register
 
@@ -60,10 +60,10 @@ class CubatureKF(ErrorStateFilter):
         self.feedback(m)
         self.symmetrize()
 
-    def update(self, measurement: Measurement, j_last: int) -> None:
+    def update(self, measurement: Measurement, j_last: int):
         nav = self.state()
         nu = measurement.innovation(nav)  # (R, m)
-        X = cubature_points(self.cholesky())  # (R, 2n, 12)
+        X = cubature_points(self.cholesky())  # (R, 2n, n)
         dz = measurement.h(X, nav)  # (R, 2n, m)
         mx, Dx = cubature_moments(X)
         mz, Dz = cubature_moments(dz)
@@ -75,3 +75,4 @@ class CubatureKF(ErrorStateFilter):
         self.P = self.P - K @ S @ np.swapaxes(K, -1, -2)
         self.symmetrize()
         self.feedback(x)
+        return nu - mz, S  # the innovation and its covariance, for the NIS

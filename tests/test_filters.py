@@ -25,7 +25,8 @@ from nespm_cli.data.embedded import embedded_track
 from nespm_cli.experiments.mc import simulate
 from nespm_cli.experiments.spec import Spec
 from nespm_cli.filters import FilterConfig, NavState, initial_nav, run_filter
-from nespm_cli.filters.model import dvl_H, dvl_h
+from nespm_cli.nav.state import LAYOUT_12
+from nespm_cli.sensors.dvl import dvl_H, dvl_h
 from nespm_cli.filters.unscented import UTWeights, moments, sigma_offsets
 from nespm_cli.experiments.metrics import epoch_errors, run_metrics
 from nespm_cli.nav.rotations import exp_so3
@@ -184,9 +185,9 @@ def test_dvl_H_is_jacobian_of_dvl_h():
     step = 1e-6
     X = np.concatenate([np.eye(12), -np.eye(12)])[None] * step  # (1, 24, 12)
     X = np.broadcast_to(X, (4, 24, 12))
-    hz = dvl_h(X, nav, lever)  # (B, 24, 3)
+    hz = dvl_h(X[..., 0:3], X[..., 3:6], X[..., 9:12], nav, lever)  # (B, 24, 3)
     H_fd = np.swapaxes((hz[:, :12] - hz[:, 12:]) / (2 * step), -1, -2)  # (B, 3, 12)
-    H = dvl_H(nav, lever)
+    H = dvl_H(nav, lever, LAYOUT_12)
     # central differences: truncation ~ step²·|v| (1e-12), round-off ~ eps·|H| (1e-16);
     # measured 5e-13. A wrong entry, sign or lever-arm term would be O(0.1-1).
     assert np.abs(H_fd - H).max() < 1e-9, np.abs(H_fd - H).max()
@@ -209,7 +210,7 @@ def test_dvl_h_matches_full_model():
 
     expected = h(x) - h(np.zeros_like(x))
     # both forms in double precision on |v| ~ 2-6 m/s: measured 1.2e-15
-    assert np.abs(dvl_h(x, nav, lever) - expected).max() < 1e-13
+    assert np.abs(dvl_h(x[..., 0:3], x[..., 3:6], x[..., 9:12], nav, lever) - expected).max() < 1e-13
 
 
 # --- 3. clean case ----------------------------------------------------------------------------

@@ -70,8 +70,7 @@ def test_ckf_example_registers(ckf_module):
 def test_ckf_example_uses_only_the_public_protocol():
     src = CKF.read_text()
     imports = [ln.split()[1] for ln in src.splitlines() if ln.startswith(("from nespm_cli", "import nespm_cli"))]
-    assert sorted(imports) == ["nespm_cli.filters.measurements", "nespm_cli.filters.protocol",
-                               "nespm_cli.filters.registry"]
+    assert sorted(imports) == ["nespm_cli.filters.protocol", "nespm_cli.filters.registry", "nespm_cli.sensors"]
     assert "import _" not in src and ", _" not in src
 
 

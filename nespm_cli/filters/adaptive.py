@@ -45,8 +45,9 @@ def valid_std(std: np.ndarray, nominal: float, clip: tuple[float, float]) -> np.
 
 
 def adaptive_q(std_a: np.ndarray, std_g: np.ndarray, C_bn: np.ndarray, cfg, dt_imu: float,
-               span: float) -> np.ndarray:
-    """Discrete process noise (B, 12, 12) of one time update, eqs 43-48.
+               span: float, layout=None) -> np.ndarray:
+    """Discrete process noise (B, n, n) of one time update, eqs 43-48, for ``layout`` (a
+    :class:`nespm_cli.nav.state.StateLayout`; None: ``cfg.layout``); position has none.
 
     Args:
         std_a, std_g: (B, 3) network noise std per IMU sample [m/s², rad/s], any values.
@@ -73,12 +74,18 @@ def adaptive_q(std_a: np.ndarray, std_g: np.ndarray, C_bn: np.ndarray, cfg, dt_i
     else:
         q_ba = cfg.acc_bias_rw**2 * span * (sa / cfg.acc_noise) ** 2
         q_bg = cfg.gyro_bias_rw**2 * span * (sg / cfg.gyro_noise) ** 2
+    lay = cfg.layout if layout is None else layout
     B = sa.shape[:-1]
-    Q = np.zeros(B + (12, 12))
+    Q = np.zeros(B + (lay.n, lay.n))
     Ct = np.swapaxes(C_bn, -1, -2)
-    Q[..., 0:3, 0:3] = (C_bn * q_v[..., None, :]) @ Ct  # eq 48: C diag(q_v) Cᵀ
-    Q[..., 3:6, 3:6] = (C_bn * q_psi[..., None, :]) @ Ct
+    V, A = lay.slice("vel"), lay.slice("att")
+    Q[..., V, V] = (C_bn * q_v[..., None, :]) @ Ct  # eq 48: C diag(q_v) Cᵀ
+    Q[..., A, A] = (C_bn * q_psi[..., None, :]) @ Ct
     idx = np.arange(3)
-    Q[..., 6 + idx, 6 + idx] = q_ba
-    Q[..., 9 + idx, 9 + idx] = q_bg
+    if lay.has("ba"):
+        i = lay.offset("ba") + idx
+        Q[..., i, i] = q_ba
+    if lay.has("bg"):
+        i = lay.offset("bg") + idx
+        Q[..., i, i] = q_bg
     return 0.5 * (Q + np.swapaxes(Q, -1, -2))

@@ -1,10 +1,10 @@
 """``ckf`` and ``ckf-nespm``: error-state cubature Kalman filters (:mod:`.cubature`).
 
-Third-degree spherical-radial rule (Arasaratnam & Haykin 2009): 2n = 24 points
+Third-degree spherical-radial rule (Arasaratnam & Haykin 2009): 2n points (24 for the 12 states)
 ``±√n · L[:, i]`` (``P = L Lᵀ``), every weight ``1/(2n)``, no centre point, no tuning
 (``cfg.alpha``, ``beta``, ``kappa`` are not used). Closed loop like the other built-ins:
-the state ``x = [dv (m/s), dpsi (rad), b_a (m/s²), b_g (rad/s)]`` (R, 12) is zero between
-steps and the points are offsets (R, 24, 12) around the navigation solution.
+the state (any layout; the papers' ``x = [dv (m/s), dpsi (rad), b_a (m/s²), b_g (rad/s)]``,
+(R, 12)) is zero between steps and the points are offsets (R, 2n, n) around the navigation solution.
 
 * ``ckf``: the points go through the same linearised transition Φ = Π (I + F dt) as the
   ``ekf`` and ``ukf``; the rule is exact for a linear map, so its prediction is the EKF's
@@ -33,7 +33,7 @@ class CubatureRule:
     """The third-degree spherical-radial point set for the sigma-point filters of :mod:`.ukf`."""
 
     def offsets(self, L: np.ndarray) -> np.ndarray:
-        """The 2n cubature offsets (R, 2n, 12) ``±√n L[:, i]``."""
+        """The 2n cubature offsets (R, 2n, n) ``±√n L[:, i]``."""
         return cubature_offsets(L)
 
     def point_moments(self, dx: np.ndarray, dz: np.ndarray | None = None):

@@ -1,7 +1,8 @@
 """``ekf``: linearised error-state Kalman filter.
 
 Time update: Φ = Π (I + F dt) accumulated at the IMU rate over the span, ``P ← Φ P Φᵀ + Q``.
-Measurement update: the measurement's Jacobian H (DVL: eq 33 at x = 0), Joseph form.
+Measurement update: the measurement's Jacobian H (DVL: eq 33 at x = 0), Joseph form, one
+measurement at a time.
 """
 from __future__ import annotations
 
@@ -25,5 +26,7 @@ class EKF(ErrorStateFilter):
 
     def update(self, measurement, j_last: int) -> None:
         nav = self.nav
-        x, self.P = joseph_update(self.P, measurement.H(nav), measurement.innovation(nav), measurement.R)
+        nu = measurement.innovation(nav)
+        x, self.P, S = joseph_update(self.P, measurement.H(nav), nu, measurement.R)
         self.feedback(x)
+        return nu, S

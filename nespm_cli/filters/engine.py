@@ -1,28 +1,37 @@
-"""Closed-loop INS/DVL filtering of a batch of Monte Carlo runs: the generic loop.
+"""Closed-loop INS filtering of a batch of Monte Carlo runs: the generic loop over merged sensor times.
 
-One loop over time (DVL intervals, and IMU steps inside them); every operation inside is
-batched over the runs (and the sigma points). The filters are classes of the filter
-protocol (:mod:`nespm_cli.filters.protocol`) looked up by name in the registry
-(:mod:`nespm_cli.filters.registry`); this module knows none of them by name. Built-ins:
+One loop over time; every operation inside is batched over the runs (and the sigma points). The
+filters are classes of the filter protocol (:mod:`nespm_cli.filters.protocol`) looked up by name
+in the registry (:mod:`nespm_cli.filters.registry`); the measurements come from sensor channels
+(:class:`nespm_cli.sensors.source.Channel`); this module knows neither a filter nor a sensor by
+name. Built-in filters:
 
-* ``ins`` (:mod:`.ins`): free inertial, no DVL update (no covariance).
+* ``ins`` (:mod:`.ins`): free inertial, no measurement update (no covariance).
 * ``ekf`` (:mod:`.ekf`): Φ = Π (I + F dt) over the time-update span, ``P ← Φ P Φᵀ + Q``;
-  linearised DVL update (H of eq 33), Joseph form.
+  linearised update (the measurement's H), Joseph form.
 * ``ukf``, ``ukf-nespm`` (:mod:`.ukf`): sigma points through the same Φ (anukf.md eqs
-  5-23), or each through the full strapdown (eqs 35-40); nonlinear DVL model (eq 33).
+  5-23), or each through the full strapdown (eqs 35-40); the measurement's nonlinear model.
 * ``anekf``, ``anukf``, ``anukf-nespm`` (:mod:`.adaptive_filters`): the same three with Q
-  from the ProcessNet noise std of each DVL interval (anukf.md eqs 43-49).
-* ``ckf``, ``ckf-nespm`` (:mod:`.ckf`): cubature Kalman filters (2n points, no tuning), the
-  points through Φ or each through the full strapdown.
-* ``iekf`` (:mod:`.iekf`): right-invariant EKF with bias states (docs/iekf.md).
+  from the ProcessNet noise std of each GT interval (anukf.md eqs 43-49).
+* ``ckf``, ``ckf-nespm`` (:mod:`.ckf`): cubature Kalman filters (2n points, no tuning).
+* ``iekf`` (:mod:`.iekf`): right-invariant EKF with bias states (docs/iekf.md; 12 states).
 
-After every time update and every DVL update the estimate is fed back into the
-navigation solution and bias compensation (closed loop), so the state mean is zero
-between steps and every sigma set is centred on the navigation solution.
+Time: the event times are the GT epochs (where the solution is recorded) merged with every
+channel's measurement times. A measurement between two IMU samples splits that IMU step there
+(both parts take the step's reading, as a recorded IMU is split at the GT epochs), so no
+measurement is moved in time. Between two events the filter propagates over one span
+(``time_update dvl``, the papers' "cycle") or step by step (``imu``). At an event the
+measurements are applied one after another, in the order of the channels (``--sensors``), each
+on the posterior of the previous one (sequential updates; for independent noises this is the
+stacked update). A measurement missing in some runs (a dropout) is applied to the others only.
+
+After every time update and every measurement the estimate is fed back into the navigation
+solution and bias compensation (closed loop), so the state mean is zero between steps.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+import os
+from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
@@ -35,43 +44,73 @@ from nespm_cli.filters import ukf  # noqa: F401
 from nespm_cli.filters import adaptive_filters  # noqa: F401
 from nespm_cli.filters import ckf  # noqa: F401
 from nespm_cli.filters import iekf  # noqa: F401
-from nespm_cli.filters.measurements import DvlMeasurement
 from nespm_cli.filters.model import FilterConfig, NavState
 from nespm_cli.filters.protocol import ImuData
 from nespm_cli.filters.registry import filter_names, filter_source, get_filter
-from nespm_cli.nav.earth import radii, transport_rates
+from nespm_cli.filters.timeline import Timeline, dvl_channel
+from nespm_cli.sensors.source import Channel, Context
 
 #: the built-in filters' names (plugins: :func:`nespm_cli.filters.registry.filter_names`)
 FILTERS = filter_names(builtin_only=True)
 
 
 @dataclass
-class FilterOutput:
-    """Per-epoch posterior of R runs at N GT epochs.
+class SensorRecord:
+    """What one sensor's channel did in a filter, at its K measurement times: ``t`` (K,) [s since
+    the first epoch]; ``used`` (R, K) whether the update was applied; ``nu`` (R, K, m) the
+    innovation and ``S`` (R, K, m, m) its covariance where the filter reports them (NaN otherwise)."""
 
-    ``pos`` (R, N, 3), ``v_n`` (R, N, 3), ``C_bn`` (R, N, 3, 3); ``P6`` (R, N, 6, 6) the
-    [dv, dpsi] block and ``P_diag`` (R, N, 12) of the covariance (NaN for ``ins``);
-    ``b_a``, ``b_g`` (R, N, 3) bias compensation; ``diverged`` (R,); ``dvl_used`` (N,);
-    ``noise_std`` the adaptive filters' network std ``(std_a, std_g)`` (R, N-1, 3), else None.
+    t: np.ndarray
+    used: np.ndarray
+    nu: np.ndarray
+    S: np.ndarray
+
+    def nis(self) -> np.ndarray:
+        """(R, K) normalised innovation squared ``νᵀ S⁻¹ ν`` (NaN where not applied)."""
+        with np.errstate(all="ignore"):
+            ok = np.isfinite(self.S).all(axis=(-2, -1))
+            S = np.where(ok[..., None, None], self.S, np.eye(self.S.shape[-1]))
+            sol = np.linalg.solve(S, np.where(ok[..., None], self.nu, 0.0)[..., None])[..., 0]
+            return np.where(ok, (self.nu * sol).sum(axis=-1), np.nan)
+
+
+@dataclass
+class FilterOutput:
+    """Per-epoch posterior of R runs at N GT epochs, error state of ``layout`` (n states).
+
+    ``pos`` (R, N, 3), ``v_n`` (R, N, 3), ``C_bn`` (R, N, 3, 3); ``P`` (R, N, n, n) the covariance
+    (NaN for ``ins``), with ``P6`` (R, N, 6, 6) its [dv, dpsi] block and ``P_diag`` (R, N, n) its
+    diagonal; ``b_a``, ``b_g`` (R, N, 3) bias compensation; ``diverged`` (R,); ``dvl_used`` (N,)
+    whether a DVL update was applied at each epoch (in any run); ``sensors`` the
+    :class:`SensorRecord` of each sensor by name; ``noise_std`` the adaptive filters' network std
+    ``(std_a, std_g)`` (R, N-1, 3), else None.
     """
 
     pos: np.ndarray
     v_n: np.ndarray
     C_bn: np.ndarray
-    P6: np.ndarray
-    P_diag: np.ndarray
+    P: np.ndarray
     b_a: np.ndarray
     b_g: np.ndarray
     diverged: np.ndarray
     dvl_used: np.ndarray
+    layout: str = "12"
+    sensors: dict = field(default_factory=dict)
     noise_std: tuple | None = None
 
+    @property
+    def P6(self) -> np.ndarray:
+        """(R, N, 6, 6) the covariance of the velocity and attitude blocks."""
+        from nespm_cli.nav.state import parse_layout
 
-def _w_nb(nav: NavState, w_ib_comp: np.ndarray) -> np.ndarray:
-    """Body rate relative to NED (B, 3) from the compensated gyro output."""
-    R_N, R_E = radii(nav.pos[..., 0])
-    w_ie, w_en = transport_rates(nav.pos[..., 0], nav.pos[..., 2], nav.v_n, R_N, R_E)
-    return w_ib_comp - (np.swapaxes(nav.C_bn, -1, -2) @ (w_ie + w_en)[..., None])[..., 0]
+        lay = parse_layout(self.layout)
+        i = np.r_[lay.slice("vel"), lay.slice("att")]
+        return self.P[..., i[:, None], i]
+
+    @property
+    def P_diag(self) -> np.ndarray:
+        """(R, N, n) the variances of the states."""
+        return np.einsum("...ii->...i", self.P)
 
 
 def run_filter(
@@ -81,78 +120,115 @@ def run_filter(
     w_meas: np.ndarray,
     dt: np.ndarray,
     epoch_index: np.ndarray,
-    dvl: np.ndarray | None,
-    dvl_mask: np.ndarray,
-    nav0: NavState,
+    dvl: np.ndarray | None = None,
+    dvl_mask: np.ndarray | None = None,
+    nav0: NavState | None = None,
     noise_std: tuple[np.ndarray, np.ndarray] | None = None,
     progress: Callable[[int], None] | None = None,
+    channels: list[Channel] | None = None,
 ) -> FilterOutput:
     """Run one filter over a batch of runs.
 
     Args:
         kind: a registered filter name (``FILTERS`` or a plugin's, :func:`registry.filter_names`).
+        cfg: the tuning, with the error-state layout ``cfg.state``.
         f_meas, w_meas: (R, M, 3) corrupted IMU, step j from sample j to j+1.
         dt: (M,) step durations [s].
         epoch_index: (N,) IMU sample index of each GT epoch (starting at 0).
-        dvl: (R, N, 3) body-frame DVL velocity at the epochs [m/s].
-        dvl_mask: (N,) whether the DVL update is applied at each epoch (epoch 0 never).
+        dvl, dvl_mask: the papers' measurement, without ``channels``: (R, N, 3) body-frame DVL
+            velocity at the epochs [m/s] and (N,) whether it is applied (epoch 0 never), with
+            ``cfg.dvl_std`` and ``cfg.lever_arm``.
         nav0: initial navigation solution of the R runs.
         noise_std: for the adaptive filters, ``(std_a, std_g)`` each (R, N-1, 3): the
-            network's noise std per IMU sample in each DVL interval (``adaptive.predict_interval_std``).
-        progress: optional ``progress(k)``, called after each of the N-1 epoch intervals with
-            the number of intervals done (for a progress bar; it must not raise).
+            network's noise std per IMU sample in each GT interval (``adaptive.predict_interval_std``).
+        progress: optional ``progress(k)``, called each time the k-th GT interval is done.
+        channels: the sensors' measurements (:class:`nespm_cli.sensors.source.Channel`), applied
+            in this order at equal times; replaces ``dvl``/``dvl_mask``.
     """
     cls = get_filter(kind)
+    if nav0 is None:
+        raise NespmError("run_filter: nav0 (the initial solution) is required")
     if cls.needs_noise_std and noise_std is None:
         raise NespmError(f"filter {kind} needs the network noise std (noise_std)")
+    if cfg.time_update not in ("imu", "dvl"):
+        raise NespmError(f"--time-update: unknown mode {cfg.time_update!r}; choose imu or dvl")
+    if channels is None:
+        channels = [] if dvl is None else [dvl_channel(dvl, dvl_mask, cfg, dt, epoch_index)]
+    layout = cfg.layout
+    for ch in channels:
+        ch.sensor.check(layout)
     R, N = nav0.v_n.shape[0], len(epoch_index)
+    line = Timeline(dt, epoch_index, channels)
+    f_meas, w_meas, dt = line.expand(f_meas), line.expand(w_meas), line.dt
     call = guarded(kind, R)
     filt = call(cls, "__init__", cfg, nav0, ImuData(f_meas, w_meas, dt), noise_std)
     cov = cls.has_covariance
+    n = layout.n
     out = FilterOutput(
         pos=np.empty((R, N, 3)), v_n=np.empty((R, N, 3)), C_bn=np.empty((R, N, 3, 3)),
-        P6=np.full((R, N, 6, 6), np.nan), P_diag=np.full((R, N, 12), np.nan),
-        b_a=np.empty((R, N, 3)), b_g=np.empty((R, N, 3)), diverged=filt.diverged,
-        dvl_used=np.zeros(N, dtype=bool),
+        P=np.full((R, N, n, n), np.nan), b_a=np.empty((R, N, 3)), b_g=np.empty((R, N, 3)),
+        diverged=filt.diverged, dvl_used=np.zeros(N, dtype=bool), layout=layout.name,
+        sensors={ch.sensor.name: SensorRecord(ch.t, np.zeros(ch.ok.shape, dtype=bool),
+                                              np.full(ch.z.shape, np.nan),
+                                              np.full(ch.z.shape + (ch.z.shape[-1],), np.nan))
+                 for ch in channels},
     )
-    lever = np.asarray(cfg.lever_arm, dtype=float)
 
     def record(k):
-        n = call(filt.state, "state")
-        call(lambda: store(out, k, n), "state")
+        nav = call(filt.state, "state")
+        call(lambda: store(out, k, nav), "state")
         if cov:
             P = call(filt.covariance, "covariance")
-            if np.shape(P) != (R, 12, 12):
+            if np.shape(P) != (R, n, n):
                 raise NespmError(f"filter {kind} ({filter_source(kind)}): covariance() returned shape {np.shape(P)}, "
-                                 f"expected ({R}, 12, 12)")
-            out.P6[:, k] = P[:, :6, :6]
-            out.P_diag[:, k] = np.einsum("...ii->...i", P)
+                                 f"expected ({R}, {n}, {n}) for --state {layout.name}")
+            out.P[:, k] = P
 
-    def measurement(k, j_last):
-        """The DVL measurement of epoch ``k``, lever-arm rate from IMU step ``j_last``."""
+    def apply(c: int, i: int, j_last: int, epoch: int | None):
+        """Measurement ``i`` of channel ``c``, at the end of IMU step ``j_last``."""
+        ch = channels[c]
+        ok = ch.ok[:, i]
+        if not ok.any():
+            return
+        z = ch.z[:, i]
+        if not ok.all():  # rows without it get a valid run's value: finite, and undone after the update
+            z = np.where(ok[:, None], z, z[np.argmax(ok)])
         nav = call(filt.state, "state")
-        w_nb = _w_nb(nav, w_meas[:, j_last] - nav.b_g)
-        return DvlMeasurement(dvl[:, k], w_nb, lever, cfg.dvl_std)
+        ctx = Context(f_meas[:, j_last] - nav.b_a, w_meas[:, j_last] - nav.b_g)
+        meas = ch.sensor.measurement(z, nav, ctx, layout)
+        if ok.all():
+            res = call(filt.update, "update", meas, j_last)
+        elif hasattr(filt, "update_where"):
+            res = call(filt.update_where, "update", meas, j_last, ok)
+        else:
+            raise NespmError(f"filter {kind} ({filter_source(kind)}): a measurement of {ch.sensor.name} is missing "
+                             "in some runs, and the filter has no update_where (derive it from ErrorStateFilter)")
+        rec = out.sensors[ch.sensor.name]
+        rec.used[:, i] = ok
+        if res is not None:
+            nu, S = res
+            rec.nu[:, i] = np.where(ok[:, None], nu, np.nan)
+            rec.S[:, i] = np.where(ok[:, None, None], S, np.nan)
+        if epoch is not None and ch.sensor.name == "dvl":
+            out.dvl_used[epoch] = True
 
     imu_mode = cfg.time_update == "imu"
-    if cfg.time_update not in ("imu", "dvl"):
-        raise NespmError(f"--time-update: unknown mode {cfg.time_update!r}; choose imu or dvl")
     with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
         record(0)
-        for k in range(N - 1):
-            j0, j1 = int(epoch_index[k]), int(epoch_index[k + 1])
+        for a, b, k, epoch, todo in line.spans():
             if imu_mode:
-                for j in range(j0, j1):
+                for j in range(a, b):
                     call(filt.propagate, "propagate", j, j + 1, k)
             else:
-                call(filt.propagate, "propagate", j0, j1, k)
-            if cov and dvl_mask[k + 1]:
-                call(filt.update, "update", measurement(k + 1, j1 - 1), j1 - 1)
-                out.dvl_used[k + 1] = True
+                call(filt.propagate, "propagate", a, b, k)
+            if cov:
+                for c, i in todo:
+                    apply(c, i, b - 1, epoch)
             call(filt.check, "check")
-            record(k + 1)
-            if progress is not None:
-                progress(k + 1)
+            if epoch is not None:
+                record(epoch)
+                if progress is not None:
+                    progress(epoch)
     out.diverged = np.asarray(call(lambda: filt.diverged, "diverged"), dtype=bool).reshape(R)
     out.noise_std = filt.noise_std
     return out
@@ -168,7 +244,6 @@ def guarded(kind: str, R: int) -> Callable:
     """``call(fn, method, *args)``: ``fn(*args)``, with any exception of a filter's code turned into
     one line naming the filter, where it is defined and the method (``NESPM_DEBUG=1``: re-raised
     as it is, with its traceback)."""
-    import os
 
     def call(fn, method: str, *args):
         try:

@@ -24,67 +24,30 @@ first order, ``x = T(v_nav) ξ`` with ``δv = ρ − [v×] φ`` (:func:`common_f
 :meth:`IEKF.covariance` returns ``T P_inv Tᵀ``, so the engine's P6 / P_diag and the NEES are in
 the common coordinates like every other filter's.
 
-Public array-level functions: the filter uses :func:`invariant_dvl_H` (H_inv),
-:func:`invariant_retraction` (the feedback), :func:`common_from_invariant`,
-:func:`covariance_to_common`, :func:`covariance_to_invariant`, :func:`so3_left_jacobian` (F_inv is
-:func:`nespm_cli.filters.model.invariant_system_matrix`, compiled in
-:mod:`nespm_cli.filters.transition_kernel`); :func:`invariant_dvl_h` (the nonlinear DVL model in
-these coordinates), :func:`invariant_log` (the inverse of the retraction),
-:func:`invariant_from_common` and :func:`so3_left_jacobian_inverse` are the exact maps the tests
-check the Jacobians and the feedback against (tests/test_iekf.py).
+Public array-level functions: the filter uses :func:`invariant_retraction` (the feedback),
+:func:`common_from_invariant`, :func:`covariance_to_common` and :func:`covariance_to_invariant`
+(F_inv is :func:`nespm_cli.filters.model.invariant_system_matrix`, compiled in
+:mod:`nespm_cli.filters.transition_kernel`); a measurement gives its Jacobian in these
+coordinates where it has a closed form (``Measurement.H_invariant``: the DVL's,
+:mod:`nespm_cli.sensors.dvl`), else the filter uses ``H T``. :func:`invariant_log` (the inverse of
+the retraction) and :func:`invariant_from_common` are the exact maps the tests check the
+Jacobians and the feedback against (tests/test_iekf.py). The filter serves the 12-state layout
+only (``layouts``): another ``--state`` is refused in one line.
 """
 from __future__ import annotations
 
 import numpy as np
 
-from nespm_cli.filters.measurements import DvlMeasurement, Measurement
 from nespm_cli.filters.model import (BA, BG, DPSI, DV, N_STATES, FilterConfig, NavState, invariant_system_matrix,
                                      joseph_update)
 from nespm_cli.filters.protocol import ErrorStateFilter, ImuData
 from nespm_cli.filters.registry import register
-from nespm_cli.nav.rotations import exp_so3, exp_so3_minus_identity, log_so3, skew
-from nespm_cli.nav.strapdown import cross
-
-#: below this squared angle [rad²] the Jacobian coefficients use their series (exact to double
-#: precision: the first omitted term is θ⁸/3.6e6 ≈ 3e-23 relative)
-SERIES_TH2 = 1e-4
-
+from nespm_cli.nav.rotations import (exp_so3, exp_so3_minus_identity, log_so3, skew, so3_left_jacobian,
+                                     so3_left_jacobian_inverse)
+from nespm_cli.sensors.measurement import Measurement
 
 def _swap(A: np.ndarray) -> np.ndarray:
     return np.swapaxes(A, -1, -2)
-
-
-# --- SO(3) left Jacobian (the V matrix of the group exponential) ---------------------------------
-
-def so3_left_jacobian(phi: np.ndarray) -> np.ndarray:
-    """Left Jacobian of SO(3) ``J_l(φ) = I + (1 − cos θ)/θ² [φ×] + (θ − sin θ)/θ³ [φ×]²``.
-
-    ``phi`` (..., 3) [rad] -> (..., 3, 3). Series below θ = 0.01 rad, per element.
-    """
-    phi = np.asarray(phi, dtype=float)
-    th2 = (phi * phi).sum(axis=-1)
-    b = np.asarray(0.5 - th2 / 24.0 * (1.0 - th2 / 30.0 * (1.0 - th2 / 56.0)))
-    c = np.asarray(1.0 / 6.0 - th2 / 120.0 * (1.0 - th2 / 42.0 * (1.0 - th2 / 72.0)))
-    big = th2 >= SERIES_TH2
-    if big.any():
-        th = np.sqrt(th2[big])
-        b[big] = (1.0 - np.cos(th)) / th2[big]
-        c[big] = (th - np.sin(th)) / (th2[big] * th)
-    S = skew(phi)
-    return np.eye(3) + b[..., None, None] * S + c[..., None, None] * (S @ S)
-
-
-def so3_left_jacobian_inverse(phi: np.ndarray) -> np.ndarray:
-    """``J_l(φ)⁻¹ = I − ½ [φ×] + (1/θ² − (1 + cos θ)/(2 θ sin θ)) [φ×]²`` (..., 3, 3), |φ| < π."""
-    phi = np.asarray(phi, dtype=float)
-    th2 = (phi * phi).sum(axis=-1)
-    d = np.asarray(1.0 / 12.0 + th2 / 720.0 + th2 * th2 / 30240.0 + th2**3 / 1209600.0)
-    big = th2 >= SERIES_TH2
-    if big.any():
-        th = np.sqrt(th2[big])
-        d[big] = 1.0 / th2[big] - (1.0 + np.cos(th)) / (2.0 * th * np.sin(th))
-    S = skew(phi)
-    return np.eye(3) - 0.5 * S + d[..., None, None] * (S @ S)
 
 
 # --- the group: exponential (retraction) and logarithm ---------------------------------------------
@@ -163,34 +126,6 @@ def covariance_to_invariant(P: np.ndarray, v_n: np.ndarray) -> np.ndarray:
     return 0.5 * (P_inv + _swap(P_inv))
 
 
-# --- Jacobians ---------------------------------------------------------------------------------
-
-def invariant_dvl_h(X: np.ndarray, C_bn: np.ndarray, lever: np.ndarray) -> np.ndarray:
-    """DVL model (anukf.md eq 33) as its change from ξ = 0, for invariant points ``X`` (B, S, 12).
-
-    ``y = C_trueᵀ v_true + (ω_nb − b_g) × l`` with ``X_true = exp(ξ) X_nav``: since
-    ``exp(−[φ×]) J_l(φ) = J_l(−φ)`` (the right Jacobian), ``y(ξ) − y(0) = Cᵀ J_l(−φ) ρ + l × b_g``
-    (B, S, 3) — the right-invariant observation ``Y = X⁻¹ b`` of Barrau & Bonnabel (2017).
-    """
-    rho, phi, bg = X[..., DV], X[..., DPSI], X[..., BG]
-    v_b = (so3_left_jacobian(-phi) @ rho[..., None])[..., 0]
-    out = (_swap(C_bn)[..., None, :, :] @ v_b[..., None])[..., 0]
-    return out + cross(np.broadcast_to(lever, bg.shape), bg)
-
-
-def invariant_dvl_H(C_bn: np.ndarray, lever: np.ndarray) -> np.ndarray:
-    """Jacobian of :func:`invariant_dvl_h` at ξ = 0 (B, 3, 12): ``[Cᵀ, 0, 0, [l×]]``.
-
-    No attitude column: the attitude error enters only through ρ (= H_common T, with H_common
-    of :func:`nespm_cli.filters.model.dvl_H`). ``C_bn`` (B, 3, 3); ``lever`` (3,) [m].
-    """
-    B = C_bn.shape[:-2]
-    H = np.zeros(B + (3, N_STATES))
-    H[..., :, DV] = _swap(C_bn)
-    H[..., :, BG] = skew(np.broadcast_to(np.asarray(lever, dtype=float), B + (3,)))
-    return H
-
-
 # --- the filter ---------------------------------------------------------------------------------
 
 @register("iekf")
@@ -203,6 +138,9 @@ class IEKF(ErrorStateFilter):
     """
 
     invariant_error = True
+    per_run = ("P", "P_inv")
+    #: the layouts this filter serves (the SE₂(3) error with position is not built yet)
+    layouts = ("12",)
 
     def __init__(self, cfg: FilterConfig, nav0: NavState, imu: ImuData, noise_std=None):
         super().__init__(cfg, nav0, imu, noise_std)
@@ -221,18 +159,21 @@ class IEKF(ErrorStateFilter):
         self._sync()
 
     def measurement_jacobian(self, measurement: Measurement) -> np.ndarray:
-        """H_inv (R, m, 12): closed form for the DVL, else ``H_common T`` (chain rule)."""
-        if isinstance(measurement, DvlMeasurement):
-            return invariant_dvl_H(self.nav.C_bn, measurement.lever)
+        """H_inv (R, m, 12): the measurement's closed form where it has one (``H_invariant``; the
+        DVL's), else ``H_common T`` (chain rule)."""
+        H = measurement.H_invariant(self.nav)
+        if H is not None:
+            return H
         return measurement.H(self.nav) @ common_from_invariant(self.nav.v_n)
 
-    def update(self, measurement: Measurement, j_last: int) -> None:
+    def update(self, measurement: Measurement, j_last: int):
         nav = self.nav
         # the EKF's innovation z − h(X_nav) with the invariant Jacobian and covariance
-        xi, self.P_inv = joseph_update(self.P_inv, self.measurement_jacobian(measurement),
-                                       measurement.innovation(nav), measurement.R)
+        nu = measurement.innovation(nav)
+        xi, self.P_inv, S = joseph_update(self.P_inv, self.measurement_jacobian(measurement), nu, measurement.R)
         invariant_feedback(nav, xi)
         self._sync()
+        return nu, S
 
     def check(self) -> None:
         new = ~self.bad.copy()
@@ -243,6 +184,5 @@ class IEKF(ErrorStateFilter):
 
 
 __all__ = ["IEKF", "common_from_invariant", "covariance_to_common", "covariance_to_invariant",
-           "invariant_dvl_H", "invariant_dvl_h", "invariant_feedback", "invariant_from_common",
-           "invariant_log", "invariant_retraction", "invariant_system_matrix", "so3_left_jacobian",
-           "so3_left_jacobian_inverse"]
+           "invariant_feedback", "invariant_from_common", "invariant_log", "invariant_retraction",
+           "invariant_system_matrix"]

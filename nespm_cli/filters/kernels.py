@@ -34,6 +34,7 @@ from typing import Iterator
 import numpy as np
 
 from nespm_cli.errors import NespmError
+from nespm_cli.nav.state import LAYOUT_12, LAYOUT_15, StateLayout
 
 MODES = ("auto", "numba", "numpy")
 ENV = "NESPM_KERNELS"
@@ -105,30 +106,36 @@ def strapdown(pos, v_n, C_bn, b_a, b_g, f, w, dt, j0: int, j1: int) -> None:
     nk.strapdown_span(pos, v_n, C_bn, b_a, b_g, _f64(f), _f64(w), _f64(dt), j0, j1)
 
 
-def transition(pos, v_n, C_bn, b_a, b_g, f, w, dt, j0: int, j1: int, invariant: bool = False) -> np.ndarray:
-    """Steps ``[j0, j1)`` in place as :func:`strapdown`, returning Φ (R, 12, 12) = Π (I + F dt),
-    F (:func:`nespm_cli.filters.model.system_matrix`, or with ``invariant`` the right-invariant
-    :func:`nespm_cli.filters.model.invariant_system_matrix`) on the solution before each step."""
+def transition(pos, v_n, C_bn, b_a, b_g, f, w, dt, j0: int, j1: int, invariant: bool = False,
+               layout: StateLayout = LAYOUT_12) -> np.ndarray:
+    """Steps ``[j0, j1)`` in place as :func:`strapdown`, returning Φ (R, n, n) = Π (I + F dt) of
+    ``layout``, F (:func:`nespm_cli.filters.model.system_matrix`, or with ``invariant`` the
+    right-invariant :func:`nespm_cli.filters.model.invariant_system_matrix`, 12 states) on the
+    solution before each step."""
     from nespm_cli.filters import transition_kernel as tk
 
-    Phi = np.empty((pos.shape[0], 12, 12))
-    tk.transition_span(pos, v_n, C_bn, b_a, b_g, _f64(f), _f64(w), _f64(dt), j0, j1, Phi, bool(invariant))
+    Phi = np.empty((pos.shape[0], layout.n, layout.n))
+    tk.transition_span(pos, v_n, C_bn, b_a, b_g, _f64(f), _f64(w), _f64(dt), j0, j1, Phi, bool(invariant),
+                       layout.offsets())
     return Phi
 
 
-def points_through_cycle(pos, v_n, C_bn, b_a, b_g, X, f, w, dt, j0: int, j1: int):
-    """The mean (point 0) and the offsets ``X`` (R, S-1, 12) of each run through steps ``[j0, j1)``.
+def points_through_cycle(pos, v_n, C_bn, b_a, b_g, X, f, w, dt, j0: int, j1: int,
+                         layout: StateLayout = LAYOUT_12):
+    """The mean (point 0) and the offsets ``X`` (R, S-1, n) of each run through steps ``[j0, j1)``.
 
-    Point s starts at ``pos``, ``v_n + dv``, ``exp([dpsi x]) C_bn`` (eqs 35-37) and uses the IMU
-    minus ``b_a + δb_a``, ``b_g + δb_g`` (eq 38). Returns ``(pos, v, C)`` (R, S, 3), (R, S, 3),
-    (R, S, 3, 3); nothing is modified in place.
+    Point s starts at ``pos ⊕ dp`` (``pos`` without a position block), ``v_n + dv``,
+    ``exp([dpsi x]) C_bn`` (eqs 35-37) and uses the IMU minus ``b_a + δb_a``, ``b_g + δb_g`` (eq 38).
+    Returns ``(pos, v, C, dp)`` (R, S, 3), (R, S, 3), (R, S, 3, 3), (R, S, 3): ``dp`` each point's
+    position offset from point 0, NED [m] (its ``dp`` plus the integral of its velocity offset);
+    nothing is modified in place.
     """
     from nespm_cli.filters import transition_kernel as tk
 
     R, S = X.shape[0], X.shape[1] + 1
-    out = np.empty((R, S, 3)), np.empty((R, S, 3)), np.empty((R, S, 3, 3))
+    out = np.empty((R, S, 3)), np.empty((R, S, 3)), np.empty((R, S, 3, 3)), np.empty((R, S, 3))
     tk.points_span(pos, v_n, C_bn, b_a, b_g, np.ascontiguousarray(X, dtype=float),
-                   _f64(f), _f64(w), _f64(dt), j0, j1, *out)
+                   _f64(f), _f64(w), _f64(dt), j0, j1, *out, layout.offsets())
     return out
 
 
@@ -148,5 +155,6 @@ def warm_up() -> float:
     strapdown(pos.copy(), v.copy(), C.copy(), b, b, f, w, dt, 0, M)
     for invariant in (False, True):
         transition(pos.copy(), v.copy(), C.copy(), b, b, f, w, dt, 0, M, invariant)
-    points_through_cycle(pos, v, C, b, b, np.zeros((R, 24, 12)), f, w, dt, 0, M)
+    for layout in (LAYOUT_12, LAYOUT_15):
+        points_through_cycle(pos, v, C, b, b, np.zeros((R, 2 * layout.n, layout.n)), f, w, dt, 0, M, layout)
     return time.perf_counter() - t0

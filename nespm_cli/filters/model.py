@@ -1,30 +1,35 @@
-"""The 12-state INS/DVL error-state model shared by every filter.
+"""The INS error-state model shared by every filter, for any layout of blocks.
 
-Error state (ukf-nespm.md eq 33, anukf.md eq 24), ``x = [dv (0:3), dpsi (3:6), b_a (6:9), b_g (9:12)]``:
+Error state: the blocks of a :class:`~nespm_cli.nav.state.StateLayout` (``FilterConfig.state``,
+``--state``). The papers' 12-state layout (ukf-nespm.md eq 33, anukf.md eq 24) is
+``x = [dv (0:3), dpsi (3:6), b_a (6:9), b_g (9:12)]``; the 15-state one puts the position
+first, ``[dp (0:3), dv, dpsi, b_a, b_g]``:
 
+* ``dp``   = truth ⊖ nav position, NED [m] (:func:`nespm_cli.nav.earth.ned_offset`);
 * ``dv``   = v_true − v_nav, NED [m/s];
 * ``dpsi`` = C_true ⊖ C_nav = log(C_true C_nav^T), nav frame [rad];
 * ``b_a``, ``b_g`` = residual biases still in the compensated IMU, body frame
   [m/s², rad/s]: f_true = f_meas − b̂_a − b_a.
 
 So ``x`` is the correction: ``nav ⊕ x = truth``. After each update the estimate is fed
-back (``feedback``) and reset to zero (closed loop).
+back (``feedback``) and reset to zero (closed loop). ``N_STATES``, ``DV``, ``DPSI``, ``BA`` and
+``BG`` are the slices of the 12-state layout, the only one the ``iekf`` serves so far.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
 from nespm_cli.data.corruption import NOMINAL_ACC_NOISE, NOMINAL_GYRO_NOISE
 from nespm_cli.learn.processnet import VALIDITY_CLIP
-from nespm_cli.nav.dvl import dvl_velocity
-from nespm_cli.nav.earth import d_w_en_d_v, gravity_n, radii, transport_rates
-from nespm_cli.nav.rotations import attitude_plus, exp_so3, exp_so3_minus_identity, skew
-from nespm_cli.nav.strapdown import cross
+from nespm_cli.nav.earth import d_w_en_d_v, gravity_down_gradient, gravity_n, radii, transport_rates
+from nespm_cli.nav.rotations import exp_so3, skew
+from nespm_cli.nav.state import LAYOUT_12, NavState, StateLayout, parse_layout, plus, position_plus
 
 N_STATES = 12
 DV, DPSI, BA, BG = slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12)
+POS_STD_FLOOR = 0.01  # [m] smallest initial position std told to a filter (a zero std makes P0 singular)
 
 
 @dataclass(frozen=True)
@@ -41,6 +46,9 @@ class FilterConfig:
     * R: DVL std 0.02 m/s (the synthetic DVL noise); ``mc`` raises it to 0.1 m/s for the
       recorded DVL (its residual std against GT is 0.02-0.2 m/s).
     * alpha = 1e-3, beta = 2, kappa = 0 as in both papers.
+    * ``state``: the error-state layout (:mod:`nespm_cli.nav.state`): ``12`` (the papers'), ``15``
+      (position first) or a comma list of blocks. ``p0_pos``: the initial position std [m] (N, E,
+      D), at least :data:`POS_STD_FLOOR`; position has no process noise (it integrates velocity).
     * adaptive filters: τ = the IMU step, τ_a = τ_g = the time-update span, network std
       clipped to [0.25, 24] x nominal, bias noise nominal (:mod:`nespm_cli.filters.adaptive`).
     * time_update ``dvl``: the time update spans one DVL interval (the papers' "cycle(s)"):
@@ -69,81 +77,85 @@ class FilterConfig:
     tau_g: float | None = None  # eq 47 [s]; None: the time-update span
     adaptive_bias: str = "nominal"  # bias blocks of eq 43: nominal, scaled (x (σ̂/σ)²) or paper
     q_clip: tuple = VALIDITY_CLIP  # validity bounds on the network std, x nominal std
+    state: str = "12"  # error-state layout (nav.state): 12, 15 or a comma list of blocks
+    p0_pos: tuple = (POS_STD_FLOOR, POS_STD_FLOOR, POS_STD_FLOOR)  # m, N E D
+
+    @property
+    def layout(self) -> StateLayout:
+        """The error-state layout of :attr:`state`."""
+        return parse_layout(self.state)
 
     def p0(self) -> np.ndarray:
-        """Initial covariance (12, 12); an overflowing std gives inf (the run then diverges)."""
+        """Initial covariance (n, n) of the layout; an overflowing std gives inf (the run then diverges)."""
         with np.errstate(over="ignore"):
             return np.diag(self._p0_diag())
 
     def _p0_diag(self) -> np.ndarray:
-        return np.concatenate([
-            np.asarray(self.p0_vel, float) ** 2,
-            np.deg2rad(np.asarray(self.p0_att_deg, float)) ** 2,
-            np.full(3, np.square(np.float64(self.p0_acc_bias))),
-            np.full(3, np.square(np.float64(self.p0_gyro_bias))),
-        ])
+        blocks = {
+            "pos": lambda: np.maximum(np.asarray(self.p0_pos, float), POS_STD_FLOOR) ** 2,
+            "vel": lambda: np.asarray(self.p0_vel, float) ** 2,
+            "att": lambda: np.deg2rad(np.asarray(self.p0_att_deg, float)) ** 2,
+            "ba": lambda: np.full(3, np.square(np.float64(self.p0_acc_bias))),
+            "bg": lambda: np.full(3, np.square(np.float64(self.p0_gyro_bias))),
+        }
+        return np.concatenate([blocks[b]() for b in self.layout.blocks])
 
     def q_psd(self, dt_imu: float) -> np.ndarray:
-        """Diagonal (12,) of the continuous noise PSD Q* (anukf.md eq 32)."""
+        """Diagonal (n,) of the continuous noise PSD Q* (anukf.md eq 32); position has none."""
         with np.errstate(over="ignore"):
-            return np.concatenate([
-                np.full(3, np.square(np.float64(self.acc_noise)) * dt_imu),
-                np.full(3, np.square(np.float64(self.gyro_noise)) * dt_imu),
-                np.full(3, np.square(np.float64(self.acc_bias_rw))),
-                np.full(3, np.square(np.float64(self.gyro_bias_rw))),
-            ])
+            blocks = {
+                "pos": lambda: np.zeros(3),
+                "vel": lambda: np.full(3, np.square(np.float64(self.acc_noise)) * dt_imu),
+                "att": lambda: np.full(3, np.square(np.float64(self.gyro_noise)) * dt_imu),
+                "ba": lambda: np.full(3, np.square(np.float64(self.acc_bias_rw))),
+                "bg": lambda: np.full(3, np.square(np.float64(self.gyro_bias_rw))),
+            }
+            return np.concatenate([blocks[b]() for b in self.layout.blocks])
 
 
-@dataclass
-class NavState:
-    """Navigation solution of R runs (leading shape ``B``, usually (R,)).
-
-    ``pos`` (B, 3), ``v_n`` (B, 3), ``C_bn`` (B, 3, 3) and the accumulated bias
-    compensation ``b_a`` (B, 3) [m/s²], ``b_g`` (B, 3) [rad/s] subtracted from the IMU.
-    """
-
-    pos: np.ndarray
-    v_n: np.ndarray
-    C_bn: np.ndarray
-    b_a: np.ndarray
-    b_g: np.ndarray = field(default=None)
-
-    def copy(self) -> "NavState":
-        return NavState(self.pos.copy(), self.v_n.copy(), self.C_bn.copy(), self.b_a.copy(), self.b_g.copy())
+def feedback(nav: NavState, x: np.ndarray, layout: StateLayout = LAYOUT_12) -> None:
+    """Close the loop in place: ``nav ⊕ x`` per block of ``layout`` (:func:`nespm_cli.nav.state.plus`),
+    biases into the compensation. ``x`` (B, n). After this the filter's state estimate is zero."""
+    plus(nav, x, layout)
 
 
-def feedback(nav: NavState, x: np.ndarray) -> None:
-    """Close the loop in place: ``nav ⊕ x`` for velocity and attitude, biases into the compensation.
+def system_matrix(pos: np.ndarray, v_n: np.ndarray, C_bn: np.ndarray, f_b: np.ndarray,
+                  layout: StateLayout = LAYOUT_12) -> np.ndarray:
+    """Continuous error-state matrix F (B, n, n) of ``layout`` (Groves 2nd ed. 14.2.4).
 
-    ``x`` (B, 12). After this the filter's state estimate is zero.
-    """
-    nav.v_n = nav.v_n + x[..., DV]
-    nav.C_bn = attitude_plus(nav.C_bn, x[..., DPSI])
-    nav.b_a = nav.b_a + x[..., BA]
-    nav.b_g = nav.b_g + x[..., BG]
+    ``f_b`` is the compensated specific force (B, 3); J = ∂ω_en/∂v::
 
+        dv'   = (-[(2 w_ie + w_en) x] + [v x] J) dv - [f_n x] dpsi - C b_a   (+ γ dp_D, down row)
+        dpsi' = -J dv - [w_in x] dpsi - C b_g
+        dp'   = dv                                                          (with the position block)
 
-def system_matrix(pos: np.ndarray, v_n: np.ndarray, C_bn: np.ndarray, f_b: np.ndarray) -> np.ndarray:
-    """Continuous error-state matrix F (B, 12, 12) of the state above (Groves 2nd ed. 14.2.4).
-
-    Position errors are not states (as in the papers), so the gravity and earth-rate
-    position couplings are dropped. ``f_b`` is the compensated specific force (B, 3).
-
-    dv'   = (-[(2 w_ie + w_en) x] + [v x] J) dv - [f_n x] dpsi - C b_a
-    dpsi' = -J dv - [w_in x] dpsi - C b_g        (J = d w_en / d v)
+    With the position block, the vertical gravity gradient γ = ∂g_D/∂D ≈ 2g/R
+    (:func:`nespm_cli.nav.earth.gravity_down_gradient`) couples dp_D into dv_D; the other
+    position couplings (the latitude dependence of the earth and transport rates, the
+    horizontal deflection of gravity, the transport rate's rotation of dp) are of order
+    ω_ie v / R ≈ 2e-11 s⁻² or v / R ≈ 3e-7 s⁻¹ and dropped (docs/filters.md). The papers' 12
+    states keep no position coupling.
     """
     lat, h = pos[..., 0], pos[..., 2]
     R_N, R_E = radii(lat)
     w_ie, w_en = transport_rates(lat, h, v_n, R_N, R_E)
     J = d_w_en_d_v(pos)
     f_n = (C_bn @ f_b[..., None])[..., 0]
-    F = np.zeros(v_n.shape[:-1] + (N_STATES, N_STATES))
-    F[..., DV, DV] = -skew(2.0 * w_ie + w_en) + skew(v_n) @ J
-    F[..., DV, DPSI] = -skew(f_n)
-    F[..., DV, BA] = -C_bn
-    F[..., DPSI, DV] = -J
-    F[..., DPSI, DPSI] = -skew(w_ie + w_en)
-    F[..., DPSI, BG] = -C_bn
+    n = layout.n
+    F = np.zeros(v_n.shape[:-1] + (n, n))
+    V, A = layout.slice("vel"), layout.slice("att")
+    F[..., V, V] = -skew(2.0 * w_ie + w_en) + skew(v_n) @ J
+    F[..., V, A] = -skew(f_n)
+    if layout.has("ba"):
+        F[..., V, layout.slice("ba")] = -C_bn
+    F[..., A, V] = -J
+    F[..., A, A] = -skew(w_ie + w_en)
+    if layout.has("bg"):
+        F[..., A, layout.slice("bg")] = -C_bn
+    if layout.has("pos"):
+        p = layout.slice("pos")
+        F[..., p, V] = np.eye(3)
+        F[..., V.start + 2, p.start + 2] = gravity_down_gradient(pos)
     return F
 
 
@@ -180,50 +192,20 @@ def invariant_system_matrix(pos: np.ndarray, v_n: np.ndarray, C_bn: np.ndarray) 
 
 
 def process_noise(cfg: FilterConfig, dt_imu: float, span: float) -> np.ndarray:
-    """Discrete Q (12, 12) over ``span`` seconds: G Q* G^T · span (anukf.md eqs 30-32).
+    """Discrete Q (n, n) of ``cfg.layout`` over ``span`` seconds: G Q* G^T · span (anukf.md eqs 30-32).
 
     G = blockdiag(C, C, I, I) and Q* is isotropic within each block, so G Q* G^T = Q*.
     """
     return np.diag(cfg.q_psd(dt_imu) * span)
 
 
-def dvl_innovation(nav: NavState, dvl_b: np.ndarray, w_nb_b: np.ndarray, lever_arm: np.ndarray) -> np.ndarray:
-    """Measured minus predicted body velocity at x = 0 (B, 3): dvl − C^T v − w_nb × l."""
-    return dvl_b - dvl_velocity(nav.C_bn, nav.v_n, w_nb_b, lever_arm)
-
-
-def dvl_h(x: np.ndarray, nav: NavState, lever_arm: np.ndarray) -> np.ndarray:
-    """Nonlinear DVL model (anukf.md eq 33), as its change from x = 0.
-
-    For sigma points ``x`` (B, S, 12) around ``nav`` (B,):
-    ``h(x) − h(0) = C^T [(exp(−[dpsi x]) − I) v + exp(−[dpsi x]) dv] − b_g × l`` (B, S, 3),
-    computed without forming the large common term ``C^T v``.
-    """
-    dv, dpsi, bg = x[..., DV], x[..., DPSI], x[..., BG]
-    Em = exp_so3_minus_identity(-dpsi)  # (B, S, 3, 3)
-    v = nav.v_n[..., None, :]
-    dv_n = (Em @ (v + dv)[..., None])[..., 0] + dv
-    out = (np.swapaxes(nav.C_bn, -1, -2)[..., None, :, :] @ dv_n[..., None])[..., 0]
-    return out - cross(bg, np.broadcast_to(lever_arm, bg.shape))
-
-
-def dvl_H(nav: NavState, lever_arm: np.ndarray) -> np.ndarray:
-    """Jacobian of :func:`dvl_h` at x = 0 (B, 3, 12): [C^T, C^T [v x], 0, [l x]]."""
-    Ct = np.swapaxes(nav.C_bn, -1, -2)
-    H = np.zeros(nav.v_n.shape[:-1] + (3, N_STATES))
-    H[..., :, DV] = Ct
-    H[..., :, DPSI] = Ct @ skew(nav.v_n)
-    H[..., :, BG] = skew(np.broadcast_to(lever_arm, nav.v_n.shape))
-    return H
-
-
-def joseph_update(P: np.ndarray, H: np.ndarray, nu: np.ndarray, Rm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Linearised Kalman update in Joseph form, batched: ``(x, P⁺)``.
+def joseph_update(P: np.ndarray, H: np.ndarray, nu: np.ndarray, Rm: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Linearised Kalman update in Joseph form, batched: ``(x, P⁺, S)``.
 
     ``P`` (B, n, n), ``H`` (B, m, n), innovation ``nu`` (B, m), ``Rm`` (m, m) or (B, m, m);
     ``K = P Hᵀ S⁻¹`` (S = H P Hᵀ + R, solved, not inverted), ``x = K ν`` (B, n),
-    ``P⁺ = (I − K H) P (I − K H)ᵀ + K R Kᵀ`` symmetrized. Used by ``ekf`` (common error) and
-    ``iekf`` (invariant error: its own H and P).
+    ``P⁺ = (I − K H) P (I − K H)ᵀ + K R Kᵀ`` symmetrized; ``S`` (B, m, m) the innovation
+    covariance (for the NIS). Used by ``ekf`` (common error) and ``iekf`` (invariant error: its own H and P).
     """
     PHt = P @ np.swapaxes(H, -1, -2)
     S = H @ PHt + Rm
@@ -231,14 +213,19 @@ def joseph_update(P: np.ndarray, H: np.ndarray, nu: np.ndarray, Rm: np.ndarray) 
     x = (K @ nu[..., None])[..., 0]
     IKH = np.eye(P.shape[-1]) - K @ H
     P = IKH @ P @ np.swapaxes(IKH, -1, -2) + K @ Rm @ np.swapaxes(K, -1, -2)
-    return x, 0.5 * (P + np.swapaxes(P, -1, -2))
+    return x, 0.5 * (P + np.swapaxes(P, -1, -2)), S
 
 
-def initial_nav(pos: np.ndarray, v_true: np.ndarray, C_true: np.ndarray, dv0: np.ndarray, dpsi0: np.ndarray) -> NavState:
-    """Corrupted initial solution of R runs: v = v_true + dv0, C = exp([dpsi0 x]) C_true."""
+def initial_nav(pos: np.ndarray, v_true: np.ndarray, C_true: np.ndarray, dv0: np.ndarray, dpsi0: np.ndarray,
+                dp0: np.ndarray | None = None) -> NavState:
+    """Corrupted initial solution of R runs: v = v_true + dv0, C = exp([dpsi0 x]) C_true and, with
+    ``dp0`` (R, 3) [m, NED], the position ``pos ⊕ dp0`` (the solution is ``dp0`` off the truth)."""
     R = dv0.shape[0]
+    p = np.broadcast_to(pos, (R, 3)).copy()
+    if dp0 is not None and np.any(dp0):
+        p = position_plus(p, dp0)
     return NavState(
-        pos=np.broadcast_to(pos, (R, 3)).copy(),
+        pos=p,
         v_n=v_true + dv0,
         C_bn=exp_so3(dpsi0) @ C_true,
         b_a=np.zeros((R, 3)),

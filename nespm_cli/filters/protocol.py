@@ -1,20 +1,22 @@
 """The filter protocol: what :func:`nespm_cli.filters.engine.run_filter` asks of a filter.
 
-Shapes carry the batch axis first: R Monte Carlo runs, M IMU steps, N GT (DVL) epochs, n = 12
-error states ``x = [dv (0:3) m/s, dpsi (3:6) rad, b_a (6:9) m/s², b_g (9:12) rad/s]``
-(:mod:`nespm_cli.filters.model`: ``nav ⊕ x = truth``; closed loop, so x = 0 between calls).
+Shapes carry the batch axis first: R Monte Carlo runs, M IMU steps, N GT epochs, n error
+states in the blocks of ``cfg.layout`` (:class:`nespm_cli.nav.state.StateLayout`; the papers'
+12: ``x = [dv (0:3) m/s, dpsi (3:6) rad, b_a (6:9) m/s², b_g (9:12) rad/s]``, the 15-state
+layout puts ``dp`` [m, NED] first). ``nav ⊕ x = truth`` (:mod:`nespm_cli.filters.model`);
+closed loop, so x = 0 between calls.
 
 Who calls what, when (one filter object per ``run_filter`` call, i.e. per filter and chunk of runs)::
 
     filt = cls(cfg, nav0, imu, noise_std)         # once; nav0 copied, P = cfg.p0() per run
     record(filt.state(), filt.covariance())       # epoch 0
-    for k in range(N - 1):                        # DVL interval k: IMU steps [j0, j1)
-        filt.propagate(j0, j1, k)                 # cfg.time_update == "dvl": one span
+    for each span [j0, j1) between event times    # GT epochs and every sensor's times, merged
+        filt.propagate(j0, j1, k)                 # k: the GT interval holding the span
         # (time_update == "imu": filt.propagate(j, j + 1, k) for j in range(j0, j1))
-        if cls.has_covariance and dvl_mask[k + 1]:
-            filt.update(DvlMeasurement(...), j1 - 1)
+        for each measurement at j1 (in --sensors order):
+            nu_S = filt.update(measurement, j1 - 1)   # optional (nu, S) for the NIS
         filt.check()
-        record(filt.state(), filt.covariance())   # epoch k + 1
+        at a GT epoch: record(filt.state(), filt.covariance())
     diverged = filt.diverged
 
 A filter is a subclass of :class:`Filter` (the bare interface) — usually of
@@ -32,13 +34,14 @@ import numpy as np
 from nespm_cli.errors import NespmError
 from nespm_cli.filters import kernels
 from nespm_cli.filters.adaptive import adaptive_q
-from nespm_cli.filters.measurements import Measurement
-from nespm_cli.filters.model import (BA, BG, DPSI, DV, N_STATES, FilterConfig, NavState, feedback,
-                                     invariant_system_matrix, process_noise, system_matrix)
+from nespm_cli.filters.model import (FilterConfig, NavState, feedback, invariant_system_matrix, process_noise,
+                                     system_matrix)
 from nespm_cli.filters.unscented import UTWeights, safe_cholesky
 from nespm_cli.nav.products import mat_mul
 from nespm_cli.nav.rotations import exp_so3
+from nespm_cli.nav.state import StateLayout, parse_layout, position_plus
 from nespm_cli.nav.strapdown import na_cycle
+from nespm_cli.sensors.measurement import Measurement
 
 
 @dataclass
@@ -60,27 +63,35 @@ class Filter:
             (``ins``): ``run_filter`` then records NaN covariance and never calls ``update``.
         needs_noise_std: True if the filter needs the ProcessNet noise std (``noise_std``).
         adaptive_of: name of the non-adaptive twin of an adaptive filter, else None.
+        layouts: the error-state layouts it serves (names, ``StateLayout.name``), None: any.
     """
 
     name: str = ""
     has_covariance: bool = True
     needs_noise_std: bool = False
     adaptive_of: str | None = None
+    layouts: tuple | None = None
+
+    @classmethod
+    def supports(cls, layout: StateLayout | str) -> bool:
+        """Whether the filter serves the error-state ``layout``."""
+        return cls.layouts is None or parse_layout(layout).name in cls.layouts
 
     def __init__(self, cfg: FilterConfig, nav0: NavState, imu: ImuData,
                  noise_std: tuple[np.ndarray, np.ndarray] | None = None):
         """``cfg`` the tuning; ``nav0`` the initial solution of the R runs (not modified);
         ``imu`` the inputs; ``noise_std`` ``(std_a, std_g)`` each (R, N-1, 3) per-sample std
-        [m/s², rad/s] of each DVL interval (adaptive filters), else None."""
+        [m/s², rad/s] of each GT interval (adaptive filters), else None."""
         raise NotImplementedError
 
     def propagate(self, j0: int, j1: int, k: int) -> None:
-        """Time update over IMU steps ``[j0, j1)`` (one span, all inside DVL interval ``k``)."""
+        """Time update over IMU steps ``[j0, j1)`` (one span, all inside GT interval ``k``)."""
         raise NotImplementedError
 
-    def update(self, measurement: Measurement, j_last: int) -> None:
-        """Measurement update with ``measurement`` (:mod:`nespm_cli.filters.measurements`);
-        ``j_last`` the last IMU step of the interval (``j1 - 1``)."""
+    def update(self, measurement: Measurement, j_last: int):
+        """Measurement update with ``measurement`` (:class:`nespm_cli.sensors.measurement.Measurement`);
+        ``j_last`` the IMU step ending at its time. May return ``(nu, S)``: the innovation (R, m)
+        and its covariance (R, m, m), which the engine records for the NIS (None: not recorded)."""
         raise NotImplementedError
 
     def check(self) -> None:
@@ -92,7 +103,7 @@ class Filter:
         raise NotImplementedError
 
     def covariance(self) -> np.ndarray | None:
-        """The error-state covariance (R, 12, 12) [SI units squared], or None without one."""
+        """The error-state covariance (R, n, n) [SI units squared], or None without one."""
         raise NotImplementedError
 
     @property
@@ -107,11 +118,12 @@ class Filter:
 
 
 class ErrorStateFilter(Filter):
-    """Closed-loop 12-state error-state filter base: subclasses implement ``propagate`` and ``update``.
+    """Closed-loop error-state filter base: subclasses implement ``propagate`` and ``update``.
 
-    Attributes available to subclasses: ``cfg``; ``nav`` (:class:`NavState`, R runs);
-    ``P`` (R, 12, 12); ``bad`` (R,) divergence mask; ``f``, ``w`` (R, M, 3), ``dt`` (M,)
-    the IMU; ``R`` the number of runs; ``ut`` the scaled-UT weights of ``cfg``; ``dt_imu`` the median IMU step [s]; ``eye`` I₁₂; ``compiled`` whether the IMU-rate
+    Attributes available to subclasses: ``cfg``; ``layout`` (``cfg.layout``, n states);
+    ``nav`` (:class:`NavState`, R runs); ``P`` (R, n, n); ``bad`` (R,) divergence mask; ``f``,
+    ``w`` (R, M, 3), ``dt`` (M,) the IMU; ``R`` the number of runs; ``ut`` the scaled-UT weights
+    of ``cfg``; ``dt_imu`` the median IMU step [s]; ``eye`` Iₙ; ``compiled`` whether the IMU-rate
     loops run compiled (:mod:`nespm_cli.filters.kernels`; ``strapdown`` and ``transition`` use
     them by themselves).
     """
@@ -119,21 +131,27 @@ class ErrorStateFilter(Filter):
     #: the error whose dynamics ``transition`` accumulates: False the common x of model.py
     #: (system_matrix), True the right-invariant ξ of iekf.py (model.invariant_system_matrix)
     invariant_error: bool = False
+    #: the attributes holding per-run state besides the solution (``update_where`` restores them)
+    per_run: tuple = ("P",)
 
     def __init__(self, cfg: FilterConfig, nav0: NavState, imu: ImuData, noise_std=None):
         if self.needs_noise_std and noise_std is None:
             raise NespmError(f"filter {self.name} needs the network noise std (noise_std)")
         self._noise_std = noise_std if self.needs_noise_std else None
         self.cfg = cfg
+        self.layout = cfg.layout
+        if not self.supports(self.layout):
+            raise NespmError(f"filter {self.name} serves --state {' or '.join(self.layouts)}, not {self.layout.name}")
+        n = self.layout.n
         self.f, self.w, self.dt = imu.f, imu.w, imu.dt
         self.nav = nav0.copy()
         R = nav0.v_n.shape[0]
         self.R = R
-        self.P = np.broadcast_to(cfg.p0(), (R, N_STATES, N_STATES)).copy()
+        self.P = np.broadcast_to(cfg.p0(), (R, n, n)).copy()
         self.bad = np.zeros(R, dtype=bool)
-        self.ut = UTWeights(N_STATES, cfg.alpha, cfg.beta, cfg.kappa)
+        self.ut = UTWeights(n, cfg.alpha, cfg.beta, cfg.kappa)
         self.dt_imu = float(np.median(imu.dt))
-        self.eye = np.eye(N_STATES)
+        self.eye = np.eye(n)
         self.compiled = kernels.compiled_enabled()
 
     # --- interface -------------------------------------------------------------------------
@@ -162,7 +180,7 @@ class ErrorStateFilter(Filter):
         return float(self.dt[j0:j1].sum())
 
     def process_noise(self, span: float, k: int) -> np.ndarray:
-        """Discrete Q (12, 12) or (R, 12, 12) of a time update of ``span`` s in DVL interval ``k``.
+        """Discrete Q (n, n) or (R, n, n) of a time update of ``span`` s in GT interval ``k``.
 
         Fixed (``cfg``); adaptive filters (``needs_noise_std``) use the network std of interval
         ``k`` through :func:`nespm_cli.filters.adaptive.adaptive_q` (anukf.md eqs 43-48),
@@ -171,7 +189,7 @@ class ErrorStateFilter(Filter):
         if self._noise_std is None:
             return process_noise(self.cfg, self.dt_imu, span)
         std_a, std_g = self._noise_std
-        return adaptive_q(std_a[:, k], std_g[:, k], self.nav.C_bn, self.cfg, self.dt_imu, span)
+        return adaptive_q(std_a[:, k], std_g[:, k], self.nav.C_bn, self.cfg, self.dt_imu, span, self.layout)
 
     def strapdown(self, j0: int, j1: int) -> None:
         """Move the navigation solution through steps ``[j0, j1)`` (free inertial)."""
@@ -185,44 +203,55 @@ class ErrorStateFilter(Filter):
             n.pos, n.v_n, n.C_bn = na_cycle(n.pos, n.v_n, n.C_bn, f, w, self.dt[j])
 
     def transition(self, j0: int, j1: int) -> np.ndarray:
-        """Move the solution through steps ``[j0, j1)`` and return Φ = Π (I + F dt) (R, 12, 12),
+        """Move the solution through steps ``[j0, j1)`` and return Φ = Π (I + F dt) (R, n, n),
         F evaluated on the solution before each step: :func:`nespm_cli.filters.model.system_matrix`,
         or :func:`~nespm_cli.filters.model.invariant_system_matrix` where ``invariant_error``."""
         if self.compiled:
             n = self.contiguous_nav()
             return kernels.transition(n.pos, n.v_n, n.C_bn, n.b_a, n.b_g, self.f, self.w, self.dt, j0, j1,
-                                      invariant=self.invariant_error)
+                                      invariant=self.invariant_error, layout=self.layout)
         Phi = np.broadcast_to(self.eye, self.P.shape).copy()
         for j in range(j0, j1):
             f, w = self.imu(j)
             n = self.nav
             F = (invariant_system_matrix(n.pos, n.v_n, n.C_bn) if self.invariant_error
-                 else system_matrix(n.pos, n.v_n, n.C_bn, f))
+                 else system_matrix(n.pos, n.v_n, n.C_bn, f, self.layout))
             Phi = (self.eye + F * self.dt[j]) @ Phi
             n.pos, n.v_n, n.C_bn = na_cycle(n.pos, n.v_n, n.C_bn, f, w, self.dt[j])
         return Phi
 
-    def points_through_cycle(self, X: np.ndarray, j0: int, j1: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The solution (point 0) and the solution ⊕ each error-state offset ``X`` (R, S-1, 12)
+    def points_through_cycle(self, X: np.ndarray, j0: int, j1: int):
+        """The solution (point 0) and the solution ⊕ each error-state offset ``X`` (R, S-1, n)
         (sigma or cubature points) through steps ``[j0, j1)``, each point compensating the IMU
-        with its own biases (ukf-nespm.md eqs 35-38). Returns ``(pos, v, C)`` (R, S, 3) ``[lat,
-        lon, h]``, (R, S, 3) [m/s], (R, S, 3, 3); the solution is not modified. Compiled where
-        :attr:`compiled` (:func:`nespm_cli.filters.kernels.points_through_cycle`, same bits)."""
+        with its own biases (ukf-nespm.md eqs 35-38). Returns ``(pos, v, C, dp)``: (R, S, 3)
+        ``[lat, lon, h]``, (R, S, 3) [m/s], (R, S, 3, 3) and each point's position offset from
+        point 0, NED [m] (R, S, 3): its initial ``dp`` (none without a position block, eq 35) plus
+        the trapezoid integral of its velocity offset (eqs 28-30 in deviation form, so the
+        position spread is not lost to differencing latitudes); the solution is not modified.
+        Compiled where :attr:`compiled` (:func:`nespm_cli.filters.kernels.points_through_cycle`,
+        same bits)."""
+        lay = self.layout
         if self.compiled:
             n = self.contiguous_nav()
             return kernels.points_through_cycle(n.pos, n.v_n, n.C_bn, n.b_a, n.b_g, X, self.f, self.w, self.dt,
-                                                j0, j1)
+                                                j0, j1, lay)
         nav = self.nav
         S = X.shape[1] + 1
-        Xa = np.concatenate([np.zeros((self.R, 1, N_STATES)), X], axis=1)  # point 0 is the solution
-        pos = np.repeat(nav.pos[:, None], S, axis=1)  # eq 35: position unperturbed
-        v = nav.v_n[:, None] + Xa[..., DV]  # eq 36
-        C = mat_mul(exp_so3(Xa[..., DPSI]), nav.C_bn[:, None])  # eq 37: ⊕
-        b_a = nav.b_a[:, None] + Xa[..., BA]
-        b_g = nav.b_g[:, None] + Xa[..., BG]
+        Xa = np.concatenate([np.zeros((self.R, 1, lay.n)), X], axis=1)  # point 0 is the solution
+        pos = np.repeat(nav.pos[:, None], S, axis=1)
+        dp = np.zeros((self.R, S, 3))
+        if lay.has("pos"):  # eq 35, with position in the state: pos ⊕ dp
+            dp = Xa[..., lay.slice("pos")] + 0.0
+            pos[:, 1:] = position_plus(pos[:, 1:], dp[:, 1:])
+        v = nav.v_n[:, None] + Xa[..., lay.slice("vel")]  # eq 36
+        C = mat_mul(exp_so3(Xa[..., lay.slice("att")]), nav.C_bn[:, None])  # eq 37: ⊕
+        b_a = nav.b_a[:, None] + (Xa[..., lay.slice("ba")] if lay.has("ba") else 0.0)
+        b_g = nav.b_g[:, None] + (Xa[..., lay.slice("bg")] if lay.has("bg") else 0.0)
         for j in range(j0, j1):  # eq 38 over the span, every point compensating its own biases
+            e = v - v[:, :1]
             pos, v, C = na_cycle(pos, v, C, self.f[:, j, None] - b_a, self.w[:, j, None] - b_g, self.dt[j])
-        return pos, v, C
+            dp = dp + (e + (v - v[:, :1])) * (0.5 * self.dt[j])
+        return pos, v, C, dp
 
     def contiguous_nav(self) -> NavState:
         """The solution with C-contiguous float64 arrays (what the compiled loops update in place)."""
@@ -232,16 +261,34 @@ class ErrorStateFilter(Filter):
         return n
 
     def cholesky(self, P: np.ndarray | None = None) -> np.ndarray:
-        """Batched Cholesky factor (R, 12, 12) of ``P`` (default ``self.P``); failing runs are flagged."""
+        """Batched Cholesky factor (R, n, n) of ``P`` (default ``self.P``); failing runs are flagged."""
         return safe_cholesky(self.P if P is None else P, self.bad)
 
     def feedback(self, x: np.ndarray) -> None:
-        """Close the loop: ``nav ⊕ x`` (x (R, 12)), biases into the compensation."""
-        feedback(self.nav, x)
+        """Close the loop: ``nav ⊕ x`` (x (R, n)) per block, biases into the compensation."""
+        feedback(self.nav, x, self.layout)
 
     def symmetrize(self) -> None:
         """``P ← (P + Pᵀ) / 2``."""
         self.P = 0.5 * (self.P + np.swapaxes(self.P, -1, -2))
+
+    def update_where(self, measurement: Measurement, j_last: int, ok: np.ndarray):
+        """:meth:`update` applied to the runs where ``ok`` (R,) only: the others keep their solution
+        and the attributes of :attr:`per_run` (a measurement missing in some runs, e.g. a dropout)."""
+        keep = ~np.asarray(ok, dtype=bool)
+        nav0 = self.nav.copy()
+        saved = {a: np.array(getattr(self, a), copy=True) for a in self.per_run}
+        res = self.update(measurement, j_last)
+        nav = self.nav
+        for a in ("pos", "v_n", "C_bn", "b_a", "b_g"):
+            arr = np.array(getattr(nav, a), copy=True)
+            arr[keep] = getattr(nav0, a)[keep]
+            setattr(nav, a, arr)
+        for a, v in saved.items():
+            arr = np.array(getattr(self, a), copy=True)
+            arr[keep] = v[keep]
+            setattr(self, a, arr)
+        return res
 
     def check(self) -> None:
         """Flag runs whose solution or covariance is non-finite or implausible; sanitize them."""

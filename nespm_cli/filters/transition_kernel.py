@@ -3,12 +3,14 @@
 ``transition_span`` is ``ErrorStateFilter.transition`` (model.system_matrix + na_cycle per
 IMU step) and ``points_span`` the sigma/cubature-point propagation of ukf-nespm.md eqs 35-38,
 one run (and point) at a time, the loops over runs and points innermost in machine code.
-Shapes as in :mod:`.kernels`; the error state is ``[dv, dpsi, b_a, b_g]`` (model.py).
+Shapes as in :mod:`.kernels`; the error state is any layout of model.py, passed as ``off``:
+the first index of the ``[pos, vel, att, ba, bg]`` blocks (-1 for an absent one,
+``nav.state.StateLayout.offsets``), ``n`` states in all.
 
-Φ = Π (I + F dt): F has non-zero rows only for dv and dpsi, so Φ keeps its bias rows
-[0 I]; only its top six rows are carried, ``Φ_top ← (I + F dt)_top Φ`` with the bias columns
-of F entering through the identity rows (the same sums as the dense product, without the
-zeros).
+Φ = Π (I + F dt): F has non-zero rows only for the *dynamic* blocks (pos, vel, att), so Φ keeps
+its bias rows [0 I]; only the dynamic rows are carried, ``Φ_dyn ← (I + F dt)_dyn Φ`` with the
+bias columns of F entering through the identity rows (the same sums as the dense product,
+without the zeros; for the papers' 12 states the same sums, in the same order, as before).
 """
 from __future__ import annotations
 
@@ -16,32 +18,37 @@ import math
 
 import numpy as np
 
-from nespm_cli.nav.kernels import cycle_t, exp_t, gravity_t, load_t, matrix_t, mul_t, njit, state_t, store_t
+from nespm_cli.nav.earth import A, E2, F, GAMMA_E, K_SOMIGLIANA
+from nespm_cli.nav.kernels import GRAV_M, cycle_t, exp_t, gravity_t, load_t, matrix_t, mul_t, njit, state_t, store_t
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def identity_plus_dt(M, dt):
-    """``M ← I + M dt`` in place for the top six rows (6, 12) of F."""
-    for i in range(6):
-        for k in range(12):
+def identity_plus_dt(M, dt, dyn):
+    """``M ← I + M dt`` in place for the dynamic rows ``dyn`` of F (M (n, n))."""
+    n = M.shape[1]
+    for i in dyn:
+        for k in range(n):
             M[i, k] *= dt
         M[i, i] += 1.0
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def system_top_s(x, f0, f1, f2, M, dt):
-    """Rows 0-5 of ``I + F dt`` into ``M`` (6, 12): F of model.system_matrix (Groves 14.2.4).
+def system_rows_s(x, f0, f1, f2, M, dt, off, dyn):
+    """Dynamic rows of ``I + F dt`` into ``M`` (n, n): F of model.system_matrix (Groves 14.2.4).
 
-    dv'   = (-[(2 w_ie + w_en) x] + [v x] J) dv - [f_n x] dpsi - C b_a
+    dv'   = (-[(2 w_ie + w_en) x] + [v x] J) dv - [f_n x] dpsi - C b_a  (+ dg_D/dD dp_D)
     dpsi' = -J dv - [w_in x] dpsi - C b_g        (J = d w_en / d v)
+    dp'   = dv
     """
+    p, v, a, ba, bg = off[0], off[1], off[2], off[3], off[4]
     lat, h = x[0], x[2]
     R_N, R_E = x[17], x[18]
     J01 = 1.0 / (R_E + h)
     J10 = -1.0 / (R_N + h)
     J21 = -math.tan(lat) / (R_E + h)
-    for i in range(6):
-        for k in range(12):
+    n = M.shape[1]
+    for i in dyn:
+        for k in range(n):
             M[i, k] = 0.0
     # -skew(2 w_ie + w_en)
     u0, u1, u2 = 2.0 * x[19] + x[22], 2.0 * x[20] + x[23], 2.0 * x[21] + x[24]
@@ -55,42 +62,57 @@ def system_top_s(x, f0, f1, f2, M, dt):
     s11 = v2 * J01 + -v0 * J21
     s20 = v0 * J10
     s21 = -v1 * J01
-    M[0, 0] = s00
-    M[0, 1] = a01 + s01
-    M[0, 2] = a02
-    M[1, 0] = -a01 + s10
-    M[1, 1] = s11
-    M[1, 2] = a12
-    M[2, 0] = -a02 + s20
-    M[2, 1] = -a12 + s21
-    M[2, 2] = 0.0
+    M[v, v] = s00
+    M[v, v + 1] = a01 + s01
+    M[v, v + 2] = a02
+    M[v + 1, v] = -a01 + s10
+    M[v + 1, v + 1] = s11
+    M[v + 1, v + 2] = a12
+    M[v + 2, v] = -a02 + s20
+    M[v + 2, v + 1] = -a12 + s21
+    M[v + 2, v + 2] = 0.0
     # -[f_n x], f_n = C f
     fn0 = x[6] * f0 + x[7] * f1 + x[8] * f2
     fn1 = x[9] * f0 + x[10] * f1 + x[11] * f2
     fn2 = x[12] * f0 + x[13] * f1 + x[14] * f2
-    M[0, 4], M[0, 5] = fn2, -fn1
-    M[1, 3], M[1, 5] = -fn2, fn0
-    M[2, 3], M[2, 4] = fn1, -fn0
+    M[v, a + 1], M[v, a + 2] = fn2, -fn1
+    M[v + 1, a], M[v + 1, a + 2] = -fn2, fn0
+    M[v + 2, a], M[v + 2, a + 1] = fn1, -fn0
     # -J
-    M[3, 1] = -J01
-    M[4, 0] = -J10
-    M[5, 1] = -J21
+    M[a, v + 1] = -J01
+    M[a + 1, v] = -J10
+    M[a + 2, v + 1] = -J21
     # -skew(w_ie + w_en)
     u0, u1, u2 = x[19] + x[22], x[20] + x[23], x[21] + x[24]
-    M[3, 4], M[3, 5] = u2, -u1
-    M[4, 3], M[4, 5] = -u2, u0
-    M[5, 3], M[5, 4] = u1, -u0
+    M[a, a + 1], M[a, a + 2] = u2, -u1
+    M[a + 1, a], M[a + 1, a + 2] = -u2, u0
+    M[a + 2, a], M[a + 2, a + 1] = u1, -u0
     # -C into the bias columns
     for i in range(3):
         for k in range(3):
-            M[i, 6 + k] = -x[6 + 3 * i + k]
-            M[3 + i, 9 + k] = -x[6 + 3 * i + k]
-    identity_plus_dt(M, dt)
+            if ba >= 0:
+                M[v + i, ba + k] = -x[6 + 3 * i + k]
+            if bg >= 0:
+                M[a + i, bg + k] = -x[6 + 3 * i + k]
+    if p >= 0:  # dp' = dv; the vertical gravity gradient couples dp_D into dv_D
+        for i in range(3):
+            M[p + i, v + i] = 1.0
+        M[v + 2, p + 2] = gravity_gradient_t(lat, h, x[15])
+    identity_plus_dt(M, dt, dyn)
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def invariant_top_s(x, M, dt, S):
-    """Rows 0-5 of ``I + F_inv dt`` into ``M`` (6, 12): F_inv of model.invariant_system_matrix.
+def gravity_gradient_t(lat, h, sl):
+    """earth.gravity_down_gradient: ∂g_D/∂D [1/s²] at latitude ``lat`` (``sl = sin lat``), height ``h``."""
+    s2 = sl * sl
+    g0 = GAMMA_E * (1.0 + K_SOMIGLIANA * s2) / math.sqrt(1.0 - E2 * s2)
+    return g0 * (2.0 / A * (1.0 + F + GRAV_M - 2.0 * F * s2) - 6.0 * h / A**2)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def invariant_top_s(x, M, dt, S, dyn):
+    """Rows 0-5 of ``I + F_inv dt`` into ``M`` (12, 12): F_inv of model.invariant_system_matrix
+    (the 12-state layout only; ``dyn`` its rows 0-5).
 
     ρ̇ = −[(2ω_ie + ω_en)×] ρ + ([g×] + [v×][ω_ie×]) φ − C b_a − [v×] C b_g
     φ̇ = −J ρ + (J [v×] − [ω_in×]) φ − C b_g.      ``S`` (5, 3, 3) scratch.
@@ -130,7 +152,7 @@ def invariant_top_s(x, M, dt, S):
     for i in range(3):
         for k in range(3):
             M[3 + i, 3 + k] = (J[i, 0] * V[0, k] + J[i, 1] * V[1, k] + J[i, 2] * V[2, k]) - T[i, k]
-    identity_plus_dt(M, dt)
+    identity_plus_dt(M, dt, dyn)
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -142,58 +164,92 @@ def skew_s(a0, a1, a2, out):
 
 
 @njit(cache=True, error_model="numpy")
-def transition_span(pos, v, C, b_a, b_g, f, w, dt, j0, j1, Phi, invariant):
-    """Steps ``[j0, j1)`` in place on the solution; Φ (R, 12, 12) = Π (I + F dt) into ``Phi``
-    (``invariant``: F_inv of the right-invariant error, iekf.py, instead of model.system_matrix)."""
+def transition_span(pos, v, C, b_a, b_g, f, w, dt, j0, j1, Phi, invariant, off):
+    """Steps ``[j0, j1)`` in place on the solution; Φ (R, n, n) = Π (I + F dt) into ``Phi`` for the
+    layout ``off`` (``invariant``: F_inv of the right-invariant error, iekf.py, 12 states only)."""
+    n = Phi.shape[1]
+    isdyn = np.zeros(n, dtype=np.bool_)
+    for b in range(3):  # pos, vel, att: the blocks with non-zero rows of F
+        if off[b] >= 0:
+            for i in range(3):
+                isdyn[off[b] + i] = True
+    dyn = np.flatnonzero(isdyn)
     S = np.empty((5, 3, 3))
-    M = np.empty((6, 12))
-    top = np.empty((6, 12))
+    M = np.zeros((n, n))
+    top = np.empty((n, n))
     for r in range(pos.shape[0]):
         P = Phi[r]
-        for i in range(12):
-            for k in range(12):
+        for i in range(n):
+            for k in range(n):
                 P[i, k] = 1.0 if i == k else 0.0
         x = load_t(pos[r], v[r], C[r])
         ba0, ba1, ba2, bg0, bg1, bg2 = b_a[r, 0], b_a[r, 1], b_a[r, 2], b_g[r, 0], b_g[r, 1], b_g[r, 2]
         for j in range(j0, j1):
             f0, f1, f2 = f[r, j, 0] - ba0, f[r, j, 1] - ba1, f[r, j, 2] - ba2
             if invariant:
-                invariant_top_s(x, M, dt[j], S)
+                invariant_top_s(x, M, dt[j], S, dyn)
             else:
-                system_top_s(x, f0, f1, f2, M, dt[j])
-            for i in range(6):
-                for k in range(12):
+                system_rows_s(x, f0, f1, f2, M, dt[j], off, dyn)
+            for i in dyn:
+                for k in range(n):
                     s = 0.0
-                    for c in range(6):
+                    for c in dyn:
                         s += M[i, c] * P[c, k]
-                    if k >= 6:
-                        s += M[i, k]  # rows 6-11 of Φ are the identity rows
+                    if not isdyn[k]:
+                        s += M[i, k]  # the bias rows of Φ are identity rows
                     top[i, k] = s
-            for i in range(6):
-                for k in range(12):
+            for i in dyn:
+                for k in range(n):
                     P[i, k] = top[i, k]
             x = cycle_t(x, f0, f1, f2, w[r, j, 0] - bg0, w[r, j, 1] - bg1, w[r, j, 2] - bg2, dt[j])
         store_t(x, pos[r], v[r], C[r])
 
 
 @njit(cache=True, error_model="numpy")
-def points_span(pos, v, C, b_a, b_g, X, f, w, dt, j0, j1, pos_o, v_o, C_o):
-    """The mean and the 2n offsets ``X`` (R, 2n, 12) of each run through steps ``[j0, j1)``
-    (ukf-nespm.md eqs 35-38) into ``pos_o``, ``v_o`` (R, 2n+1, 3), ``C_o`` (R, 2n+1, 3, 3)."""
+def points_span(pos, v, C, b_a, b_g, X, f, w, dt, j0, j1, pos_o, v_o, C_o, dp_o, off):
+    """The mean and the 2n offsets ``X`` (R, 2n, n) of each run through steps ``[j0, j1)``
+    (ukf-nespm.md eqs 35-38; layout ``off``) into ``pos_o``, ``v_o`` (R, 2n+1, 3), ``C_o`` (R, 2n+1, 3, 3),
+    and each point's position offset from point 0, NED [m], into ``dp_o`` (R, 2n+1, 3): its initial
+    ``dp`` plus the trapezoid integral of its velocity's difference from point 0's (eqs 28-30 in
+    deviation form, free of the cancellation of differencing latitudes)."""
     S = X.shape[1] + 1
+    p, vo, a, ba, bg = off[0], off[1], off[2], off[3], off[4]
+    vc = np.empty((j1 - j0 + 1, 3))
     for r in range(pos.shape[0]):
         for s in range(S):
-            # eqs 35-37: position unperturbed, v + dv, exp([dpsi x]) C (point 0: the mean)
+            # eqs 35-37: position ⊕ dp (unperturbed without a position block, as the papers),
+            # v + dv, exp([dpsi x]) C (point 0: the mean)
+            d0, d1, d2 = 0.0, 0.0, 0.0
             if s == 0:
                 x = load_t(pos[r], v[r], C[r])
                 ba0, ba1, ba2, bg0, bg1, bg2 = b_a[r, 0], b_a[r, 1], b_a[r, 2], b_g[r, 0], b_g[r, 1], b_g[r, 2]
             else:
                 d = X[r, s - 1]
-                x = state_t(pos[r, 0], pos[r, 1], pos[r, 2], v[r, 0] + d[0], v[r, 1] + d[1], v[r, 2] + d[2],
-                            mul_t(exp_t(d[3], d[4], d[5]), matrix_t(C[r])))
-                ba0, ba1, ba2 = b_a[r, 0] + d[6], b_a[r, 1] + d[7], b_a[r, 2] + d[8]
-                bg0, bg1, bg2 = b_g[r, 0] + d[9], b_g[r, 1] + d[10], b_g[r, 2] + d[11]
+                lat, lon, h = pos[r, 0], pos[r, 1], pos[r, 2]
+                if p >= 0:  # nav.state.position_plus
+                    x0 = load_t(pos[r], v[r], C[r])
+                    d0, d1, d2 = d[p], d[p + 1], d[p + 2]
+                    lat, lon, h = lat + d0 / (x0[17] + h), lon + d1 / ((x0[18] + h) * x0[16]), h - d2
+                x = state_t(lat, lon, h, v[r, 0] + d[vo], v[r, 1] + d[vo + 1], v[r, 2] + d[vo + 2],
+                            mul_t(exp_t(d[a], d[a + 1], d[a + 2]), matrix_t(C[r])))
+                ba0, ba1, ba2 = b_a[r, 0], b_a[r, 1], b_a[r, 2]
+                bg0, bg1, bg2 = b_g[r, 0], b_g[r, 1], b_g[r, 2]
+                if ba >= 0:
+                    ba0, ba1, ba2 = ba0 + d[ba], ba1 + d[ba + 1], ba2 + d[ba + 2]
+                if bg >= 0:
+                    bg0, bg1, bg2 = bg0 + d[bg], bg1 + d[bg + 1], bg2 + d[bg + 2]
+            if s == 0:
+                vc[0, 0], vc[0, 1], vc[0, 2] = x[3], x[4], x[5]
             for j in range(j0, j1):  # eq 38, the point compensating its own biases
+                e0, e1, e2 = x[3] - vc[j - j0, 0], x[4] - vc[j - j0, 1], x[5] - vc[j - j0, 2]
                 x = cycle_t(x, f[r, j, 0] - ba0, f[r, j, 1] - ba1, f[r, j, 2] - ba2,
                             w[r, j, 0] - bg0, w[r, j, 1] - bg1, w[r, j, 2] - bg2, dt[j])
+                if s == 0:
+                    vc[j - j0 + 1, 0], vc[j - j0 + 1, 1], vc[j - j0 + 1, 2] = x[3], x[4], x[5]
+                else:
+                    half = 0.5 * dt[j]
+                    d0 += (e0 + (x[3] - vc[j - j0 + 1, 0])) * half
+                    d1 += (e1 + (x[4] - vc[j - j0 + 1, 1])) * half
+                    d2 += (e2 + (x[5] - vc[j - j0 + 1, 2])) * half
             store_t(x, pos_o[r, s], v_o[r, s], C_o[r, s])
+            dp_o[r, s, 0], dp_o[r, s, 1], dp_o[r, s, 2] = d0, d1, d2

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from nespm_cli.filters.model import BA, BG
 from nespm_cli.filters.protocol import ErrorStateFilter
 from nespm_cli.filters.registry import register
 from nespm_cli.filters.unscented import moments, sigma_offsets
@@ -28,7 +27,7 @@ class UKF(ErrorStateFilter):
     """
 
     def offsets(self, L: np.ndarray) -> np.ndarray:
-        """Outer point offsets (R, S, 12) from Cholesky factors ``L`` (R, 12, 12) of P."""
+        """Outer point offsets (R, S, n) from Cholesky factors ``L`` (R, n, n) of P."""
         return sigma_offsets(L, self.ut)
 
     def point_moments(self, dx: np.ndarray, dz: np.ndarray | None = None):
@@ -57,6 +56,7 @@ class UKF(ErrorStateFilter):
         self.P = self.P - K @ S @ np.swapaxes(K, -1, -2)
         self.symmetrize()
         self.feedback(x)
+        return nu - mz, S
 
 
 @register("ukf-nespm")
@@ -65,12 +65,17 @@ class UKFNespm(UKF):
 
     def propagate(self, j0: int, j1: int, k: int = 0) -> None:
         Q = self.process_noise(self.span(j0, j1), k)
-        nav = self.nav
-        X = self.offsets(self.cholesky())  # (R, S, 12)
-        pos, v, C = self.points_through_cycle(X, j0, j1)  # eqs 35-38
-        dv = v[:, 1:] - v[:, :1]  # eq 39
-        dpsi = attitude_minus(C[:, 1:], C[:, :1])  # eq 40: ⊖
-        Y = np.concatenate([dv, dpsi, X[..., BA], X[..., BG]], axis=-1)  # biases: constant over the span
+        nav, lay = self.nav, self.layout
+        X = self.offsets(self.cholesky())  # (R, S, n)
+        pos, v, C, dp = self.points_through_cycle(X, j0, j1)  # eqs 35-38
+        blocks = {
+            "pos": lambda: dp[:, 1:],  # the position offsets, integrated as deviations
+            "vel": lambda: v[:, 1:] - v[:, :1],  # eq 39
+            "att": lambda: attitude_minus(C[:, 1:], C[:, :1]),  # eq 40: ⊖
+            "ba": lambda: X[..., lay.slice("ba")],  # biases: constant over the span
+            "bg": lambda: X[..., lay.slice("bg")],
+        }
+        Y = np.concatenate([blocks[b]() for b in lay.blocks], axis=-1)
         m, P = self.point_moments(Y)
         nav.pos, nav.v_n, nav.C_bn = pos[:, 0], v[:, 0], C[:, 0]
         self.feedback(m)

@@ -46,6 +46,16 @@ def gravity_n(pos: np.ndarray) -> np.ndarray:
     return np.stack([g_north, np.zeros_like(g_down), g_down], axis=-1)
 
 
+def gravity_down_gradient(pos: np.ndarray) -> np.ndarray:
+    """``∂g_D/∂D`` [1/s²] (...,) of :func:`gravity_n` at ``pos`` (..., 3): the vertical gravity
+    gradient, about +2g/R = 3.1e-6 s⁻² (gravity grows downwards; D = −h). Exact for the model above."""
+    lat, h = pos[..., 0], pos[..., 2]
+    s2 = np.sin(lat) ** 2
+    g0 = GAMMA_E * (1.0 + K_SOMIGLIANA * s2) / np.sqrt(1.0 - E2 * s2)
+    m = OMEGA_IE**2 * A**2 * B / MU
+    return g0 * (2.0 / A * (1.0 + F + m - 2.0 * F * s2) - 6.0 * h / A**2)
+
+
 def transport_rates(
     lat: np.ndarray, h: np.ndarray, v_n: np.ndarray, R_N: np.ndarray, R_E: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:

@@ -167,3 +167,39 @@ def wrap_angle(a: np.ndarray) -> np.ndarray:
     a = np.asarray(a, dtype=float)
     w = np.mod(a + np.pi, 2.0 * np.pi) - np.pi
     return np.where(w == -np.pi, np.pi, w)
+
+
+#: below this squared angle [rad²] the SO(3) Jacobian coefficients use their series (exact to double
+#: precision: the first omitted term is θ⁸/3.6e6 ≈ 3e-23 relative)
+SERIES_TH2 = 1e-4
+
+
+def so3_left_jacobian(phi: np.ndarray) -> np.ndarray:
+    """Left Jacobian of SO(3) ``J_l(φ) = I + (1 − cos θ)/θ² [φ×] + (θ − sin θ)/θ³ [φ×]²``.
+
+    ``phi`` (..., 3) [rad] -> (..., 3, 3). Series below θ = 0.01 rad, per element.
+    """
+    phi = np.asarray(phi, dtype=float)
+    th2 = (phi * phi).sum(axis=-1)
+    b = np.asarray(0.5 - th2 / 24.0 * (1.0 - th2 / 30.0 * (1.0 - th2 / 56.0)))
+    c = np.asarray(1.0 / 6.0 - th2 / 120.0 * (1.0 - th2 / 42.0 * (1.0 - th2 / 72.0)))
+    big = th2 >= SERIES_TH2
+    if big.any():
+        th = np.sqrt(th2[big])
+        b[big] = (1.0 - np.cos(th)) / th2[big]
+        c[big] = (th - np.sin(th)) / (th2[big] * th)
+    S = skew(phi)
+    return np.eye(3) + b[..., None, None] * S + c[..., None, None] * (S @ S)
+
+
+def so3_left_jacobian_inverse(phi: np.ndarray) -> np.ndarray:
+    """``J_l(φ)⁻¹ = I − ½ [φ×] + (1/θ² − (1 + cos θ)/(2 θ sin θ)) [φ×]²`` (..., 3, 3), |φ| < π."""
+    phi = np.asarray(phi, dtype=float)
+    th2 = (phi * phi).sum(axis=-1)
+    d = np.asarray(1.0 / 12.0 + th2 / 720.0 + th2 * th2 / 30240.0 + th2**3 / 1209600.0)
+    big = th2 >= SERIES_TH2
+    if big.any():
+        th = np.sqrt(th2[big])
+        d[big] = 1.0 / th2[big] - (1.0 + np.cos(th)) / (2.0 * th * np.sin(th))
+    S = skew(phi)
+    return np.eye(3) - 0.5 * S + d[..., None, None] * (S @ S)

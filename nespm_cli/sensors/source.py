@@ -1,0 +1,319 @@
+"""A sensor as a source of measurements: its times, its synthesis from the truth, its recorded
+data and its measurement model (docs/sensors.md).
+
+A :class:`Sensor` subclass (a built-in or a plugin, registered by name in
+:mod:`nespm_cli.sensors.registry`) answers, for one track:
+
+* **when** it measures: :meth:`Sensor.schedule` gives the grid samples of a synthesized record
+  (every ``interval`` seconds of the IMU grid, optionally jittered; the engine splits the IMU step
+  that straddles an off-grid time) — a recorded file brings its own stamps;
+* **what** it measures from the truth: :meth:`Sensor.true_values` (K, m), to which the
+  synthesis adds the per-run errors of the common options (white noise ``std``, a constant
+  ``bias``, a ``scale`` factor error) drawn from the sensor's own seed stream;
+* **which** of those measurements exist in each run: :func:`availability` (``outage`` windows,
+  random ``dropout``, and a sensor's own rule such as surface-only fixes);
+* **how a filter uses one**: :meth:`Sensor.measurement` builds the
+  :class:`~nespm_cli.sensors.measurement.Measurement` (``z, h, H, R``) at that time.
+
+Its records for R runs travel as a :class:`Channel`. A seed stream per sensor (:meth:`Sensor.rng`:
+``SeedSequence(seed, spawn_key=(track, run, stream))``, the stream a number of the sensor's
+own) means that adding or removing a sensor never changes the IMU, the initial errors or any
+other sensor's draws.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import zlib
+from dataclasses import dataclass
+
+import numpy as np
+
+from nespm_cli.errors import NespmError
+from nespm_cli.nav.state import NavState, StateLayout
+from nespm_cli.sensors.measurement import Measurement
+
+SOURCES = ("synthetic", "recorded")
+TRACK_LEVEL = 2**31  # the run slot of a track-level draw (jittered stamps: one schedule for every run)
+
+
+@dataclass(frozen=True)
+class SensorOptions:
+    """Options every sensor has (``--sensor-option NAME.KEY=VALUE``; ``[sensors.NAME]`` in a config).
+
+    * ``source``: ``synthetic`` (made from the truth in every run) or ``recorded`` (the track's file);
+    * ``std``: the synthetic white noise std per measurement, and the filter's R unless ``r_std``;
+    * ``r_std``: the filter's noise std (None: ``std``, the filter told the truth);
+    * ``interval`` [s]: time between synthetic measurements (None: the sensor's default), on the
+      IMU grid; ``jitter`` [s]: std of a random offset of each stamp (one draw per track, the same
+      for every run; off-grid stamps split an IMU step);
+    * ``bias``: std of a constant bias per run and axis; ``scale``: std of a scale-factor error per
+      run (relative); both synthetic, unknown to the filter;
+    * ``outage``: windows ``START:END[,START:END]`` [s since the first epoch] with no measurement;
+    * ``dropout``: probability that a measurement is lost, independently per run and time;
+    * ``lever_arm``: ``X,Y,Z`` [m, body] of the sensor from the IMU.
+    """
+
+    source: str = "synthetic"
+    std: float = 1.0
+    r_std: float | None = None
+    interval: float | None = None
+    jitter: float = 0.0
+    bias: float = 0.0
+    scale: float = 0.0
+    outage: str = ""
+    dropout: float = 0.0
+    lever_arm: tuple = (0.0, 0.0, 0.0)
+
+
+@dataclass(frozen=True)
+class Truth:
+    """The truth at K measurement times: ``t`` (K,) [s since the first epoch], ``pos`` (K, 3)
+    ``[lat, lon, h]``, ``v_n`` (K, 3) [m/s], ``C_bn`` (K, 3, 3), ``w_nb_b`` (K, 3) body rate
+    relative to NED [rad/s] (the IMU step ending there)."""
+
+    t: np.ndarray
+    pos: np.ndarray
+    v_n: np.ndarray
+    C_bn: np.ndarray
+    w_nb_b: np.ndarray
+
+
+@dataclass
+class Channel:
+    """One sensor's measurements in R runs, K times in increasing order: ``index`` (K,) the IMU
+    sample at or before each time and ``frac`` (K,) how far into the step that follows it lies
+    (0: on the sample; the engine splits the step there); ``t`` (K,) [s since the first epoch];
+    ``z`` (R, K, m) the values; ``ok`` (R, K) whether the measurement exists in that run."""
+
+    sensor: "Sensor"
+    index: np.ndarray
+    t: np.ndarray
+    z: np.ndarray
+    ok: np.ndarray
+    frac: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        self.index = np.asarray(self.index, dtype=np.int64)
+        self.t = np.asarray(self.t, dtype=float)
+        self.frac = np.zeros(len(self.index)) if self.frac is None else np.asarray(self.frac, dtype=float)
+
+
+@dataclass(frozen=True)
+class Context:
+    """What a measurement may need besides the solution: the compensated IMU of the step that
+    ends at its time, ``f_b`` (R, 3) [m/s²], ``w_ib_b`` (R, 3) [rad/s]."""
+
+    f_b: np.ndarray
+    w_ib_b: np.ndarray
+
+
+class Sensor:
+    """Base class of every sensor. Class attributes: ``name`` (set by ``register``), ``dim`` m,
+    ``labels`` (m component names), ``observes`` (state blocks its model needs), ``Options``
+    (its options dataclass, a :class:`SensorOptions` subclass), ``stream`` (its seed stream; None:
+    derived from the name), ``default_interval`` [s] (None: the GT epochs), ``files`` (the
+    recorded file's name pattern and its value columns)."""
+
+    name: str = ""
+    dim: int = 0
+    labels: tuple = ()
+    observes: tuple = ()
+    Options: type = SensorOptions
+    stream: int | None = None
+    default_interval: float | None = 1.0
+
+    def __init__(self, options: SensorOptions | None = None):
+        self.opt = options if options is not None else self.Options()
+
+    # --- identity and randomness --------------------------------------------------------------
+    @property
+    def stream_id(self) -> int:
+        """The seed stream of this sensor's draws (fixed per name; the DVL keeps the papers' 3)."""
+        if self.stream is not None:
+            return int(self.stream)
+        return 1000 + zlib.crc32(self.name.encode()) % 1_000_000
+
+    def rng(self, seed: int, track: int, run: int, sub: int = 0) -> np.random.Generator:
+        """The generator of this sensor's draws in ``run`` (``sub`` 1: availability draws)."""
+        key = (track, run, self.stream_id) if sub == 0 else (track, run, self.stream_id, sub)
+        return np.random.Generator(np.random.PCG64(np.random.SeedSequence(seed, spawn_key=key)))
+
+    # --- to be provided by a sensor -------------------------------------------------------------
+    def true_values(self, truth: Truth) -> np.ndarray:
+        """The error-free measurement (K, m) at the truth ``truth``."""
+        raise NotImplementedError
+
+    def measurement(self, z: np.ndarray, nav: NavState, ctx: Context, layout: StateLayout) -> Measurement:
+        """The measurement object of values ``z`` (R, m) for a filter with ``layout``."""
+        raise NotImplementedError
+
+    def recorded(self, track) -> tuple[np.ndarray, np.ndarray] | None:
+        """``(t (K,) [s, file time], z (K, m))`` of the track's recorded file (NaN rows: none), or None."""
+        channels = getattr(track, "channels", None) or {}
+        return channels.get(self.name)
+
+    def available_extra(self, truth: Truth) -> np.ndarray | None:
+        """A sensor's own availability rule (K,) bool (e.g. fixes only at the surface), or None."""
+        return None
+
+    # --- common behaviour ----------------------------------------------------------------------
+    def check(self, layout: StateLayout) -> None:
+        """Refuse a layout that cannot see what this sensor measures (one line)."""
+        missing = [b for b in self.observes if not layout.has(b)]
+        if missing:
+            raise NespmError(f"--sensors {self.name}: observes the {missing[0]} block, which --state {layout.name} "
+                             f"does not hold; use --state 15 (or add {missing[0]})")
+
+    def interval(self) -> float | None:
+        """Seconds between synthetic measurements (None: at the GT epochs)."""
+        return self.opt.interval if self.opt.interval is not None else self.default_interval
+
+    def noise_std(self) -> float:
+        """The synthetic white noise std."""
+        return float(self.opt.std)
+
+    def r_std(self) -> float:
+        """The filter's noise std per component."""
+        return float(self.opt.r_std if self.opt.r_std is not None else self.opt.std)
+
+    def R(self) -> np.ndarray:
+        """The filter's noise covariance (m, m)."""
+        return np.eye(self.dim) * self.r_std() ** 2
+
+    def synthesize(self, truth: Truth, seed: int, track: int, runs: np.ndarray) -> np.ndarray:
+        """Synthetic records (R, K, m): true values x (1 + scale error) + bias + white noise, each
+        run from its own stream (noise first, then bias and scale, so an option never moves the
+        noise draws)."""
+        clean = self.true_values(truth)
+        K, m = clean.shape
+        out = np.empty((len(runs), K, m))
+        for i, r in enumerate(runs):
+            g = self.rng(seed, track, int(r))
+            noise = g.standard_normal((K, m))
+            out[i] = clean + self.noise_std() * noise
+            if self.opt.bias or self.opt.scale:
+                bias, scale = g.standard_normal(m) * self.opt.bias, g.standard_normal() * self.opt.scale
+                out[i] = out[i] + clean * scale + bias
+        return out
+
+
+def parse_windows(text: str, where: str) -> list[tuple[float, float]]:
+    """``"180:240,300:310"`` -> ``[(180, 240), (300, 310)]`` [s] (one-line error naming ``where``)."""
+    out = []
+    for part in str(text or "").replace(";", ",").split(","):
+        if not part.strip():
+            continue
+        try:
+            a, b = (float(x) for x in part.split(":"))
+        except ValueError:
+            raise NespmError(f"{where}: expected windows START:END[,START:END] in seconds, got {text!r}") from None
+        if not (math.isfinite(a) and math.isfinite(b) and 0 <= a < b):
+            raise NespmError(f"{where}: a window needs 0 <= START < END, got {part.strip()!r}")
+        out.append((a, b))
+    return out
+
+
+def availability(sensor: Sensor, t: np.ndarray, truth: Truth | None, seed: int, track: int,
+                 runs: np.ndarray) -> np.ndarray:
+    """(R, K) whether each measurement exists: never at t = 0 (the filter starts there), not in an
+    ``outage`` window ``[start, end)``, not where the sensor's own rule says no, and not dropped
+    (probability ``dropout``, per run from the sensor's availability stream)."""
+    t = np.asarray(t, dtype=float)
+    ok = t > 1e-9
+    for a, b in parse_windows(sensor.opt.outage, f"{sensor.name}.outage"):
+        ok &= ~((t >= a - 1e-9) & (t < b - 1e-9))
+    extra = sensor.available_extra(truth) if truth is not None else None
+    if extra is not None:
+        ok &= np.asarray(extra, dtype=bool)
+    out = np.broadcast_to(ok, (len(runs), len(t))).copy()
+    if sensor.opt.dropout > 0:
+        for i, r in enumerate(runs):
+            out[i] &= sensor.rng(seed, track, int(r), sub=1).random(len(t)) >= sensor.opt.dropout
+    return out
+
+
+def jittered(sensor: Sensor, t: np.ndarray, seed: int, track: int) -> np.ndarray:
+    """Nominal stamps ``t`` (K,) [s] moved by N(0, jitter²), one draw per track (every run the
+    same), kept increasing and inside ``(t[0], t[-1])`` of the nominal schedule's span."""
+    if not sensor.opt.jitter:
+        return t
+    d = sensor.rng(seed, track, TRACK_LEVEL).standard_normal(len(t)) * sensor.opt.jitter
+    return np.asarray(t, dtype=float) + d
+
+
+def options_of(sensor_cls: type, raw: dict) -> SensorOptions:
+    """``sensor_cls.Options`` from ``{key: value}`` (strings from the command line are converted by
+    the field's type); an unknown key or a bad value is a one-line error naming ``name.key``."""
+    fields = {f.name: f for f in dataclasses.fields(sensor_cls.Options)}
+    kw = {}
+    for key, value in raw.items():
+        where = f"--sensor-option {sensor_cls.name}.{key}"
+        if key not in fields:
+            raise NespmError(f"{where}: unknown option; {sensor_cls.name} takes {', '.join(sorted(fields))}")
+        kw[key] = convert(value, fields[key], where)
+    opt = sensor_cls.Options(**kw)
+    check_options(sensor_cls.name, opt)
+    return opt
+
+
+def convert(value, f: dataclasses.Field, where: str):
+    """``value`` (a string, or a TOML value) as the type of field ``f`` (float, int, bool, str, tuple)."""
+    default = f.default
+    text = str(value).strip()
+    try:
+        if isinstance(default, bool):
+            if isinstance(value, bool):
+                return value
+            if text.lower() in ("true", "yes", "1", "on"):
+                return True
+            if text.lower() in ("false", "no", "0", "off"):
+                return False
+            raise ValueError
+        if isinstance(default, tuple):
+            items = value if isinstance(value, (list, tuple)) else text.replace(" ", ",").split(",")
+            out = tuple(float(x) for x in items if str(x).strip())
+            if len(out) != len(default):
+                raise ValueError
+            return out
+        if isinstance(default, str):
+            return text
+        if isinstance(value, bool):
+            raise ValueError
+        if text.lower() in ("none", "") and (default is None or "None" in str(f.type)):
+            return None
+        if isinstance(default, int):
+            return int(text)
+        return float(text)
+    except ValueError:
+        kind = type(default).__name__ if default is not None else "number"
+        raise NespmError(f"{where}={value!r}: expected a {kind}") from None
+
+
+def check_options(name: str, opt: SensorOptions) -> None:
+    """Domains of the common options (one line naming ``name.key``)."""
+    def bad(key: str, what: str) -> NespmError:
+        return NespmError(f"--sensor-option {name}.{key}={getattr(opt, key)!r}: {what}")
+
+    if opt.source not in SOURCES:
+        raise bad("source", f"choose {' or '.join(SOURCES)}")
+    if not (math.isfinite(opt.std) and opt.std > 0):
+        raise bad("std", "must be a positive std")
+    if opt.r_std is not None and not (math.isfinite(opt.r_std) and opt.r_std > 0):
+        raise bad("r_std", "must be a positive std")
+    if opt.interval is not None and not (math.isfinite(opt.interval) and opt.interval > 0):
+        raise bad("interval", "must be a positive number of seconds")
+    for key in ("jitter", "bias", "scale"):
+        v = getattr(opt, key)
+        if not (math.isfinite(v) and v >= 0):
+            raise bad(key, "must be a finite std >= 0")
+    if not (0.0 <= opt.dropout < 1.0):
+        raise bad("dropout", "must be a probability in [0, 1)")
+    lever = np.asarray(opt.lever_arm, dtype=float)
+    if lever.shape != (3,) or not np.all(np.isfinite(lever)) or np.abs(lever).max() > 100.0:
+        raise bad("lever_arm", "must be three finite numbers within +-100 m")
+    parse_windows(opt.outage, f"--sensor-option {name}.outage")
+
+
+__all__ = ["Channel", "Context", "SOURCES", "Sensor", "SensorOptions", "Truth", "availability", "check_options",
+           "convert", "jittered", "options_of", "parse_windows"]
