@@ -57,9 +57,10 @@ def _filters(text: str) -> tuple[str, ...]:
 CORRUPTION_FIELDS = {"schedule": "schedule", "segment_length": "segment_s", "dynamic_bias": "dynamic_bias",
                      "dvl_noise": "dvl_noise", "misalignment_deg": "misalignment_deg", "heading_deg": "heading_deg",
                      "vel_h_std": "vel_h_std", "vel_v_std": "vel_v_std", "acc_noise": "acc_noise",
-                     "gyro_noise": "gyro_noise", "acc_bias": "acc_bias", "gyro_bias": "gyro_bias"}
+                     "gyro_noise": "gyro_noise", "acc_bias": "acc_bias", "gyro_bias": "gyro_bias",
+                     "pos_h_std": "pos_h_std", "pos_v_std": "pos_v_std"}
 FILTER_FIELDS = ("acc_bias_rw", "gyro_bias_rw", "alpha", "tau", "tau_a", "tau_g", "adaptive_bias", "q_clip",
-                 "time_update")
+                 "time_update", "state")
 
 
 def default(cls, name: str):
@@ -83,25 +84,30 @@ def _warning_mode(mode: str) -> None:
     set_warning_mode(mode)
 
 
-def _spec(**kw):
-    import dataclasses
+def _sensor_option(text: str) -> tuple[str, str, str]:
+    """``NAME.KEY=VALUE`` -> ``(NAME, KEY, VALUE)`` (one-line error otherwise)."""
+    m = re.fullmatch(r"\s*([A-Za-z0-9_-]+)\.([A-Za-z0-9_]+)\s*=(.*)", text)
+    if not m:
+        raise NespmError(f"--sensor-option {text!r}: expected NAME.KEY=VALUE, e.g. fix.interval=10")
+    return m.group(1), m.group(2), m.group(3).strip()
 
+
+def _spec(**kw):
+    """The Spec of the common options; every coupling of options (P0 from the corruption, the DVL
+    flags as the DVL's options) happens in the library (experiments.spec.validate), not here."""
     from nespm_cli.experiments.metrics import DivergenceRule
-    from nespm_cli.experiments.spec import Spec, couple_filter
+    from nespm_cli.experiments.spec import Spec
 
     _warning_mode(kw.pop("data_warnings"))
     corr = _corruption(kw)
     kw["filter_plugins"] = tuple(kw.get("filter_plugins") or ())
+    kw["sensor_plugins"] = tuple(kw.get("sensor_plugins") or ())
+    kw["sensors"] = tuple(s.strip() for s in kw.pop("sensors_").split(",") if s.strip())
+    kw["sensor_options"] = tuple(_sensor_option(o) for o in kw.pop("sensor_option") or ())
     fields = {k: kw.pop(k) for k in FILTER_FIELDS}
-    fcfg = couple_filter(FilterConfig(**{**fields, "q_clip": tuple(fields["q_clip"])}), corr)
+    fcfg = FilterConfig(**{**fields, "q_clip": tuple(fields["q_clip"])})
     kw["divergence"] = DivergenceRule(att_deg=kw.pop("diverge_att_deg"), nees=kw.pop("diverge_nees"),
                                       window_s=kw.pop("diverge_window"), after_s=kw.pop("diverge_after"))
-    own = {k: kw.pop(f"filter_{k}") for k in ("acc_noise", "gyro_noise")}
-    for k, v in own.items():
-        if v is not None:
-            if not (np.isfinite(v) and v > 0):
-                raise NespmError(f"--filter-{k.replace('_', '-')} must be a positive number, got {v:g}")
-            fcfg = dataclasses.replace(fcfg, **{k: float(v)})
     return Spec(corruption=corr, filter_config=fcfg, **kw)
 
 
@@ -120,6 +126,8 @@ _CORRUPTION = [  # (name, type, default, flag, help): the realizations (mc, swee
     ("gyro_noise", float, default(CorruptionConfig, "gyro_noise"), "--gyro-noise", "Gyro white noise std per sample [rad/s]."),
     ("acc_bias", float, default(CorruptionConfig, "acc_bias"), "--acc-bias", "Accelerometer bias std [m/s^2]."),
     ("gyro_bias", float, default(CorruptionConfig, "gyro_bias"), "--gyro-bias", "Gyro bias std [rad/s]."),
+    ("pos_h_std", float, default(CorruptionConfig, "pos_h_std"), "--pos-h-std", "Initial north/east position error std [m] (0 in the papers; with --state 15 the filter's P0 follows it)."),
+    ("pos_v_std", float, default(CorruptionConfig, "pos_v_std"), "--pos-v-std", "Initial down position error std [m]."),
 ]
 
 _RECORDED = [  # corrections of recorded data (docs/checking-data.md): mc, sweep, run, train
@@ -140,6 +148,11 @@ _COMMON = [  # the options that define an experiment: the realizations, the data
     *_CORRUPTION,
     ("data_warnings", str, "warn", "--data-warnings", "Data that looks wrong but may be legitimate (irregular epoch steps, fast turns, a DVL speed far from the GT's, ...): warn (one line each), ignore, or error (exit 2). Clear mistakes are always errors."),
     ("scenario", str, default(Spec, "scenario"), "--scenario", "nominal, or outage: no DVL for --outage-length s from --outage-start s."),
+    ("state", str, default(FilterConfig, "state"), "--state", "Error-state layout: 12 (the papers': velocity, attitude, biases), 15 (position first) or a comma list of blocks from pos,vel,att,ba,bg (docs/sensors.md)."),
+    ("sensors_", str, ",".join(default(Spec, "sensors")), "--sensors", "Comma list of measurement sources, applied in this order at equal times: dvl, depth, fix, or a plugin's (docs/sensors.md)."),
+    ("sensor_option", Optional[List[str]], None, "--sensor-option", "NAME.KEY=VALUE for a sensor of --sensors, e.g. fix.interval=10, fix.std=1, depth.std=0.05, dvl.outage=180:200; repeatable; [sensors.NAME] tables in a --config file."),
+    ("sensor_plugins", Optional[List[str]], None, "--sensor-plugin", "A Python file (or module) defining your own sensors with nespm_cli.sensors.register; repeatable; then name them in --sensors (docs/sensors.md)."),
+    ("imu_rate", float, default(Spec, "imu_rate"), "--imu-rate", "Rate of the synthesized IMU [Hz]: round(rate x GT step) steps per GT interval (the noise std options are per sample at this rate)."),
     ("imu", str, default(Spec, "imu"), "--imu", "synthetic (inverse strapdown of GT: exact truth) or recorded (IMU_trajectoryN.csv)."),
     *_RECORDED,
     ("dvl", str, default(Spec, "dvl"), "--dvl", "recorded (the track's DVL file) or synthetic (C_n^b v + w_nb x l + N(0, dvl-noise^2))."),
@@ -520,7 +533,7 @@ def gp_ukf_cmd(
                f"-> {out}/metrics.parquet; next: nespm report {out}")
 
 
-_REPEATED = ("--filter-plugin",)  # options given once per value
+_REPEATED = ("--filter-plugin", "--sensor-plugin", "--sensor-option")  # options given once per value
 
 
 def _config_paths(argv: list[str]) -> tuple[list[str], list[str]]:
@@ -566,6 +579,9 @@ def _config_options(path: Path) -> list[str]:
     opts: list[str] = []
     for key, val in cfg.items():
         flag = "--" + key.replace("_", "-")
+        if key == "sensors" and isinstance(val, dict):
+            opts += _sensor_tables(path, val)
+            continue
         if isinstance(val, dict):
             raise NespmError(f"--config {path}: [{key}] is a table; options are top-level keys (runs = 100)")
         if isinstance(val, bool):
@@ -577,6 +593,20 @@ def _config_options(path: Path) -> list[str]:
         else:
             opts += [flag, str(val)]
     return opts
+
+
+def _sensor_tables(path: Path, tables: dict) -> list[str]:
+    """``[sensors.NAME]`` tables (in file order) as ``--sensors`` and ``--sensor-option`` words."""
+    words = ["--sensors", ",".join(tables)]
+    for name, table in tables.items():
+        if not isinstance(table, dict):
+            raise NespmError(f"--config {path}: sensors.{name} must be a table of options ([sensors.{name}])")
+        for k, v in table.items():
+            if isinstance(v, dict):
+                raise NespmError(f"--config {path}: sensors.{name}.{k} is a table; give option values")
+            text = ",".join(str(x) for x in v) if isinstance(v, list) else str(v).lower() if isinstance(v, bool) else str(v)
+            words += ["--sensor-option", f"{name}.{k}={text}"]
+    return words
 
 
 def _expand_config(argv: list[str]) -> list[str]:

@@ -36,7 +36,7 @@ SUMMARY_KEYS = {"track", "filter", "vrmse", "mrmse", "max_vel_err", "max_att_err
 REALIZATION_COLUMNS = [
     "track", "run", "seed", "schedule", "segment_s", "dynamic_bias",
     "dv0_n", "dv0_e", "dv0_d", "dpsi0_x", "dpsi0_y", "dpsi0_z",
-    "ba_x", "ba_y", "ba_z", "bg_x", "bg_y", "bg_z", "acc_factors", "gyro_factors",
+    "ba_x", "ba_y", "ba_z", "bg_x", "bg_y", "bg_z", "dp0_n", "dp0_e", "dp0_d", "acc_factors", "gyro_factors",
 ]
 
 
@@ -357,7 +357,11 @@ def test_cli_defaults_are_the_library_defaults():
 
     kw = {name: d for name, _, d, _, _ in cli_mod._COMMON}
     spec = cli_mod._spec(tracks=(5, 6), runs=100, filters=("ekf", "ukf", "ukf-nespm"), chunk_size=50, **kw)
-    assert spec == Spec(filter_config=couple_filter(FilterConfig(), CorruptionConfig()))
+    assert spec == Spec()
+    # the filters are told the corruption by the library, for the API as for the CLI
+    from nespm_cli.experiments.spec import validate
+    assert validate(spec).filter_config == validate(Spec()).filter_config
+    assert validate(Spec()).filter_config.p0_vel == couple_filter(FilterConfig(), CorruptionConfig()).p0_vel
     runner = {name: d for name, _, d, _, _ in cli_mod._RUNNER}
     assert runner["tracks_"] == "5 6" and runner["filters_"] == "ekf,ukf,ukf-nespm"
     assert runner["runs"] == Spec().runs and runner["chunk_size"] == Spec().chunk_size

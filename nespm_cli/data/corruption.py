@@ -10,7 +10,10 @@ Protocol (ukf-nespm.md section IV-A, anukf.md section IV-A), all std values opti
 * initial velocity error N(0, 0.25²) north and east, N(0, 0.05²) down [m/s];
 * initial misalignment N(0, (0.01 deg)²) per axis (nav frame, ⊕ of eq 37);
 * white noise 0.03 m/s² (accelerometers), 7.3e-6 rad/s (gyros): std per 100 Hz sample;
-* biases N(0, 0.3²) m/s² and N(0, (7.3e-5)²) rad/s per axis, constant over the track.
+* biases N(0, 0.3²) m/s² and N(0, (7.3e-5)²) rad/s per axis, constant over the track;
+* initial position error N(0, pos_h_std²) north and east, N(0, pos_v_std²) down [m]: 0 in the
+  papers (position is not in their state); drawn from its own stream (``STREAM_POS``), so
+  setting it never changes another draw.
 
 Schedules:
 
@@ -42,7 +45,7 @@ import numpy as np
 
 from nespm_cli.errors import NespmError
 
-STREAM_INIT, STREAM_ACC, STREAM_GYRO, STREAM_DVL, STREAM_SCHEDULE = range(5)
+STREAM_INIT, STREAM_ACC, STREAM_GYRO, STREAM_DVL, STREAM_SCHEDULE, STREAM_POS = range(6)
 SCHEDULES = ("constant", "dynamic")
 DYNAMIC_BIAS = ("run", "segment")
 
@@ -71,6 +74,8 @@ class CorruptionConfig:
     factor_max: float = 6.0
     dynamic_bias: str = "run"  # dynamic schedule: bias factor held per run ("run") or per segment
     dvl_noise: float = 0.02  # m/s, synthetic DVL
+    pos_h_std: float = 0.0  # m, initial position error north and east
+    pos_v_std: float = 0.0  # m, initial position error down
 
     def __post_init__(self):
         if self.schedule not in SCHEDULES:
@@ -80,7 +85,7 @@ class CorruptionConfig:
         if not (self.segment_s > 0 and np.isfinite(self.segment_s)):
             raise NespmError("--segment-length must be a positive number of seconds")
         for name in ("vel_h_std", "vel_v_std", "misalignment_deg", "acc_noise", "gyro_noise", "acc_bias",
-                     "gyro_bias", "dvl_noise", "heading_deg"):
+                     "gyro_bias", "dvl_noise", "heading_deg", "pos_h_std", "pos_v_std"):
             v = getattr(self, name)
             if v is None:
                 continue
@@ -123,6 +128,7 @@ class Realization:
         dpsi0: (R, 3) initial misalignment [rad] (C_est = exp([dpsi0 x]) C_true).
         b_a, b_g: (R, 3) base biases [m/s^2], [rad/s].
         acc_factors, gyro_factors: (R, S) per-segment factors (ones for ``constant``).
+        dp0: (R, 3) initial position error, NED [m] (estimate = truth ⊕ dp0; zeros by default).
     """
 
     seed: int
@@ -135,6 +141,7 @@ class Realization:
     b_g: np.ndarray
     acc_factors: np.ndarray
     gyro_factors: np.ndarray
+    dp0: np.ndarray | None = None
     _cache: dict = field(default_factory=dict, repr=False)
 
 
@@ -170,7 +177,20 @@ def draw(seed: int, track: int, runs, duration: float, config: CorruptionConfig)
         b_g=z[:, 9:12] * config.gyro_bias,
         acc_factors=fac[:, 0],
         gyro_factors=fac[:, 1],
+        dp0=initial_position_error(seed, track, runs, config),
     )
+
+
+def initial_position_error(seed: int, track: int, runs: np.ndarray, config: CorruptionConfig) -> np.ndarray:
+    """(R, 3) initial position error NED [m], N(0, diag(h², h², v²)) from ``STREAM_POS`` (zeros,
+    and no draw, when both std are 0)."""
+    std = np.array([config.pos_h_std, config.pos_h_std, config.pos_v_std])
+    out = np.zeros((len(runs), 3))
+    if not std.any():
+        return out
+    for i, r in enumerate(runs):
+        out[i] = stream(seed, track, int(r), STREAM_POS).standard_normal(3) * std
+    return out
 
 
 def segment_index(t_rel: np.ndarray, segment_s: float, S: int) -> np.ndarray:
@@ -232,7 +252,8 @@ def to_rows(real: Realization) -> list[dict]:
         row = {"track": real.track, "run": int(r), "seed": real.seed, "schedule": real.config.schedule,
                "segment_s": real.config.segment_s, "dynamic_bias": real.config.dynamic_bias}
         for name, arr, comps in (("dv0", real.dv0, "ned"), ("dpsi0", real.dpsi0, "xyz"),
-                                 ("ba", real.b_a, "xyz"), ("bg", real.b_g, "xyz")):
+                                 ("ba", real.b_a, "xyz"), ("bg", real.b_g, "xyz"),
+                                 ("dp0", real.dp0 if real.dp0 is not None else np.zeros((len(real.runs), 3)), "ned")):
             for j, c in enumerate(comps):
                 row[f"{name}_{c}"] = float(arr[i, j])
         row["acc_factors"] = real.acc_factors[i].tolist()

@@ -22,6 +22,8 @@ from nespm_cli.errors import NespmError
 from nespm_cli.experiments.store import file_hashes
 from nespm_cli.nav.synthesis import ImuTruth, from_recorded, synthesize
 
+DEFAULT_IMU_RATE = 100.0  # [Hz] the synthesized IMU's rate (the papers')
+
 #: ``{absolute path: sha256}`` of every file this process has read through :func:`prepared`
 READ_HASHES: dict[str, str] = {}
 
@@ -43,14 +45,15 @@ def read_track(number: int, data_dir: str | None, imu: str) -> Track:
 
 
 def prepared(number: int, data_dir: str | None, imu: str,
-             corrections: Corrections = Corrections()) -> tuple[Track, ImuTruth]:
+             corrections: Corrections = Corrections(), imu_rate: float = DEFAULT_IMU_RATE) -> tuple[Track, ImuTruth]:
     """Track (corrected) and its IMU-rate truth/IMU, computed once per process and file version:
     the cache key holds the files' size, modification time and inode, so a file changed since it
-    was read is read (and hashed) again."""
+    was read is read (and hashed) again. ``imu_rate`` [Hz]: the synthesized IMU's rate
+    (:func:`substeps_for`; a recorded IMU keeps its own)."""
     # None is the embedded default here (validate resolved $NESPM_DATA_DIR on the client), never
     # the worker's own $NESPM_DATA_DIR
     stamp = () if data_dir is None else tuple(file_stamp(p) for p in track_files(number, data_dir, imu == "recorded"))
-    return prepared_version(number, data_dir, imu, corrections, stamp)
+    return prepared_version(number, data_dir, imu, corrections, stamp, float(imu_rate))
 
 
 def file_stamp(path: Path) -> tuple:
@@ -64,10 +67,20 @@ def file_stamp(path: Path) -> tuple:
 
 @lru_cache(maxsize=16)
 def prepared_version(number: int, data_dir: str | None, imu: str, corrections: Corrections,
-                     stamp: tuple) -> tuple[Track, ImuTruth]:
+                     stamp: tuple, imu_rate: float = DEFAULT_IMU_RATE) -> tuple[Track, ImuTruth]:
     """:func:`prepared` of one version (``stamp``) of the track's files."""
     track = apply_corrections(read_track(number, data_dir, imu), corrections)
-    return track, (synthesize(track) if imu == "synthetic" else from_recorded(track))
+    if imu == "synthetic":
+        return track, synthesize(track, substeps_for(track, imu_rate))
+    return track, from_recorded(track)
+
+
+def substeps_for(track: Track, imu_rate: float) -> int:
+    """IMU steps per GT interval of a synthesized IMU at about ``imu_rate`` Hz: ``round(imu_rate x the
+    median GT step)``, at least 1 (the Snapir GT step of 400/399 s at 100 Hz: 100 steps of 10.025 ms)."""
+    import numpy as np
+
+    return max(1, int(round(float(imu_rate) * float(np.median(np.diff(track.t))))))
 
 
 def verify_read(expected: dict[str, str], paths) -> None:
@@ -84,4 +97,4 @@ def verify_read(expected: dict[str, str], paths) -> None:
                              "the same command, or use a new --out folder")
 
 
-__all__ = ["READ_HASHES", "file_stamp", "prepared", "prepared_version", "read_track", "verify_read"]
+__all__ = ["DEFAULT_IMU_RATE", "READ_HASHES", "file_stamp", "substeps_for", "prepared", "prepared_version", "read_track", "verify_read"]

@@ -19,56 +19,43 @@ from typing import Callable
 import numpy as np
 import pandas as pd
 
-from nespm_cli.data.corruption import draw, dvl_noise, imu_errors
+from nespm_cli.data.corruption import draw, imu_errors
 from nespm_cli.data.tracks import track_files
 from nespm_cli.errors import NespmError
 from nespm_cli.experiments.assembly import epoch_table
 from nespm_cli.experiments.backend import check_scheduler
 from nespm_cli.experiments.chunks import chunk_problem, concat_parquet, write_chunk
 from nespm_cli.experiments.inputs import READ_HASHES, verify_read
-from nespm_cli.experiments.metrics import divergence, epoch_errors, run_metrics
+from nespm_cli.experiments.metrics import divergence, epoch_errors, run_metrics, sensor_nis
 from nespm_cli.experiments.spec import (Spec, couple_filter, filter_config, load_filters, needs_noise_std,
                                         track_inputs, validate)
+from nespm_cli.experiments.suite import load_sensors, sensor_plugin_files, sensor_suite
 from nespm_cli.experiments.store import (ResultsFolder, Task, chunk_firsts, file_hashes, run_blocks,
                                         write_parquet_atomic)
 from nespm_cli.filters import FilterConfig, initial_nav, run_filter
 from nespm_cli.filters.kernels import kernel_backend
 from nespm_cli.filters.registry import plugin_files
 from nespm_cli.learn.noise_model import default_weights, predict_interval_std
-from nespm_cli.nav.dvl import body_rate_at_epochs, dvl_velocity
+from nespm_cli.sensors.channels import build_channel
 from nespm_cli.nav.earth import ned_offset
-
-def dvl_mask(spec: Spec, t_rel: np.ndarray) -> np.ndarray:
-    """Epochs (N,) at which a DVL update is applied (never at epoch 0)."""
-    m = np.ones(len(t_rel), dtype=bool)
-    m[0] = False
-    if spec.scenario == "outage":
-        m &= ~((t_rel >= spec.outage_start - 1e-9) & (t_rel < spec.outage_start + spec.outage_length - 1e-9))
-    return m
-
 
 def simulate(spec: Spec, number: int, runs: np.ndarray, filters=None, clean: bool = False,
              progress: Callable[[int], None] | None = None):
     """Run ``filters`` on the realizations ``runs`` of track ``number``.
 
-    Returns ``{filter: (FilterOutput, EpochErrors, seconds)}`` plus the truth object.
-    ``progress(done)``, if given, is called with the filter-epochs done so far (filters run one
-    after the other, each over the track's N-1 epoch intervals).
+    Returns ``({filter: (FilterOutput, EpochErrors, seconds)}, truth, realization)``. Every filter
+    sees the same IMU, initial errors and sensor channels (one per sensor of ``spec.sensors``,
+    :func:`nespm_cli.sensors.channels.build_channel`). ``clean``: the error-free IMU, initial
+    solution and measurements. ``progress(done)``, if given, is called with the filter-epochs
+    done so far (filters run one after the other, each over the track's N-1 epoch intervals).
     """
     track, truth = track_inputs(spec, number)
     e = truth.epoch_index
     t_rel = truth.t[e] - truth.t[e[0]]
     R = len(runs)
     real = draw(spec.seed, number, runs, float(t_rel[-1]), spec.corruption)
-    lever = np.asarray(spec.dvl_lever_arm, dtype=float)
     C_t, v_t, p_t = truth.C_bn[e], truth.v_n[e], truth.pos[e]
-    if spec.dvl == "synthetic":
-        dvl = dvl_velocity(C_t, v_t, body_rate_at_epochs(truth.C_bn, truth.dt, truth.epoch_index), lever)
-        dvl = np.broadcast_to(dvl, (R,) + dvl.shape)
-        if not clean:
-            dvl = dvl + dvl_noise(real, len(e))
-    else:
-        dvl = np.broadcast_to(np.asarray(track.dvl, dtype=float), (R, len(e), 3))
+    channels = [build_channel(s, track, truth, spec.seed, number, runs, clean) for s in sensor_suite(spec)]
     if clean:
         f = np.broadcast_to(truth.f_b, (R,) + truth.f_b.shape)
         w = np.broadcast_to(truth.w_ib_b, (R,) + truth.w_ib_b.shape)
@@ -76,8 +63,7 @@ def simulate(spec: Spec, number: int, runs: np.ndarray, filters=None, clean: boo
     else:
         ef, ew = imu_errors(real, truth.t)
         f, w = truth.f_b + ef, truth.w_ib_b + ew
-        nav0 = initial_nav(p_t[0], v_t[0], C_t[0], real.dv0, real.dpsi0)
-    mask = dvl_mask(spec, t_rel)
+        nav0 = initial_nav(p_t[0], v_t[0], C_t[0], real.dv0, real.dpsi0, real.dp0)
     cfg = filter_config(spec)
     results = {}
     names = list(filters or spec.filters)
@@ -90,8 +76,8 @@ def simulate(spec: Spec, number: int, runs: np.ndarray, filters=None, clean: boo
     for i, name in enumerate(names):
         t0 = time.perf_counter()
         step = None if progress is None else (lambda k, base=i * (len(e) - 1): progress(base + k))
-        out = run_filter(name, cfg, f, w, truth.dt, e, dvl, mask, nav0,
-                         noise_std if name in adaptive else None, progress=step)
+        out = run_filter(name, cfg, f, w, truth.dt, e, nav0=nav0, noise_std=noise_std if name in adaptive else None,
+                         progress=step, channels=channels)
         if name in adaptive:
             t0 -= net_seconds / len(adaptive)  # the shared network pass, split
         err = epoch_errors(out, v_t, C_t, p_t)
@@ -156,7 +142,7 @@ def run_chunk(cell: Cell, number: int, first: int, out_dir: str, last: int | Non
     from nespm_cli.experiments.progress import epoch_reporter
 
     spec, tag, extra = cell.spec, cell.tag, dict(cell.columns)
-    load_filters(spec)  # a worker process imports the user's filters before it runs them
+    load_sensors(load_filters(spec))  # a worker process imports the user's filters and sensors first
     chunks = Path(out_dir) / "chunks"
     if last is None:
         last = min(first + spec.chunk_size, spec.runs)
@@ -183,6 +169,7 @@ def run_chunk(cell: Cell, number: int, first: int, out_dir: str, last: int | Non
     for name, (out, err, secs) in results.items():
         div, why = divergence(err, out.diverged, t_rel, spec.divergence)
         m = run_metrics(err, div)
+        m.update(sensor_nis(out))
         m["diverged_reason"] = why
         m.update(q_factors(out.noise_std, filter_config(spec), len(runs)))
         df = pd.DataFrame({**extra, "track": number, "filter": name, "run": runs, "scenario": spec.scenario,
@@ -281,7 +268,7 @@ def input_files(spec: Spec, tracks: tuple | None = None) -> list[Path]:
         files.append(Path(spec.corrections))
     for f in spec.filters:
         files += plugin_files(f)
-    return files
+    return files + sensor_plugin_files(spec)
 
 
 def manifest_inputs(cells: list[Cell]) -> dict[str, str]:

@@ -6,7 +6,10 @@
   filter's posterior covariance block; 6 on average for a consistent filter;
 * horizontal position error (HPE): ``hypot(north, east)`` of ``nav − truth`` in m, also as a
   percentage of the horizontal distance the truth travelled (the field's usual "% of distance
-  travelled" figure).
+  travelled" figure); vertical error ``down`` [m] (nav − truth, positive down);
+* per-block NEES (:func:`block_nees`): the NEES of any block of the filter's layout (position,
+  velocity, attitude, biases), ``dof`` 3 each;
+* per-sensor NIS (:func:`sensor_nis`): ``νᵀ S⁻¹ ν`` of every applied measurement, mean per run.
 """
 from __future__ import annotations
 
@@ -33,6 +36,7 @@ class EpochErrors:
     ne: np.ndarray
     hpe: np.ndarray | None = None
     dist: np.ndarray | None = None
+    down: np.ndarray | None = None  # (R, N) vertical error nav − truth [m, positive down]
 
     def __post_init__(self) -> None:
         if self.hpe is None:
@@ -69,8 +73,40 @@ def epoch_errors(out, v_true: np.ndarray, C_true: np.ndarray, pos_true: np.ndarr
             except np.linalg.LinAlgError:
                 sol = (np.linalg.pinv(out.P6) @ e[..., None])[..., 0]
         nees = (e * sol).sum(axis=-1)
-    ne = ned_offset(out.pos, pos_true)[..., :2]
-    return EpochErrors(vel, att, nees, ne, dist=distance_travelled(pos_true))  # hpe derived from ne
+    ned = ned_offset(out.pos, pos_true)
+    return EpochErrors(vel, att, nees, ned[..., :2], dist=distance_travelled(pos_true),
+                       down=ned[..., 2])  # hpe derived from ne
+
+
+def block_nees(out, block: str, v_true: np.ndarray, C_true: np.ndarray, pos_true: np.ndarray) -> np.ndarray:
+    """(R, N) NEES of one block (``pos``, ``vel``, ``att``) of the filter's layout: ``eᵀ P_b⁻¹ e``
+    with ``e = truth ⊖ nav`` of that block and ``P_b`` its covariance block (3 on average for a
+    consistent filter); NaN without a covariance or where the layout lacks the block."""
+    from nespm_cli.nav.state import parse_layout
+
+    lay = parse_layout(out.layout)
+    R, N = out.v_n.shape[:2]
+    if not lay.has(block) or np.isnan(out.P).all():
+        return np.full((R, N), np.nan)
+    e = {"pos": lambda: ned_offset(pos_true, out.pos), "vel": lambda: v_true - out.v_n,
+         "att": lambda: attitude_minus(C_true, out.C_bn)}[block]()
+    i = lay.slice(block)
+    with np.errstate(all="ignore"):
+        sol = np.linalg.solve(out.P[..., i, i], e[..., None])[..., 0]
+    return (e * sol).sum(axis=-1)
+
+
+def sensor_nis(out) -> dict[str, np.ndarray]:
+    """``{nis_<sensor>: (R,) mean NIS over the measurements applied in each run}`` (NaN where none
+    was applied or the filter reports no innovation); its χ² expectation is the sensor's dimension."""
+    res = {}
+    for name, rec in getattr(out, "sensors", {}).items():
+        nis = rec.nis()
+        ok = np.isfinite(nis)
+        count = ok.sum(axis=1)
+        with np.errstate(all="ignore"):
+            res[f"nis_{name}"] = np.where(count > 0, np.where(ok, nis, 0.0).sum(axis=1) / np.maximum(count, 1), np.nan)
+    return res
 
 
 @dataclass(frozen=True)
@@ -143,6 +179,9 @@ def run_metrics(err: EpochErrors, diverged: np.ndarray) -> dict[str, np.ndarray]
             "distance": distance,
             "hpe_final_pct": hpe_final_pct,
         }
+    down = np.asarray(err.down if err.down is not None else np.full(err.vel.shape, np.nan), dtype=float)
+    with np.errstate(all="ignore"):
+        hpe_cols["vert_rms"] = nan_if_bad(np.sqrt((down**2).mean(axis=1)))
     return {
         "vrmse": np.sqrt(sse_vel / n),
         "mrmse": np.sqrt(sse_att / n),

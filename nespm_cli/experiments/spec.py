@@ -21,12 +21,14 @@ from nespm_cli.data.corruption import CorruptionConfig, check_seed
 from nespm_cli.data.track import Track
 from nespm_cli.data.tracks import available_tracks, load_track, resolve_data_dir
 from nespm_cli.errors import NespmError
-from nespm_cli.experiments.inputs import prepared
+from nespm_cli.experiments.inputs import DEFAULT_IMU_RATE, prepared
 from nespm_cli.experiments.metrics import DivergenceRule
 from nespm_cli.filters import FilterConfig
 from nespm_cli.filters.adaptive import BIAS_MODES
 from nespm_cli.filters.registry import discover_plugins, filter_names, get_filter, load_plugin
 from nespm_cli.learn.noise_model import WINDOW, load_weights
+from nespm_cli.experiments.suite import check_suite, load_sensors
+from nespm_cli.nav.state import parse_layout
 from nespm_cli.nav.synthesis import ImuTruth
 
 SCENARIOS = ("nominal", "outage")
@@ -60,12 +62,20 @@ class Spec:
     weights: str | None = None  # ProcessNet file of the adaptive filters; None: the packaged default
     filter_plugins: tuple = ()  # user filter files or modules (docs/plugins.md), loaded before the filters run
     corruption: CorruptionConfig = field(default_factory=CorruptionConfig)
-    filter_config: FilterConfig = field(default_factory=FilterConfig)
+    filter_config: FilterConfig = field(default_factory=FilterConfig)  # its ``state``: the error-state layout
+    sensors: tuple = ("dvl",)  # the measurement sources, in update order at equal times (docs/sensors.md)
+    sensor_options: tuple = ()  # ((sensor, key, value), ...): --sensor-option NAME.KEY=VALUE, [sensors.NAME]
+    sensor_plugins: tuple = ()  # user sensor files or modules, loaded before the sensors are built
+    imu_rate: float = DEFAULT_IMU_RATE  # [Hz] the synthesized IMU's rate (--imu synthetic)
+    tell_filter: bool = True  # P0 and Q's white noise from the corruption (couple_filter); False: as given
+    filter_acc_noise: float | None = None  # [m/s² per sample] the filters' own Q white noise, over the coupling
+    filter_gyro_noise: float | None = None  # [rad/s per sample]
 
     def as_dict(self) -> dict:
         d = dataclasses.asdict(self)
         d["tracks"] = list(self.tracks)
         d["filters"] = list(self.filters)
+        d["sensors"] = list(self.sensors)
         return json.loads(json.dumps(d, default=list))
 
 
@@ -74,12 +84,19 @@ def validate(spec: Spec) -> Spec:
     check_domains(spec)
     if spec.chunk_size < 1:
         raise NespmError(f"--chunk-size must be at least 1, got {spec.chunk_size}")
-    spec = load_filters(spec)
+    spec = load_sensors(load_filters(spec))
     for f in spec.filters:
         if f not in filter_names():
             raise NespmError(f"--filters: unknown filter {f!r}; choose from {', '.join(filter_names())}")
     if len(set(spec.filters)) != len(spec.filters) or not spec.filters:
         raise NespmError("--filters: give each filter once, at least one")
+    layout = parse_layout(spec.filter_config.state)
+    for f in spec.filters:
+        if not get_filter(f).supports(layout):
+            raise NespmError(f"--filters {f}: serves --state {' or '.join(get_filter(f).layouts)}, not {layout.name} "
+                             "(docs/sensors.md)")
+    if spec.imu == "recorded" and spec.imu_rate != DEFAULT_IMU_RATE:
+        raise NespmError("--imu-rate sets the synthesized IMU's rate; --imu recorded keeps the file's own rate")
     if spec.scenario not in SCENARIOS:
         raise NespmError(f"--scenario: unknown scenario {spec.scenario!r}; choose from {', '.join(SCENARIOS)}")
     if spec.imu not in ("synthetic", "recorded"):
@@ -118,6 +135,7 @@ def validate(spec: Spec) -> Spec:
     spec = dataclasses.replace(spec, track_corrections=resolve_corrections(spec))
     durations = {n: track_inputs(spec, n)[0].duration
                  for n in spec.tracks}
+    sensor_suite = check_suite(spec, layout, {n: track_inputs(spec, n)[0] for n in spec.tracks})
     if adaptive and spec.imu == "recorded":  # one network window per DVL interval
         for n in spec.tracks:
             steps = np.diff(track_inputs(spec, n)[1].epoch_index)
@@ -134,7 +152,12 @@ def validate(spec: Spec) -> Spec:
                     f"--outage-start {spec.outage_start:g} + --outage-length {spec.outage_length:g} s "
                     f"ends past track {n}'s end ({dur:.1f} s)"
                 )
-    return dataclasses.replace(spec, filter_config=filter_config(spec))  # what the filters use, recorded as such
+    spec = dataclasses.replace(spec, filter_config=filter_config(spec))  # what the filters use, recorded as such
+    dvl = next((s for s in sensor_suite if s.name == "dvl"), None)
+    if dvl is not None:  # the DVL's filter std and lever arm, as the papers' configuration recorded them
+        spec = dataclasses.replace(spec, filter_config=dataclasses.replace(
+            spec.filter_config, dvl_std=dvl.r_std(), lever_arm=tuple(dvl.opt.lever_arm)))
+    return spec
 
 
 MAX_LEVER_ARM = 100.0  # [m] a DVL farther than this from the INS is a units or sign mistake
@@ -147,6 +170,11 @@ def check_domains(spec: Spec) -> None:
 
     if spec.runs < 1:
         raise NespmError(f"--runs must be at least 1, got {spec.runs}")
+    if not (finite(spec.imu_rate) and 1.0 <= spec.imu_rate <= 10000.0):
+        raise NespmError(f"--imu-rate must be a rate from 1 to 10000 Hz, got {spec.imu_rate:g}")
+    for flag, v in (("--filter-acc-noise", spec.filter_acc_noise), ("--filter-gyro-noise", spec.filter_gyro_noise)):
+        if v is not None and not (finite(v) and v > 0):
+            raise NespmError(f"{flag} must be a positive number, got {v:g}")
     check_seed(spec.seed)
     if len(set(spec.tracks)) != len(spec.tracks):
         dup = next(n for n in spec.tracks if list(spec.tracks).count(n) > 1)
@@ -211,21 +239,28 @@ def corrections_for(spec: Spec, number: int) -> Corrections:
 def track_inputs(spec: Spec, number: int) -> tuple[Track, ImuTruth]:
     """Track ``number`` as ``spec`` runs it (its corrections applied) and its IMU-rate truth and
     IMU (:func:`nespm_cli.experiments.inputs.prepared`: read once per process)."""
-    return prepared(number, spec.data_dir, spec.imu, corrections_for(spec, number))
+    return prepared(number, spec.data_dir, spec.imu, corrections_for(spec, number), spec.imu_rate)
 
 
 def filter_config(spec: Spec) -> FilterConfig:
+    """The tuning the filters run with: ``spec.filter_config`` told the truth about the corruption
+    (:func:`couple_filter`, unless ``tell_filter`` is False), the filters' own white noise
+    (``filter_acc_noise``, ``filter_gyro_noise``) over it, the papers' DVL std and lever arm."""
+    fc = couple_filter(spec.filter_config, spec.corruption) if spec.tell_filter else spec.filter_config
+    own = {k: float(v) for k, v in (("acc_noise", spec.filter_acc_noise), ("gyro_noise", spec.filter_gyro_noise))
+           if v is not None}
     r = spec.dvl_r_std if spec.dvl_r_std is not None else (0.02 if spec.dvl == "synthetic" else 0.1)
-    return dataclasses.replace(spec.filter_config, dvl_std=r, lever_arm=tuple(spec.dvl_lever_arm))
+    return dataclasses.replace(fc, dvl_std=r, lever_arm=tuple(spec.dvl_lever_arm), **own)
 
 
 def couple_filter(fcfg: FilterConfig, corr: CorruptionConfig) -> FilterConfig:
     """The filter told the truth about the corruption: P0 from the initial-error and bias
-    std, Q's white noise from the injected per-sample noise (docs/filters.md)."""
+    std (position: at least ``model.POS_STD_FLOOR``), Q's white noise from the injected
+    per-sample noise (docs/filters.md)."""
     att = [corr.misalignment_deg] * 3
     if corr.heading_deg is not None:
         att[2] = corr.heading_deg
     return dataclasses.replace(
         fcfg, p0_vel=(corr.vel_h_std, corr.vel_h_std, corr.vel_v_std), p0_att_deg=tuple(att),
         p0_acc_bias=corr.acc_bias, p0_gyro_bias=corr.gyro_bias, acc_noise=corr.acc_noise,
-        gyro_noise=corr.gyro_noise)
+        gyro_noise=corr.gyro_noise, p0_pos=(corr.pos_h_std, corr.pos_h_std, corr.pos_v_std))

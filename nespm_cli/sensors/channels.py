@@ -1,0 +1,129 @@
+"""A sensor's channel on one track: its times on the IMU grid, the truth there, and its values in R runs.
+
+:func:`build_channel` is what an experiment calls per sensor and chunk of runs:
+
+* **times**: a recorded channel's own stamps (file time minus the first GT epoch), or a synthetic
+  schedule: the GT epochs (a sensor with no interval, the papers' DVL) or every ``interval``
+  seconds from the first epoch, moved by ``jitter`` (one draw per track);
+* **place on the grid** (:func:`locate`): the IMU sample at or before each time and the fraction
+  of the following step (0 on a sample; the engine splits the step there);
+* **truth there** (:func:`truth_at`): the grid's truth, or, inside a step, the truth carried over
+  the part of the step by ``na_cycle`` with the step's clean IMU, exactly what a perfect filter
+  computes over the split step;
+* **values**: the recorded ones (NaN: none), or :meth:`Sensor.synthesize` (``clean``: the
+  error-free values);
+* **availability** (:func:`nespm_cli.sensors.source.availability`): never at t = 0, not in an
+  outage window, not where the sensor's own rule or a dropout says no.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from nespm_cli.errors import NespmError
+from nespm_cli.nav.dvl import body_rate_step
+from nespm_cli.nav.strapdown import na_cycle
+from nespm_cli.nav.synthesis import ImuTruth
+from nespm_cli.sensors.source import Channel, Sensor, Truth, availability, jittered
+
+ON_SAMPLE = 1e-9  # a time within this fraction of a step from a sample is at the sample
+STAMP_TOL = 1e-6  # [s] a recorded stamp this far outside the GT span is still inside it
+
+
+def grid_time(truth: ImuTruth) -> np.ndarray:
+    """(M+1,) IMU sample times [s since the first GT epoch]."""
+    return np.asarray(truth.t, dtype=float) - float(truth.t[truth.epoch_index[0]])
+
+
+def locate(truth: ImuTruth, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(index, frac)`` (K,) of times ``t`` [s since the first epoch] on the grid of ``truth``:
+    the sample at or before and the fraction of the next step (0 on a sample)."""
+    tg = grid_time(truth)
+    t = np.asarray(t, dtype=float)
+    j = np.clip(np.searchsorted(tg, t, side="right") - 1, 0, len(tg) - 1)
+    step = np.asarray(truth.dt, dtype=float)[np.minimum(j, len(truth.dt) - 1)]
+    frac = np.where(j < len(tg) - 1, (t - tg[j]) / step, 0.0)
+    up = frac > 1.0 - ON_SAMPLE
+    j, frac = np.where(up, j + 1, j), np.where(up, 0.0, frac)
+    frac = np.where(frac < ON_SAMPLE, 0.0, frac)
+    return j.astype(np.int64), frac
+
+
+def truth_at(truth: ImuTruth, index: np.ndarray, frac: np.ndarray) -> Truth:
+    """The truth at grid places ``(index, frac)`` (K,): on a sample the grid's values, inside a step
+    ``na_cycle`` over ``frac`` of it with the step's clean IMU; ``w_nb_b`` from the (part-)step
+    ending there (eq 31 inverted)."""
+    index, frac = np.asarray(index, dtype=np.int64), np.asarray(frac, dtype=float)
+    dt = np.asarray(truth.dt, dtype=float)
+    M = len(dt)
+    inside = frac > 0
+    j = np.minimum(index, M - 1)
+    pos, v, C = truth.pos[index].copy(), truth.v_n[index].copy(), truth.C_bn[index].copy()
+    if inside.any():
+        d = frac[inside] * dt[j[inside]]
+        p1, v1, C1 = na_cycle(truth.pos[j[inside]], truth.v_n[j[inside]], truth.C_bn[j[inside]],
+                              truth.f_b[j[inside]], truth.w_ib_b[j[inside]], d)
+        pos[inside], v[inside], C[inside] = p1, v1, C1
+    # body rate of the step (or part) ending at each place; the first sample takes the first step's
+    prev = np.maximum(index - 1, 0)
+    w = body_rate_step(truth.C_bn[prev], truth.C_bn[np.maximum(index, 1)], dt[prev])
+    if inside.any():
+        w[inside] = body_rate_step(truth.C_bn[j[inside]], C[inside], frac[inside] * dt[j[inside]])
+    t = grid_time(truth)[index] + frac * dt[j]
+    return Truth(t=t, pos=pos, v_n=v, C_bn=C, w_nb_b=w)
+
+
+def schedule(sensor: Sensor, truth: ImuTruth, seed: int, track: int) -> np.ndarray:
+    """A synthetic channel's times (K,) [s since the first epoch]: the GT epochs (``interval`` None)
+    or ``interval, 2 interval, ...`` up to the last epoch, jittered (one draw per track), kept
+    inside the span and increasing."""
+    tg = grid_time(truth)
+    epochs = tg[truth.epoch_index]
+    every = sensor.interval()
+    if every is None:
+        return epochs
+    end = float(epochs[-1])
+    t = np.arange(1, int(np.floor(end / every + 1e-9)) + 1) * every
+    t = jittered(sensor, t, seed, track)
+    return np.sort(t[(t > 0) & (t <= end)])
+
+
+def recorded_times(sensor: Sensor, track, truth: ImuTruth) -> tuple[np.ndarray, np.ndarray]:
+    """``(t, z)`` of the track's recorded channel: times [s since the first epoch] inside the GT span."""
+    rec = sensor.recorded(track)
+    if rec is None:
+        raise NespmError(f"--sensors {sensor.name}: source recorded, but track {track.number} has no "
+                         f"{sensor.name} file (docs/data-format.md)")
+    t_file, z = (np.asarray(a, dtype=float) for a in rec)
+    t0, t_end = float(track.t[0]), float(track.t[-1])
+    keep = (t_file >= t0 - STAMP_TOL) & (t_file <= t_end + STAMP_TOL)
+    if z.ndim == 1:
+        z = z[:, None]
+    return np.clip(t_file[keep] - t0, 0.0, t_end - t0), z[keep]
+
+
+def build_channel(sensor: Sensor, track, truth: ImuTruth, seed: int, number: int, runs: np.ndarray,
+                  clean: bool = False) -> Channel:
+    """The channel of ``sensor`` on track ``number`` for runs ``runs`` (see the module docstring)."""
+    runs = np.asarray(runs, dtype=np.int64)
+    if sensor.opt.source == "recorded":
+        t, z = recorded_times(sensor, track, truth)
+        index, frac = locate(truth, t)
+        where = truth_at(truth, index, frac)
+        values = np.broadcast_to(z, (len(runs),) + z.shape)
+        ok = np.broadcast_to(np.isfinite(z).all(axis=-1), (len(runs), len(t)))
+        values = np.where(ok[..., None], values, 0.0)
+    else:
+        t = schedule(sensor, truth, seed, number)
+        index, frac = locate(truth, t)
+        where = truth_at(truth, index, frac)
+        if clean:
+            v = sensor.true_values(where)
+            values = np.broadcast_to(v, (len(runs),) + v.shape)
+        else:
+            values = sensor.synthesize(where, seed, number, runs)
+        ok = np.ones((len(runs), len(t)), dtype=bool)
+    ok = ok & availability(sensor, t, where, seed, number, runs)
+    return Channel(sensor, index, t, values, ok, frac)
+
+
+__all__ = ["build_channel", "grid_time", "locate", "recorded_times", "schedule", "truth_at"]
