@@ -122,12 +122,12 @@ def fit_dvl_to_gt(track: Track, max_offset: float = 2.0, step: float = 0.01, gn_
     """
     t = np.asarray(track.t, dtype=float)
     dvl = np.asarray(track.dvl, dtype=float)
-    ok = (t - max_offset >= t[0]) & (t + max_offset <= t[-1])
+    ok = (t - max_offset >= t[0]) & (t + max_offset <= t[-1]) & np.isfinite(dvl).all(axis=1)  # NaN: no DVL
     if ok.sum() < 20:
         raise NespmError(f"track {track.number}: {int(ok.sum())} epochs inside the +-{max_offset:g} s offset "
                          "search margins, need at least 20")
     _, r0 = dvl_lever_arm_fit(track)
-    prior_w = max(float(np.sqrt(np.mean(r0**2))), 1e-4) / PRIOR_STD  # prior rows weighted like the data
+    prior_w = max(float(np.sqrt(np.nanmean(r0**2))) if np.isfinite(r0).any() else 0.0, 1e-4) / PRIOR_STD  # prior rows weighted like the data
     taus = np.round(np.arange(-max_offset, max_offset + step / 2, step), 10)
     u, w = _gt_at(track, t[ok][None, :] - taus[:, None])  # (G, K, 3)
     G, K = u.shape[:2]

@@ -1,4 +1,5 @@
-"""Physical plausibility checks of a ground-truth track (GT and DVL arrays already read and finite).
+"""Physical plausibility checks of a ground-truth track (GT and DVL arrays already read and finite,
+except NaN DVL rows: epochs without a DVL measurement, skipped).
 
 Each check is a pure, vectorized function returning a list of :class:`Finding` (empty: nothing
 looks wrong). A finding is an ``"error"`` (the data cannot be what the columns say: degrees for
@@ -285,10 +286,15 @@ def check_velocity_position(path, t: np.ndarray, pos: np.ndarray, v_n: np.ndarra
 
 
 def check_dvl_speed(path, dvl: np.ndarray, v_n: np.ndarray) -> list[Finding]:
-    """Median |``dvl``| / median |``v_n``| within [:data:`DVL_RATIO_MIN`, :data:`DVL_RATIO_MAX`] (warning)."""
+    """Median |``dvl``| / median |``v_n``| within [:data:`DVL_RATIO_MIN`, :data:`DVL_RATIO_MAX`] (warning),
+    over the epochs with a DVL measurement (NaN rows of ``dvl``, missing epochs, are skipped)."""
+    dvl, v_n = np.asarray(dvl, dtype=float), np.asarray(v_n, dtype=float)
+    ok = ~np.isnan(dvl).all(axis=1)
+    if not ok.any():
+        return []
     with np.errstate(over="ignore", invalid="ignore"):
-        ds = float(np.median(np.linalg.norm(np.asarray(dvl, dtype=float), axis=1)))
-        gs = float(np.median(np.linalg.norm(np.asarray(v_n, dtype=float), axis=1)))
+        ds = float(np.median(np.linalg.norm(dvl[ok], axis=1)))
+        gs = float(np.median(np.linalg.norm(v_n[ok], axis=1)))
     if not gs >= DVL_MIN_SPEED:
         return []
     ratio = ds / gs

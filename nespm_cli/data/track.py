@@ -1,7 +1,7 @@
 """The track: ground truth and DVL of one run, as every loader and generator returns it."""
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -18,9 +18,15 @@ class Track:
         pos: (N, 3) ``[lat rad, lon rad, alt m]``, alt positive up (negative below the surface).
         v_n: (N, 3) NED velocity [m/s].
         euler: (N, 3) ``[roll, pitch, yaw]`` [rad], ZYX, body -> NED.
-        dvl: (N, 3) body-frame DVL velocity [m/s] on the epochs ``t``.
+        dvl: (N, 3) body-frame DVL velocity [m/s] on the epochs ``t``; a NaN row is an epoch without
+            a DVL measurement (NaN in all three columns of the file).
         imu: (M, 7) ``[t s, fx, fy, fz m/s^2, wx, wy, wz rad/s]`` recorded IMU, or None.
         source: the ``TrajectoryN`` folder the track was read from, or ``"embedded"``.
+        channels: optional recorded sensor files, ``{name: (t, z)}`` with ``t`` (K,) the file time [s]
+            (the clock of :attr:`t`, not shifted) and ``z`` (K, m) the values, a NaN row meaning no
+            measurement at that stamp: ``"depth"`` (m = 1, depth [m] positive down) and ``"fix"``
+            (m = 2 or 3, ``[lat rad, lon rad(, alt m)]``), see :mod:`nespm_cli.data.sensor_files`.
+            Empty for the embedded tracks and when a folder has no such file.
     """
 
     number: int
@@ -31,6 +37,7 @@ class Track:
     dvl: np.ndarray
     imu: np.ndarray | None
     source: str
+    channels: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         n = len(self.t)
@@ -46,6 +53,7 @@ class Track:
                 a = np.array(a, dtype=float)  # private copy, then frozen
                 a.flags.writeable = False
                 object.__setattr__(self, name, a)
+        object.__setattr__(self, "channels", {str(k): _channel(k, v) for k, v in dict(self.channels or {}).items()})
 
     @property
     def C_bn(self) -> np.ndarray:
@@ -56,3 +64,19 @@ class Track:
     def duration(self) -> float:
         """Time span ``t[-1] - t[0]`` [s]."""
         return float(self.t[-1] - self.t[0])
+
+
+def _channel(name, value) -> tuple[np.ndarray, np.ndarray]:
+    """``(t (K,), z (K, m))`` private read-only float copies of a channel entry (a 1-D ``z`` is one column)."""
+    try:
+        t, z = value
+    except (TypeError, ValueError):
+        raise ValueError(f"Track.channels[{name!r}] must be a pair (t, z)") from None
+    t, z = np.array(t, dtype=float), np.array(z, dtype=float)
+    if z.ndim == 1:
+        z = z.reshape(-1, 1)
+    if t.ndim != 1 or z.ndim != 2 or len(z) != len(t):
+        raise ValueError(f"Track.channels[{name!r}] must be t (K,) and z (K, m), got {t.shape} and {z.shape}")
+    t.flags.writeable = False
+    z.flags.writeable = False
+    return t, z

@@ -3,8 +3,10 @@
 A data folder holds ``TrajectoryN/GT_trajectoryN.csv`` and ``TrajectoryN/DVL_trajectoryN.csv``
 (and optionally ``TrajectoryN/IMU_trajectoryN.csv``), with the exact headers in
 :data:`GT_COLUMNS`, :data:`DVL_COLUMNS` and :data:`IMU_COLUMNS` (surrounding whitespace in a
-header name is ignored, extra columns are ignored). Without a data folder (no ``--data-dir`` and
-no ``NESPM_DATA_DIR``) the deterministic embedded tracks of :mod:`nespm_cli.data.embedded` are used.
+header name is ignored, extra columns are ignored; a DVL row of three NaN is a missing epoch), and
+optionally ``DEPTH_``/``FIX_trajectoryN.csv`` (:mod:`nespm_cli.data.sensor_files`, ``Track.channels``).
+Without a data folder (no ``--data-dir`` and no ``NESPM_DATA_DIR``) the deterministic embedded
+tracks of :mod:`nespm_cli.data.embedded` are used.
 
 Every validation failure raises :class:`~nespm_cli.errors.NespmError` with a one-line message
 ``"<file>: data row R, column 'C': ..."``; *data rows* are numbered from 1 after the header line
@@ -16,20 +18,18 @@ the sea surface, as in the files; depth = -alt), ``v_n`` is NED [m/s], ``euler``
 """
 from __future__ import annotations
 
-import io
 import os
 import re
 from collections.abc import Iterable
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 
 from nespm_cli.data import plausibility
-from nespm_cli.data.plausibility import printable
+from nespm_cli.data.csvtable import QUOTE_LIMIT, read_table as _read_table, write_table as _write_csv  # noqa: F401
+from nespm_cli.data.sensor_files import CHANNEL_KINDS, check_dvl_nan, read_channels, write_channels
 from nespm_cli.data.track import Track
 from nespm_cli.errors import NespmError
-from nespm_cli.data.atomic import write_atomic
 from nespm_cli.nav.dvl import body_rate_from_attitude
 from nespm_cli.nav.rotations import skew
 
@@ -125,19 +125,20 @@ def _track_dirs(data_dir: Path) -> dict[int, Path]:
 
 def track_files(number: int, data_dir: str | Path | None, imu: bool = False) -> list[Path]:
     """The files track ``number`` of ``data_dir`` is read from by :func:`load_track`: its GT and DVL
-    file (and IMU file with ``imu``, whether or not it exists), as spelled in the folder
+    file (and IMU file with ``imu``, whether or not it exists; then the DEPTH and FIX files that
+    exist), as spelled in the folder
     (``Trajectory07/GT_trajectory07.csv`` or ``.../GT_trajectory7.csv``; a missing file under the
     folder's spelling). ``data_dir`` None: the embedded tracks, no files (``$NESPM_DATA_DIR`` is not
     consulted: pass a resolved folder). Raises :class:`NespmError` as :func:`load_track` does on an
     unknown track or an ambiguous folder."""
     if data_dir is None:
         return []
-    gt, dvl, imu_path = _track_paths(number, Path(data_dir).expanduser())
-    return [gt, dvl] + ([imu_path] if imu else [])
+    gt, dvl, imu_path, *extra = _track_paths(number, Path(data_dir).expanduser())
+    return [gt, dvl] + ([imu_path] if imu else []) + [p for p in extra if p.exists()]
 
 
-def _track_paths(number: int, folder: Path) -> tuple[Path, Path, Path]:
-    """``(GT, DVL, IMU)`` paths of track ``number``: each ``{KIND}_trajectoryN.csv`` found in its
+def _track_paths(number: int, folder: Path) -> tuple[Path, ...]:
+    """``(GT, DVL, IMU, DEPTH, FIX)`` paths of track ``number``: each ``{KIND}_trajectoryN.csv`` found in its
     folder with N equal to ``number`` (leading zeros allowed), else the name spelled like the folder."""
     dirs = _track_dirs(folder)
     if number not in dirs:
@@ -145,13 +146,13 @@ def _track_paths(number: int, folder: Path) -> tuple[Path, Path, Path]:
     tdir = dirs[number]
     names = sorted(p.name for p in tdir.iterdir())
     out = []
-    for kind in ("GT", "DVL", "IMU"):
+    for kind in ("GT", "DVL", "IMU", *CHANNEL_KINDS.values()):
         pat = re.compile(rf"{kind}_trajectory(\d+)\.csv")
         hits = [n for n in names if (m := pat.fullmatch(n)) and int(m.group(1)) == number]
         if len(hits) > 1:
             raise NespmError(f"{tdir}: {hits[0]} and {hits[1]} are both the {kind} file of track {number}; keep one")
         out.append(tdir / (hits[0] if hits else f"{kind}_trajectory{tdir.name[len('Trajectory'):]}.csv"))
-    return out[0], out[1], out[2]
+    return tuple(out)
 
 
 def load_track(number: int, data_dir: str | Path | None = None, *, warnings: str | None = None) -> Track:
@@ -162,11 +163,13 @@ def load_track(number: int, data_dir: str | Path | None = None, *, warnings: str
     unknown track number, two folders or files of one track, a missing or empty file, a missing
     column, non-numeric text, NaN/inf,
     time not strictly increasing, GT/DVL epochs that differ, |lat| > pi/2, |lon| > pi, or a speed
-    >= 20 m/s; and, for the IMU file if present (:func:`_check_imu`), on a median time step
+    >= 20 m/s (a DVL row of three NaN is a missing epoch, NaN in one or two is refused); and,
+    for the IMU file if present (:func:`_check_imu`), on a median time step
     outside (:data:`IMU_MIN_STEP`, :data:`IMU_MAX_STEP`) s (10 Hz - 2 kHz; e.g. time in ms), a
     step differing from the median by more than :data:`IMU_STEP_TOL` (a gap or non-constant
     rate), a time span that does not cover the GT span to within one IMU step at either end,
-    or |ACC| > :data:`IMU_MAX_ACC` m/s^2 or |GYRO| > :data:`IMU_MAX_GYRO` rad/s (a units mistake).
+    or |ACC| > :data:`IMU_MAX_ACC` m/s^2 or |GYRO| > :data:`IMU_MAX_GYRO` rad/s (a units mistake);
+    and the optional DEPTH / FIX files into ``Track.channels`` (:mod:`nespm_cli.data.sensor_files`).
 
     Then the physical plausibility checks of :mod:`nespm_cli.data.plausibility` (angle ranges and steps,
     altitude, epoch spacing and gaps, GT velocity against position increments, DVL against GT speed):
@@ -180,7 +183,7 @@ def load_track(number: int, data_dir: str | Path | None = None, *, warnings: str
         from nespm_cli.data.embedded import embedded_track
 
         return embedded_track(number)
-    gt_path, dvl_path, imu_path = _track_paths(number, folder)
+    gt_path, dvl_path, imu_path, *extra = _track_paths(number, folder)
     tdir = gt_path.parent
 
     gt = _read_table(gt_path, GT_COLUMNS)
@@ -189,7 +192,8 @@ def load_track(number: int, data_dir: str | Path | None = None, *, warnings: str
     _check_range(gt_path, gt[:, 1], GT_COLUMNS[1], np.pi, "pi")
     _check_speed(gt_path, gt[:, 4:7], GT_COLUMNS[4:7])
 
-    dvl = _read_table(dvl_path, DVL_COLUMNS)
+    dvl = _read_table(dvl_path, DVL_COLUMNS, nan_ok=DVL_COLUMNS[1:])
+    check_dvl_nan(dvl_path, dvl[:, 1:4], DVL_COLUMNS[1:4])
     _check_time(dvl_path, dvl[:, 0])
     _check_epochs(dvl_path, dvl[:, 0], gt_path, gt[:, 0])
     _check_speed(dvl_path, dvl[:, 1:4], DVL_COLUMNS[1:4])
@@ -199,6 +203,7 @@ def load_track(number: int, data_dir: str | Path | None = None, *, warnings: str
         imu = _read_table(imu_path, IMU_COLUMNS)
         _check_time(imu_path, imu[:, 0])
         _check_imu(imu_path, imu, gt_path, gt[:, 0])
+    channels = read_channels(dict(zip(CHANNEL_KINDS, extra)), gt[:, 0], gt_path.name)
 
     findings = plausibility.check_track_arrays(gt_path, gt, dvl_path, dvl)
     errors = [f for f in findings if f.level == "error"]
@@ -207,7 +212,7 @@ def load_track(number: int, data_dir: str | Path | None = None, *, warnings: str
     plausibility.emit(findings, warnings)
 
     return Track(number=number, t=gt[:, 0], pos=gt[:, [2, 1, 3]], v_n=gt[:, 4:7], euler=gt[:, 7:10],
-                 dvl=dvl[:, 1:4], imu=imu, source=str(tdir))
+                 dvl=dvl[:, 1:4], imu=imu, source=str(tdir), channels=channels)
 
 
 def load_tracks(
@@ -226,7 +231,7 @@ def load_tracks(
 
 
 def write_akit(track: Track, folder: str | Path) -> Path:
-    """Write ``track`` as ``folder/TrajectoryN/{GT,DVL[,IMU]}_trajectoryN.csv``; return that folder.
+    """Write ``track`` as ``folder/TrajectoryN/{GT,DVL[,IMU,DEPTH,FIX]}_trajectoryN.csv``; return that folder.
 
     Full precision (``%.17g``), exact headers, so :func:`load_track` reads back the same floats;
     each file is written atomically (:func:`nespm_cli.data.atomic.write_atomic`).
@@ -238,74 +243,11 @@ def write_akit(track: Track, folder: str | Path) -> Path:
     _write_csv(tdir / f"DVL_trajectory{track.number}.csv", np.column_stack([track.t, track.dvl]), DVL_COLUMNS)
     if track.imu is not None:
         _write_csv(tdir / f"IMU_trajectory{track.number}.csv", track.imu, IMU_COLUMNS)
+    write_channels(track.channels, tdir, track.number)
     return tdir
 
 
-def _write_csv(path: Path, data: np.ndarray, columns: tuple[str, ...]) -> None:
-    frame = pd.DataFrame(np.asarray(data, dtype=float), columns=list(columns))
-    write_atomic(path, lambda tmp: frame.to_csv(tmp, index=False, float_format="%.17g"))
-
-
 # ----------------------------------------------------------------------------- validation
-
-
-QUOTE_LIMIT = 40  # characters of file content quoted in a message (printable only)
-
-
-def _read_table(path: Path, columns: tuple[str, ...]) -> np.ndarray:
-    """Read ``columns`` of the CSV ``path`` as a finite float array (rows, len(columns))."""
-    if not path.is_file():
-        raise NespmError(f"{path}: file not found")
-    try:
-        raw = path.read_bytes()
-    except OSError as exc:
-        raise NespmError(f"{path}: cannot read the file ({printable(exc.strerror or exc, QUOTE_LIMIT)})") from None
-    nul = raw.count(b"\x00")
-    if nul:
-        first = raw.index(b"\x00")
-        raise NespmError(
-            f"{path}: not a readable CSV file (binary content: {nul} NUL byte{'s' if nul != 1 else ''}, "
-            f"first at byte {first})"
-        )
-    try:
-        df = pd.read_csv(io.BytesIO(raw), encoding="utf-8-sig")
-    except pd.errors.EmptyDataError:
-        raise NespmError(f"{path}: empty file") from None
-    except (pd.errors.ParserError, UnicodeDecodeError, ValueError) as exc:
-        raise NespmError(f"{path}: not a readable CSV file ({printable(exc, 100)})") from None
-    except Exception as exc:  # noqa: BLE001 - any other parser failure is a bad file, not a crash
-        raise NespmError(f"{path}: not a readable CSV file ({type(exc).__name__}: {printable(exc, 100)})") from None
-    df.columns = [str(c).strip() for c in df.columns]
-    for col in columns:
-        if col not in df.columns:
-            header = printable(", ".join(printable(c, QUOTE_LIMIT) for c in df.columns), 120)
-            raise NespmError(f"{path}: missing column '{col}' (header has: {header})")
-        if list(df.columns).count(col) > 1:
-            raise NespmError(f"{path}: column '{col}' appears more than once in the header")
-    if len(df) == 0:
-        raise NespmError(f"{path}: no data rows after the header")
-    if len(df) < 2:
-        raise NespmError(f"{path}: needs at least 2 data rows, has {len(df)}")
-    out = np.empty((len(df), len(columns)))
-    for j, col in enumerate(columns):
-        s = df[col]
-        if not pd.api.types.is_numeric_dtype(s.dtype):
-            num = pd.to_numeric(s, errors="coerce")
-            bad = np.flatnonzero((num.isna() & s.notna()).to_numpy())
-            if bad.size:
-                r = int(bad[0])
-                text = printable(s.iloc[r], QUOTE_LIMIT)
-                raise NespmError(f"{path}: data row {r + 1}, column '{col}': not a number ('{text}')")
-            s = num
-        out[:, j] = s.to_numpy(dtype=float)
-    bad_rows = np.flatnonzero(~np.isfinite(out).all(axis=1))
-    if bad_rows.size:
-        r = int(bad_rows[0])
-        j = int(np.flatnonzero(~np.isfinite(out[r]))[0])
-        raise NespmError(
-            f"{path}: data row {r + 1}, column '{columns[j]}': missing or non-finite value ({float(out[r, j])})"
-        )
-    return out
 
 
 def _check_time(path: Path, t: np.ndarray) -> None:
@@ -412,13 +354,15 @@ def dvl_lever_arm_fit(track: Track) -> tuple[np.ndarray, np.ndarray]:
 
     Model: ``dvl ≈ C_bn^T v_n + w_nb^b x l`` with ``w_nb^b`` from :func:`nav.dvl.body_rate_from_attitude` on the GT
     attitude. The residual is ``dvl - C_bn^T v_n - w x l``. On a straight track (no rotation)
-    ``l`` is not observable and the minimum-norm solution is returned.
+    ``l`` is not observable and the minimum-norm solution is returned. NaN DVL rows (missing epochs)
+    are left out of the fit and give NaN residual rows.
     """
     C = track.C_bn
     w = body_rate_from_attitude(track.t, C)
     r0 = np.asarray(track.dvl) - np.einsum("nji,nj->ni", C, track.v_n)
     A = skew(w)  # w x l = [w x] l
-    lever, *_ = np.linalg.lstsq(A.reshape(-1, 3), r0.reshape(-1), rcond=None)
+    ok = np.isfinite(r0).all(axis=1)
+    lever, *_ = np.linalg.lstsq(A[ok].reshape(-1, 3), r0[ok].reshape(-1), rcond=None)
     return lever, r0 - A @ lever
 
 
@@ -435,8 +379,9 @@ def lever_arm_std(track: Track, resid: np.ndarray) -> np.ndarray:
     far from white, and the white-noise formula would understate the std 2-4x.
     """
     w = body_rate_from_attitude(track.t, track.C_bn)
-    A = skew(w).reshape(-1, 3)
     resid = np.asarray(resid, dtype=float)
+    ok = np.isfinite(resid).all(axis=1)  # NaN rows: DVL epochs missing
+    A, resid = skew(w)[ok].reshape(-1, 3), resid[ok]
     dof = max(A.shape[0] - 3, 1)
     s2 = float((resid**2).sum() / dof)
     rho = []
@@ -469,7 +414,7 @@ def track_summary(track: Track) -> dict:
     yaw_rate = np.diff(np.unwrap(track.euler[:, 2])) / np.diff(t)
     depth = -np.asarray(track.pos[:, 2])
     lever, resid = dvl_lever_arm_fit(track)
-    std_xyz = resid.std(axis=0)
+    std_xyz = resid[np.isfinite(resid).all(axis=1)].std(axis=0)
     lever_std = lever_arm_std(track, resid)
     yaw_rms = float(np.degrees(np.sqrt(np.mean(yaw_rate**2))))
     warning = None

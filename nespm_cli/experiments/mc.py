@@ -29,7 +29,7 @@ from nespm_cli.experiments.inputs import READ_HASHES, verify_read
 from nespm_cli.experiments.metrics import divergence, epoch_errors, run_metrics, sensor_nis
 from nespm_cli.experiments.spec import (Spec, couple_filter, filter_config, load_filters, needs_noise_std,
                                         track_inputs, validate)
-from nespm_cli.experiments.suite import load_sensors, sensor_plugin_files, sensor_suite
+from nespm_cli.experiments.suite import load_sensors, sensor_plugin_files, sensor_suite, suite_record
 from nespm_cli.experiments.store import (ResultsFolder, Task, chunk_firsts, file_hashes, run_blocks,
                                         write_parquet_atomic)
 from nespm_cli.filters import FilterConfig, initial_nav, run_filter
@@ -296,7 +296,8 @@ def run_cells(cells: list[Cell], options: dict, out_dir: str | Path, jobs: int =
     first = cells[0].spec
     inputs = manifest_inputs(cells)
     folder.open(inputs=inputs, seed=first.seed, data_dir=first.data_dir or "embedded",
-                filter_config={c.tag or "all": dataclasses.asdict(c.spec.filter_config) for c in cells})
+                filter_config={c.tag or "all": dataclasses.asdict(c.spec.filter_config) for c in cells},
+                sensors={c.tag or "all": suite_record(c.spec) for c in cells})
     blocks = run_blocks(folder.old, first.runs)
     folder.manifest["run_blocks"] = [list(b) for b in blocks]
     folder.save()

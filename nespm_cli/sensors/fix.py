@@ -29,13 +29,25 @@ from nespm_cli.sensors.measurement import Measurement
 from nespm_cli.sensors.source import Context, Sensor, SensorOptions, Truth
 
 
+def fix_values(pos: np.ndarray, C_bn: np.ndarray, lever, m: int, errors: np.ndarray | None = None) -> np.ndarray:
+    """The fix of an antenna at ``lever`` (body, from the IMU) on a vehicle at ``pos`` (..., 3),
+    ``C_bn`` (..., 3, 3): ``pos ⊕ C_bn l`` (then ``⊕ errors``, NED metres (..., 3), if given),
+    its first ``m`` components ``[lat, lon(, alt)]`` (..., m)."""
+    p = position_plus(pos, lever_down(C_bn, np.asarray(lever, dtype=float)))
+    if errors is not None:
+        p = position_plus(np.broadcast_to(p, np.shape(errors)), errors)
+    return p[..., :m]
+
+
 class FixMeasurement(Measurement):
-    """Position fix of R runs: ``z`` (R, m) ``[lat, lon(, alt)]``; ``std`` (m,) [m] per NED axis."""
+    """Position fix of R runs: ``z`` (R, m) ``[lat, lon(, alt)]``; ``std`` [m] per NED axis, (m,)
+    for every run or (R, m) per run."""
 
     def __init__(self, z: np.ndarray, lever, std: np.ndarray, layout: StateLayout):
         self.z = np.asarray(z, dtype=float)
         self.lever = np.asarray(lever, dtype=float)
-        self.R = np.diag(np.asarray(std, dtype=float) ** 2)
+        var = np.asarray(std, dtype=float) ** 2
+        self.R = var[..., None] * np.eye(var.shape[-1])
         self.layout = layout
 
     def predict(self, nav: NavState) -> np.ndarray:
@@ -104,23 +116,20 @@ class Fix(Sensor):
         return np.diag(self.stds(True) ** 2)
 
     def true_values(self, truth: Truth) -> np.ndarray:
-        return position_plus(truth.pos, lever_down(truth.C_bn, np.asarray(self.opt.lever_arm, dtype=float)))[
-            :, : self.dim]
+        return fix_values(truth.pos, truth.C_bn, self.opt.lever_arm, self.dim)
 
     def synthesize(self, truth: Truth, seed: int, track: int, runs: np.ndarray) -> np.ndarray:
         """Fixes (R, K, m): the antenna's true position moved by a NED error [m] of white noise
         (``std``, ``vertical_std``) plus a constant per-run ``bias`` (its own stream)."""
-        clean = position_plus(truth.pos, lever_down(truth.C_bn, np.asarray(self.opt.lever_arm, dtype=float)))
         K, m = len(truth.t), self.dim
-        out = np.empty((len(runs), K, m))
         std = np.concatenate([self.stds(False), [0.0] * (3 - m)])
+        errors = np.empty((len(runs), K, 3))
         for i, r in enumerate(runs):
             g = self.rng(seed, track, int(r))
-            e = g.standard_normal((K, 3)) * std
+            errors[i] = g.standard_normal((K, 3)) * std
             if self.opt.bias:
-                e = e + g.standard_normal(3) * self.opt.bias * (std > 0)
-            out[i] = position_plus(clean, e)[:, :m]
-        return out
+                errors[i] = errors[i] + g.standard_normal(3) * self.opt.bias * (std > 0)
+        return fix_values(truth.pos, truth.C_bn, self.opt.lever_arm, m, errors)
 
     def available_extra(self, truth: Truth) -> np.ndarray | None:
         if not self.opt.surface_only:
@@ -131,4 +140,4 @@ class Fix(Sensor):
         return FixMeasurement(z, self.opt.lever_arm, self.stds(True), layout)
 
 
-__all__ = ["Fix", "FixMeasurement", "FixOptions"]
+__all__ = ["Fix", "FixMeasurement", "FixOptions", "fix_values"]

@@ -1,0 +1,129 @@
+"""Optional per-sensor recorded files of a track folder ("channels"): read, validate and write them.
+
+A ``TrajectoryN`` folder may hold, besides the GT and DVL files (:mod:`nespm_cli.data.tracks`):
+
+* ``DEPTH_trajectoryN.csv``: columns exactly :data:`DEPTH_COLUMNS` (``Time [s]``, ``Depth [m]``, depth
+  positive down) -> ``Track.channels["depth"] = (t (K,), z (K, 1))``;
+* ``FIX_trajectoryN.csv``: columns exactly :data:`FIX_COLUMNS` (``Time [s]``, ``Latitude [rad]``,
+  ``Longitude [rad]``), optionally with :data:`FIX_ALT_COLUMN` (``Altitude [m]``, positive up: a 3-D fix)
+  -> ``Track.channels["fix"] = (t (K,), z (K, 2 or 3))`` as ``[lat, lon(, alt)]``.
+
+``t`` is the file's time [s] (the GT clock, not shifted); a row of NaN values is "no measurement at this
+stamp" (NaN in some but not all values of a row is refused). A header-only file gives K = 0. Refused,
+each in one line naming the file and the 1-based data row (:func:`read_channel`): a missing or unknown
+column, non-numeric text, a non-finite time, a stamp not after the previous row's (unsorted or a
+duplicate stamp), a stamp outside the GT span by more than :data:`STAMP_TOL`, an infinite value,
+|lat| > pi/2, |lon| > pi, a depth outside [:data:`DEPTH_MIN`, :data:`DEPTH_MAX`] m, |alt| >
+:data:`MAX_ABS_FIX_ALT` m.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from nespm_cli.data.csvtable import QUOTE_LIMIT, check_nan_rows, read_frame, require_columns, to_array, write_table
+from nespm_cli.data.plausibility import printable
+from nespm_cli.errors import NespmError
+
+TIME = "Time [s]"
+DEPTH_COLUMNS = (TIME, "Depth [m]")
+FIX_COLUMNS = (TIME, "Latitude [rad]", "Longitude [rad]")
+FIX_ALT_COLUMN = "Altitude [m]"
+#: channel name -> file kind (``{KIND}_trajectoryN.csv``), in the order the files are listed
+CHANNEL_KINDS = {"depth": "DEPTH", "fix": "FIX"}
+STAMP_TOL = 1e-6  # [s]; a stamp may lie this far outside the GT span [t_gt[0], t_gt[-1]]
+DEPTH_MIN = -10.0  # [m]; shallower (above the surface) is a sign convention (altitude up) or units mistake
+DEPTH_MAX = 12_000.0  # [m]; deeper than any ocean (~10,994 m): not metres
+MAX_ABS_FIX_ALT = 12_000.0  # [m]; a 3-D fix's |altitude| beyond this is a units mistake
+
+
+def read_channel(name: str, path: Path, t_gt: np.ndarray, gt_name: str = "the GT file") -> tuple[np.ndarray, np.ndarray]:
+    """``(t (K,), z (K, m))`` of the ``name`` (``"depth"`` | ``"fix"``) file ``path``, checked against the
+    GT time ``t_gt`` (N,) [s] of the file ``gt_name``; raises :class:`NespmError` as the module says."""
+    if name not in CHANNEL_KINDS:
+        raise ValueError(f"unknown channel {name!r} (known: {', '.join(CHANNEL_KINDS)})")
+    df = read_frame(path)
+    allowed = DEPTH_COLUMNS if name == "depth" else FIX_COLUMNS + (FIX_ALT_COLUMN,)
+    for col in df.columns:
+        if col not in allowed:
+            expected = ", ".join(f"'{c}'" for c in allowed)
+            if name == "fix":
+                expected = ", ".join(f"'{c}'" for c in FIX_COLUMNS) + f" and optionally '{FIX_ALT_COLUMN}'"
+            raise NespmError(f"{path}: unknown column '{printable(col, QUOTE_LIMIT)}' (the columns must be exactly "
+                             f"{expected})")
+    columns = DEPTH_COLUMNS if name == "depth" else FIX_COLUMNS + ((FIX_ALT_COLUMN,) * (FIX_ALT_COLUMN in df.columns))
+    require_columns(path, df, columns)
+    table = to_array(path, df, columns, nan_ok=columns[1:])
+    t, z = table[:, 0], table[:, 1:]
+    check_stamps(path, t, t_gt, gt_name)
+    check_nan_rows(path, z, columns[1:], "no measurement at this stamp")
+    if name == "depth":
+        _check_bounds(path, z[:, 0], columns[1], DEPTH_MIN, DEPTH_MAX,
+                      lambda v: f"{v!r} is outside {DEPTH_MIN:g} .. {DEPTH_MAX:g} m (metres, positive down, expected)")
+    else:
+        _check_bounds(path, z[:, 0], columns[1], -np.pi / 2, np.pi / 2, lambda v: f"|{v!r}| > pi/2 (radians expected)")
+        _check_bounds(path, z[:, 1], columns[2], -np.pi, np.pi, lambda v: f"|{v!r}| > pi (radians expected)")
+        if z.shape[1] == 3:
+            _check_bounds(path, z[:, 2], columns[3], -MAX_ABS_FIX_ALT, MAX_ABS_FIX_ALT,
+                          lambda v: f"|{v!r}| > {MAX_ABS_FIX_ALT:g} m (metres, positive up, expected)")
+    return t, z
+
+
+def check_stamps(path: Path, t: np.ndarray, t_gt: np.ndarray, gt_name: str) -> None:
+    """Stamps ``t`` (K,) strictly increasing (else "unsorted" or "duplicate stamp" at the row) and
+    inside the GT span ``[t_gt[0], t_gt[-1]]`` to :data:`STAMP_TOL`."""
+    dt = np.diff(t)
+    bad = np.flatnonzero(dt <= 0.0)
+    if bad.size:
+        r = int(bad[0]) + 1  # 0-based index of the offending row
+        what = (f"duplicate stamp {float(t[r])!r} (the same as data row {r};" if dt[r - 1] == 0.0 else
+                f"unsorted: stamp {float(t[r])!r} is before data row {r}'s {float(t[r - 1])!r} (")
+        raise NespmError(f"{path}: data row {r + 1}, column '{TIME}': {what} stamps must be strictly increasing)")
+    t0, t1 = float(t_gt[0]), float(t_gt[-1])
+    out = np.flatnonzero((t < t0 - STAMP_TOL) | (t > t1 + STAMP_TOL))
+    if out.size:
+        r = int(out[0])
+        raise NespmError(f"{path}: data row {r + 1}, column '{TIME}': stamp {float(t[r])!r} is outside the GT span "
+                         f"{t0!r} .. {t1!r} s of {gt_name} (by more than {STAMP_TOL:g} s)")
+
+
+def _check_bounds(path: Path, x: np.ndarray, col: str, lo: float, hi: float, say) -> None:
+    """Refuse the first value of ``x`` outside [lo, hi] with the message ``say(value)``."""
+    bad = np.flatnonzero((x < lo) | (x > hi))  # NaN (no measurement) compares False
+    if bad.size:
+        r = int(bad[0])
+        raise NespmError(f"{path}: data row {r + 1}, column '{col}': {say(float(x[r]))}")
+
+
+def read_channels(paths: dict[str, Path], t_gt: np.ndarray, gt_name: str = "the GT file") -> dict:
+    """``{name: (t, z)}`` of the channel files ``{name: path}`` that exist (see :func:`read_channel`)."""
+    return {name: read_channel(name, p, t_gt, gt_name) for name, p in paths.items() if p.exists()}
+
+
+def channel_columns(name: str, m: int) -> tuple[str, ...]:
+    """The header of a ``name`` file whose values have ``m`` columns."""
+    if name == "depth" and m == 1:
+        return DEPTH_COLUMNS
+    if name == "fix" and m in (2, 3):
+        return FIX_COLUMNS + ((FIX_ALT_COLUMN,) if m == 3 else ())
+    raise ValueError(f"channel {name!r} with {m} value column(s) has no file format")
+
+
+def write_channels(channels: dict, tdir: Path, number: int) -> list[Path]:
+    """Write the ``"depth"`` / ``"fix"`` entries of ``channels`` as ``tdir/{DEPTH,FIX}_trajectory{number}.csv``
+    (full precision, NaN as ``nan``, atomically); other names are not written. Returns the files written."""
+    out = []
+    for name, kind in CHANNEL_KINDS.items():
+        if name in channels:
+            t, z = (np.asarray(a, dtype=float) for a in channels[name])
+            z = z.reshape(len(t), -1)
+            path = Path(tdir) / f"{kind}_trajectory{number}.csv"
+            write_table(path, np.column_stack([t, z]), channel_columns(name, z.shape[1]))
+            out.append(path)
+    return out
+
+
+def check_dvl_nan(path: Path, velocity: np.ndarray, columns: tuple[str, ...]) -> None:
+    """A DVL row may be NaN in all of ``columns`` (a missing epoch), not in some."""
+    check_nan_rows(path, velocity, columns, "a missing epoch")
