@@ -344,8 +344,15 @@ def _run_many(tracks_: str, runs: int, filters_: str, jobs: int, chunk_size: int
     kw.pop("config")  # always None: --config is expanded before parsing (_expand_config); declared for --help
     spec = _spec(tracks=_tracks(tracks_), runs=runs, filters=_filters(filters_), chunk_size=chunk_size, **kw)
     t0 = time.perf_counter()
-    return spec, t0, dict(jobs=jobs, progress=not no_progress, argv=["nespm", *_ARGV],
-                          backend=backend, scheduler=scheduler)
+    return spec, t0, _execution(jobs, backend, scheduler, no_progress)
+
+
+def _execution(jobs: int, backend: str, scheduler: Optional[str], no_progress: bool):
+    """The Execution of the parallel options (where the chunks run; no number depends on it)."""
+    from nespm_cli.experiments.backend import Execution
+
+    return Execution(jobs=jobs, backend=backend, scheduler=scheduler, progress=not no_progress,
+                     argv=("nespm", *_ARGV))
 
 
 def _summary(m, t0: float, out: str) -> None:
@@ -363,8 +370,8 @@ def mc(
     """Monte Carlo: every filter on the same realizations; metrics/epochs Parquet, manifest; resumable."""
     from nespm_cli.experiments.mc import run_mc
 
-    spec, t0, run_kw = _run_many(**kw)
-    _summary(run_mc(spec, out, **run_kw), t0, out)
+    spec, t0, ex = _run_many(**kw)
+    _summary(run_mc(spec, out, ex), t0, out)
 
 
 @app.command()
@@ -378,8 +385,8 @@ def sweep(
     """Paired Monte Carlo per value of one parameter (same seeds across values and filters); resumable."""
     from nespm_cli.experiments.sweep import parse_values, run_sweep
 
-    spec, t0, run_kw = _run_many(**kw)
-    _summary(run_sweep(spec, param, parse_values(values), out, **run_kw), t0, out)
+    spec, t0, ex = _run_many(**kw)
+    _summary(run_sweep(spec, param, parse_values(values), out, ex), t0, out)
 
 
 @app.command()
@@ -524,9 +531,9 @@ def gp_ukf_cmd(
     from nespm_cli.experiments.gp_ukf import run_gp_experiment
 
     t0 = time.perf_counter()
-    m = run_gp_experiment(out, runs=runs, seed=seed, duration_s=duration, jobs=kw["jobs"], max_points=max_points,
-                          n_restarts=restarts, chunk_size=chunk_size, progress=not kw["no_progress"],
-                          argv=["nespm", *_ARGV], backend=kw["backend"], scheduler=kw["scheduler"], h_inputs=h_inputs,
+    ex = _execution(kw["jobs"], kw["backend"], kw["scheduler"], kw["no_progress"])
+    m = run_gp_experiment(out, runs=runs, seed=seed, duration_s=duration, max_points=max_points,
+                          n_restarts=restarts, chunk_size=chunk_size, execution=ex, h_inputs=h_inputs,
                           fraction=fraction, train_run=train_run, rk4_substeps=rk4_substeps)
     div = int(m.drop_duplicates(["filter", "run"])["diverged"].sum())
     typer.echo(f"{len(m)} rows in {time.perf_counter() - t0:.1f} s, {div} diverged "

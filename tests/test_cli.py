@@ -330,13 +330,15 @@ def test_console_script(tmp_path):
 
 
 def test_ctrl_c_during_mc_prints_the_resume_hint(tmp_path):
-    """SIGINT while chunks run: exit 130 and one stderr line saying how to resume."""
+    """SIGINT while chunks run: exit 130 and one stderr line saying how to resume. (The chunk is
+    UKF-NESPM on the NumPy loop, about 10 s of work, so the signal lands mid-chunk on a busy
+    machine too; with the EKF's 1 s a loaded machine could finish before the signal.)"""
     import signal
     import time
 
     out = tmp_path / "mc"
     p = subprocess.Popen([sys.executable, "-m", "nespm_cli.cli", "mc", "--tracks", "5", "--runs", "2",
-                          "--filters", "ekf", "--no-progress", "--out", str(out)],
+                          "--filters", "ukf-nespm", "--no-progress", "--out", str(out)],
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                          env=slow_env())
     deadline = time.time() + 60

@@ -224,7 +224,7 @@ def test_clean_case_stays_on_truth():
     solution by up to ~7e-4 m/s. That is correct Bayesian behaviour for a filter that believes
     it may be 0.25 m/s off, not a bug; its size is bounded in test_clean_case_default_p0_ukf.
     """
-    spec = Spec(tracks=(TRACK,), runs=1, dvl="synthetic", filter_config=TINY)
+    spec = Spec(tracks=(TRACK,), runs=1, dvl="synthetic", filter_config=TINY, tell_filter=False)
     res, truth, _ = simulate(spec, TRACK, np.arange(1), ("ins", "ekf", "ukf", "ukf-nespm"), clean=True)
     report = {k: (float(err.vel.max()), float(err.att.max()), round(s, 1)) for k, (_, err, s) in res.items()}
     print("clean, TINY P0:", report)

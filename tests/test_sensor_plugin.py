@@ -36,7 +36,9 @@ def test_usbl_example_uses_only_the_public_api():
 @pytest.fixture(scope="module")
 def loky(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("usbl") / "loky"
-    rc, _, err = nespm("mc", *ARGS, "--jobs", "2", "--out", str(out))
+    with pytest.MonkeyPatch.context() as mp:  # the embedded tracks, whatever the shell's $NESPM_DATA_DIR
+        mp.delenv("NESPM_DATA_DIR", raising=False)
+        rc, _, err = nespm("mc", *ARGS, "--jobs", "2", "--out", str(out))
     assert rc == 0, err
     return out
 

@@ -65,9 +65,11 @@ def test_clean_case_stays_on_truth(state, sensors):
 @pytest.fixture(scope="module")
 def aided():
     """16 runs of the whole embedded track 5, synthetic DVL, 15 states: DVL + depth + fixes every 10 s."""
-    spec = validate(Spec(tracks=(5,), runs=16, filters=("ekf",), dvl="synthetic", sensors=("dvl", "depth", "fix"),
-                         sensor_options=(("fix", "interval", "10"), ("fix", "std", "1")),
-                         filter_config=FilterConfig(state="15")))
+    with pytest.MonkeyPatch.context() as mp:  # the embedded tracks, whatever the shell's $NESPM_DATA_DIR
+        mp.delenv("NESPM_DATA_DIR", raising=False)
+        spec = validate(Spec(tracks=(5,), runs=16, filters=("ekf",), dvl="synthetic", sensors=("dvl", "depth", "fix"),
+                             sensor_options=(("fix", "interval", "10"), ("fix", "std", "1")),
+                             filter_config=FilterConfig(state="15")))
     res, _, _ = simulate(spec, 5, np.arange(16))
     return res["ekf"]
 

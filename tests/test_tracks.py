@@ -305,27 +305,37 @@ def test_data_dir_not_existing(tmp_path: Path) -> None:
     _check_msg(e, str(missing), "not found")
 
 
-def test_gt_dvl_epoch_value_mismatch(tmp_path: Path) -> None:
+def test_dvl_at_its_own_stamps(tmp_path: Path) -> None:
+    """A DVL stamp off the GT epoch is a DVL at its own stamps: the filters get the samples as
+    recorded (``channels['dvl']``), the checks the samples interpolated at the epochs."""
     dvl = _copy(tmp_path) / "DVL_trajectory1.csv"
-    _edit(dvl, 10, "Time [s]", repr(_cell(dvl, 10, "Time [s]") + 1e-3))
-    with pytest.raises(NespmError) as e:
-        load_track(1, tmp_path)
-    _check_msg(e, str(dvl), "data row 10", "GT_trajectory1.csv")
+    t10 = _cell(dvl, 10, "Time [s]")
+    _edit(dvl, 10, "Time [s]", repr(t10 + 0.25))
+    tr = load_track(1, tmp_path)
+    t, v = tr.channels["dvl"]
+    assert len(t) == 400 and t[9] == t10 + 0.25 and np.isfinite(tr.dvl).all()
+    # the epoch at t10 now lies between the samples at t[8] and t10 + 0.25: linear between them
+    w = (tr.t[9] - t[8]) / (t[9] - t[8])
+    assert np.allclose(tr.dvl[9], v[8] * (1 - w) + v[9] * w, rtol=0, atol=1e-12)
 
 
 def test_gt_dvl_epoch_tolerance(tmp_path: Path) -> None:
     dvl = _copy(tmp_path) / "DVL_trajectory1.csv"
     _edit(dvl, 10, "Time [s]", repr(_cell(dvl, 10, "Time [s]") + 5e-7))
-    assert len(load_track(1, tmp_path).t) == 400  # within 1e-6 s: accepted
+    tr = load_track(1, tmp_path)
+    assert len(tr.t) == 400 and "dvl" not in tr.channels  # within 1e-6 s: on the epochs
 
 
-def test_gt_dvl_length_mismatch(tmp_path: Path) -> None:
+def test_dvl_with_fewer_rows_and_stamps_outside(tmp_path: Path) -> None:
     dvl = _copy(tmp_path) / "DVL_trajectory1.csv"
     lines = dvl.read_text().splitlines()
-    dvl.write_text("\n".join(lines[:-1]) + "\n")
+    dvl.write_text("\n".join(lines[:-1]) + "\n")  # the last epoch without a DVL sample: own stamps
+    tr = load_track(1, tmp_path)
+    assert len(tr.channels["dvl"][0]) == 399 and np.isnan(tr.dvl[-1]).all() and np.isfinite(tr.dvl[:-1]).all()
+    _edit(dvl, 399, "Time [s]", repr(_cell(dvl, 399, "Time [s]") + 5.0))  # past the GT's end
     with pytest.raises(NespmError) as e:
         load_track(1, tmp_path)
-    _check_msg(e, str(dvl), "399 data rows", "GT_trajectory1.csv has 400")
+    _check_msg(e, str(dvl), "data row 399", "outside the GT span")
 
 
 def test_latitude_out_of_range(tmp_path: Path) -> None:

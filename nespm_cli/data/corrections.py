@@ -306,7 +306,8 @@ def apply_corrections(track: Track, corr: Corrections) -> Track:
     * IMU: axes mapped by :func:`axes_matrix`, stamps to GT time
       ``(stamp - imu_time_offset) / (1 + imu_time_drift)``;
     * DVL: re-sampled at the GT epochs from its stamps minus ``dvl_time_offset`` (linear
-      interpolation between the 1 Hz samples);
+      interpolation between the 1 Hz samples; an epoch next to a missing, NaN, sample is NaN);
+      a DVL recorded at its own stamps (``channels["dvl"]``) keeps its samples, stamps shifted;
     * epochs: those inside ``window`` and covered by the shifted IMU and DVL.
 
     Raises NespmError naming the track when fewer than 4 epochs remain.
@@ -334,5 +335,9 @@ def apply_corrections(track: Track, corr: Corrections) -> Track:
         what = f"window {corr.window}" if corr.window is not None else "the time offsets"
         raise NespmError(f"track {track.number}: after {what} only {len(idx)} GT epochs remain (need at least 4)")
     s = slice(int(idx[0]), int(idx[-1]) + 1)
+    channels = dict(track.channels)
+    if corr.dvl_time_offset and "dvl" in channels:  # a DVL at its own stamps: to GT time, not re-sampled
+        t_dvl, v_dvl = channels["dvl"]
+        channels["dvl"] = (np.asarray(t_dvl, dtype=float) - corr.dvl_time_offset, v_dvl)
     return dataclasses.replace(track, t=t[s], pos=track.pos[s], v_n=track.v_n[s], euler=track.euler[s],
-                               dvl=dvl[s], imu=imu)
+                               dvl=dvl[s], imu=imu, channels=channels)

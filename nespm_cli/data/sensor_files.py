@@ -124,6 +124,22 @@ def write_channels(channels: dict, tdir: Path, number: int) -> list[Path]:
     return out
 
 
+def dvl_at_epochs(t: np.ndarray, v: np.ndarray, t_gt: np.ndarray) -> np.ndarray:
+    """A DVL recorded at its own stamps ``t`` (K,), velocities ``v`` (K, 3), on the GT epochs
+    ``t_gt`` (N,) by linear interpolation between the two samples around each epoch (N, 3); NaN
+    where either is missing (NaN) or they are more than twice the median DVL step apart. This is
+    what the checks and plots read; the filters use the samples at their own times."""
+    t, v, t_gt = (np.asarray(a, dtype=float) for a in (t, v, t_gt))
+    j = np.clip(np.searchsorted(t, t_gt, side="right"), 1, len(t) - 1)
+    t0, t1 = t[j - 1], t[j]
+    w = np.clip((t_gt - t0) / (t1 - t0), 0.0, 1.0)[:, None]
+    out = v[j - 1] * (1.0 - w) + v[j] * w
+    step = float(np.median(np.diff(t))) if len(t) > 1 else np.inf
+    far = (t1 - t0 > 2.0 * step + STAMP_TOL) | (t_gt < t[0] - STAMP_TOL) | (t_gt > t[-1] + STAMP_TOL)
+    out[far] = np.nan
+    return out
+
+
 def check_dvl_nan(path: Path, velocity: np.ndarray, columns: tuple[str, ...]) -> None:
     """A DVL row may be NaN in all of ``columns`` (a missing epoch), not in some."""
     check_nan_rows(path, velocity, columns, "a missing epoch")

@@ -27,7 +27,8 @@ import numpy as np
 
 from nespm_cli.data import plausibility
 from nespm_cli.data.csvtable import QUOTE_LIMIT, read_table as _read_table, write_table as _write_csv  # noqa: F401
-from nespm_cli.data.sensor_files import CHANNEL_KINDS, check_dvl_nan, read_channels, write_channels
+from nespm_cli.data.sensor_files import (CHANNEL_KINDS, check_dvl_nan, check_stamps, dvl_at_epochs, read_channels,
+                                         write_channels)
 from nespm_cli.data.track import Track
 from nespm_cli.errors import NespmError
 from nespm_cli.nav.dvl import body_rate_from_attitude
@@ -195,7 +196,13 @@ def load_track(number: int, data_dir: str | Path | None = None, *, warnings: str
     dvl = _read_table(dvl_path, DVL_COLUMNS, nan_ok=DVL_COLUMNS[1:])
     check_dvl_nan(dvl_path, dvl[:, 1:4], DVL_COLUMNS[1:4])
     _check_time(dvl_path, dvl[:, 0])
-    _check_epochs(dvl_path, dvl[:, 0], gt_path, gt[:, 0])
+    channels = {}
+    if not _on_epochs(dvl[:, 0], gt[:, 0]):  # a DVL at its own stamps: the filters use them as they are
+        if len(dvl) < 2:
+            _check_epochs(dvl_path, dvl[:, 0], gt_path, gt[:, 0])
+        check_stamps(dvl_path, dvl[:, 0], gt[:, 0], gt_path.name)
+        channels["dvl"] = (dvl[:, 0].copy(), dvl[:, 1:4].copy())
+        dvl = np.column_stack([gt[:, 0], dvl_at_epochs(dvl[:, 0], dvl[:, 1:4], gt[:, 0])])
     _check_speed(dvl_path, dvl[:, 1:4], DVL_COLUMNS[1:4])
 
     imu = None
@@ -203,7 +210,7 @@ def load_track(number: int, data_dir: str | Path | None = None, *, warnings: str
         imu = _read_table(imu_path, IMU_COLUMNS)
         _check_time(imu_path, imu[:, 0])
         _check_imu(imu_path, imu, gt_path, gt[:, 0])
-    channels = read_channels(dict(zip(CHANNEL_KINDS, extra)), gt[:, 0], gt_path.name)
+    channels.update(read_channels(dict(zip(CHANNEL_KINDS, extra)), gt[:, 0], gt_path.name))
 
     findings = plausibility.check_track_arrays(gt_path, gt, dvl_path, dvl)
     errors = [f for f in findings if f.level == "error"]
@@ -240,7 +247,9 @@ def write_akit(track: Track, folder: str | Path) -> Path:
     tdir.mkdir(parents=True, exist_ok=True)
     gt = np.column_stack([track.t, track.pos[:, 1], track.pos[:, 0], track.pos[:, 2], track.v_n, track.euler])
     _write_csv(tdir / f"GT_trajectory{track.number}.csv", gt, GT_COLUMNS)
-    _write_csv(tdir / f"DVL_trajectory{track.number}.csv", np.column_stack([track.t, track.dvl]), DVL_COLUMNS)
+    own = track.channels.get("dvl")  # a DVL at its own stamps is written as it was read
+    dvl = np.column_stack(own) if own is not None else np.column_stack([track.t, track.dvl])
+    _write_csv(tdir / f"DVL_trajectory{track.number}.csv", dvl, DVL_COLUMNS)
     if track.imu is not None:
         _write_csv(tdir / f"IMU_trajectory{track.number}.csv", track.imu, IMU_COLUMNS)
     write_channels(track.channels, tdir, track.number)
@@ -258,6 +267,11 @@ def _check_time(path: Path, t: np.ndarray) -> None:
             f"{path}: data row {r + 1}, column 'Time [s]': time {float(t[r])!r} is not after the previous "
             f"row's {float(t[r - 1])!r} (must be strictly increasing)"
         )
+
+
+def _on_epochs(t: np.ndarray, t_gt: np.ndarray) -> bool:
+    """Whether DVL stamps ``t`` are the GT epochs (to :data:`EPOCH_TOL`)."""
+    return len(t) == len(t_gt) and bool(np.all(np.abs(t - t_gt) <= EPOCH_TOL))
 
 
 def _check_epochs(path: Path, t: np.ndarray, gt_path: Path, t_gt: np.ndarray) -> None:

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import dataclasses
 import logging
 import os
 import socket
@@ -34,6 +35,7 @@ import time
 import uuid
 import warnings
 from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
 
 from nespm_cli.errors import NespmError
@@ -56,6 +58,41 @@ INSTALL_HINT = "pip install 'nespm[dask]'"
 LOCAL_CONFIG = {"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None,
                 "distributed.worker.profile.enabled": False,
                 "distributed.scheduler.worker-saturation": 1.0}
+
+
+@dataclass(frozen=True)
+class Execution:
+    """Where and how an experiment's chunks run; none of it changes a number.
+
+    ``jobs`` local worker processes (loky, or the local Dask cluster); ``backend`` ``loky`` or
+    ``dask``; ``scheduler`` a Dask scheduler address or file (dask only); ``progress`` a progress
+    display; ``argv`` the command line recorded in the manifest (None: the Python API).
+    """
+
+    jobs: int = 2
+    backend: str = "loky"
+    scheduler: str | None = None
+    progress: bool = True
+    argv: tuple | None = None
+
+    def check(self) -> "Execution":
+        """One-line errors for a bad ``jobs``, backend or scheduler (before any folder is made)."""
+        if not isinstance(self.jobs, int) or self.jobs < 1:
+            raise NespmError(f"--jobs must be at least 1, got {self.jobs}")
+        check_backend(self.backend)
+        check_scheduler(self.backend, self.scheduler)
+        return self
+
+    @classmethod
+    def of(cls, execution: "Execution | None" = None, **legacy) -> "Execution":
+        """``execution``, or one built from the keyword arguments the API took before
+        (``jobs``, ``backend``, ``scheduler``, ``progress``, ``argv``; None: the default)."""
+        base = execution if execution is not None else cls()
+        given = {k: (tuple(v) if k == "argv" and v is not None else v) for k, v in legacy.items() if v is not None}
+        unknown = set(given) - {f.name for f in dataclasses.fields(cls)}
+        if unknown:
+            raise NespmError(f"unknown execution option(s): {', '.join(sorted(unknown))}")
+        return dataclasses.replace(base, **given)
 
 
 def check_backend(backend: str) -> None:

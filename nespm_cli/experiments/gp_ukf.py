@@ -38,6 +38,7 @@ import numpy as np
 import pandas as pd
 
 from nespm_cli.errors import NespmError
+from nespm_cli.experiments.backend import Execution
 from nespm_cli.experiments.chunks import write_chunk
 from nespm_cli.experiments.store import ResultsFolder, Task, write_atomic, write_parquet_atomic
 from nespm_cli.filters.gp_ukf import DeviationModel, GPUKFModels, gp_ukf, ideal_ukf, narx_training_data
@@ -502,26 +503,25 @@ def assemble(folder: ResultsFolder, firsts: list[int]) -> tuple[pd.DataFrame, pd
 
 
 def run_gp_experiment(out_dir: str | Path, runs: int = 20, seed: int = 0, duration_s: float = 800.0,
-                      jobs: int = 2, max_points: int = GPSpec.max_points, n_restarts: int = GPSpec.n_restarts,
-                      chunk_size: int = GPSpec.chunk_size, progress: bool = True, argv=None,
-                      backend: str = "loky", scheduler: str | None = None, **options) -> pd.DataFrame:
+                      max_points: int = GPSpec.max_points, n_restarts: int = GPSpec.n_restarts,
+                      chunk_size: int = GPSpec.chunk_size, execution: Execution | None = None, *,
+                      jobs: int | None = None, progress: bool | None = None, argv=None, backend: str | None = None,
+                      scheduler: str | None = None, **options) -> pd.DataFrame:
     """Run (or resume) the GP-UKF experiment into ``out_dir``; return the metrics table.
 
     ``options``: the other :class:`GPSpec` fields (``fraction``, ``train_run``,
-    ``rk4_substeps``, ``p0_std``). ``jobs``, ``backend`` and ``scheduler`` do not change the
-    results. Schema of the outputs: docs/gp-ukf.md.
+    ``rk4_substeps``, ``p0_std``). ``execution`` (or its fields as keyword arguments: ``jobs``,
+    ``backend``, ``scheduler``, ``progress``, ``argv``) does not change the results. Schema of
+    the outputs: docs/gp-ukf.md.
     """
-    from nespm_cli.experiments.backend import check_backend, check_scheduler
-
+    ex = Execution.of(execution, jobs=jobs, progress=progress, argv=argv, backend=backend, scheduler=scheduler)
     unknown = set(options) - {f.name for f in dataclasses.fields(GPSpec)}
     if unknown:
         raise NespmError(f"run_gp_experiment: unknown option(s) {', '.join(sorted(unknown))}")
     spec = validate(GPSpec(runs=runs, seed=seed, duration_s=float(duration_s), max_points=max_points,
                            n_restarts=n_restarts, chunk_size=chunk_size, **options))
-    if jobs < 1:
-        raise NespmError(f"--jobs must be at least 1, got {jobs}")
-    check_backend(backend)
-    check_scheduler(backend, scheduler)
+    ex.check()
+    jobs, backend, argv = ex.jobs, ex.backend, (list(ex.argv) if ex.argv is not None else None)
     out = Path(out_dir)
     opts = {"experiment": EXPERIMENT, **spec.as_dict()}
     if (out / "models.npz").exists() and not (out / "manifest.json").exists():
@@ -563,7 +563,7 @@ def run_gp_experiment(out_dir: str | Path, runs: int = 20, seed: int = 0, durati
             bar.stop()
     folder.manifest["training"] = info
     folder.save()
-    folder.run(run_chunk, todo, jobs, backend, scheduler, "gp-ukf", progress, unit="chunks")
+    folder.run(run_chunk, todo, ex, "gp-ukf", unit="chunks")
     metrics, _ = assemble(folder, firsts)
     folder.finish(chunks=len(firsts))
     return metrics

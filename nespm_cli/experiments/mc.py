@@ -23,7 +23,7 @@ from nespm_cli.data.corruption import draw, imu_errors
 from nespm_cli.data.tracks import track_files
 from nespm_cli.errors import NespmError
 from nespm_cli.experiments.assembly import epoch_table
-from nespm_cli.experiments.backend import check_scheduler
+from nespm_cli.experiments.backend import Execution
 from nespm_cli.experiments.chunks import chunk_problem, concat_parquet, write_chunk
 from nespm_cli.experiments.inputs import READ_HASHES, verify_read
 from nespm_cli.experiments.metrics import divergence, epoch_errors, run_metrics, sensor_nis
@@ -245,12 +245,15 @@ def add_true_track(epochs: pd.DataFrame, spec: Spec) -> pd.DataFrame:
     return pd.concat(parts, ignore_index=True)
 
 
-def run_mc(spec: Spec, out_dir: str | Path, jobs: int = 2, progress: bool = True, argv=None,
-           backend: str = "loky", scheduler: str | None = None) -> pd.DataFrame:
-    """Run (or resume) the experiment into ``out_dir``; return the metrics table."""
+def run_mc(spec: Spec, out_dir: str | Path, execution: Execution | None = None, *, jobs: int | None = None,
+           progress: bool | None = None, argv=None, backend: str | None = None,
+           scheduler: str | None = None) -> pd.DataFrame:
+    """Run (or resume) the experiment into ``out_dir``; return the metrics table. ``execution``
+    says where the chunks run (:class:`~nespm_cli.experiments.backend.Execution`; the keyword
+    arguments are its fields, for scripts written before it)."""
+    ex = Execution.of(execution, jobs=jobs, progress=progress, argv=argv, backend=backend, scheduler=scheduler)
     spec = validate(spec)
-    return run_cells([Cell(spec)], spec.as_dict(), out_dir, jobs=jobs, progress=progress, argv=argv,
-                     backend=backend, scheduler=scheduler)
+    return run_cells([Cell(spec)], spec.as_dict(), out_dir, ex)
 
 
 def input_files(spec: Spec, tracks: tuple | None = None) -> list[Path]:
@@ -278,21 +281,16 @@ def manifest_inputs(cells: list[Cell]) -> dict[str, str]:
     return {p: READ_HASHES.get(p) or file_hashes([p])[p] for p in files}
 
 
-def run_cells(cells: list[Cell], options: dict, out_dir: str | Path, jobs: int = 2, progress: bool = True,
-              argv=None, label: str = "mc", backend: str = "loky", scheduler: str | None = None) -> pd.DataFrame:
+def run_cells(cells: list[Cell], options: dict, out_dir: str | Path, execution: Execution = Execution(),
+              label: str = "mc") -> pd.DataFrame:
     """Run (or resume, or extend to more runs) validated ``cells`` into ``out_dir``; ``options``
     identify the experiment (:class:`nespm_cli.experiments.store.ResultsFolder`).
 
-    ``backend``/``scheduler`` choose where chunks run (:mod:`nespm_cli.experiments.backend`);
-    they do not change the results.
+    ``execution`` says where chunks run (:mod:`nespm_cli.experiments.backend`); it does not
+    change the results.
     """
-    from nespm_cli.experiments.backend import check_backend
-
-    if jobs < 1:
-        raise NespmError(f"--jobs must be at least 1, got {jobs}")
-    check_backend(backend)  # before --out is created
-    check_scheduler(backend, scheduler)
-    folder = ResultsFolder(out_dir, options, argv, extendable=("runs",))
+    ex = execution.check()  # before --out is created
+    folder = ResultsFolder(out_dir, options, list(ex.argv) if ex.argv is not None else None, extendable=("runs",))
     first = cells[0].spec
     inputs = manifest_inputs(cells)
     folder.open(inputs=inputs, seed=first.seed, data_dir=first.data_dir or "embedded",
@@ -305,7 +303,7 @@ def run_cells(cells: list[Cell], options: dict, out_dir: str | Path, jobs: int =
     cells = [dataclasses.replace(c, experiment=folder.experiment, inputs=tuple(sorted(inputs.items()))) for c in cells]
     tasks = chunk_tasks(cells, blocks)
     folder.ignore_strays(expected_chunks(tasks))
-    check_memory(tasks, jobs, backend, scheduler)
+    check_memory(tasks, ex)
 
     def missing(c: Cell, n: int, f0: int) -> tuple[str, ...]:
         return tuple(f for f in c.spec.filters
@@ -315,7 +313,7 @@ def run_cells(cells: list[Cell], options: dict, out_dir: str | Path, jobs: int =
     todo = [Task(chunk_key(c, n, f0), (_absolute(c), n, f0, str(out.resolve()), f1, fs),
                  len(fs) * (track_epochs(c.spec, n) - 1))
             for c, n, f0, f1 in tasks for fs in [missing(c, n, f0)] if fs]
-    folder.run(run_chunk_keyed, todo, jobs, backend, scheduler, label, progress)
+    folder.run(run_chunk_keyed, todo, ex, label)
     recover_timings(folder.manifest["chunk_seconds"], tasks, out / "chunks")
     metrics, epochs = assemble(folder, tasks, tuple(k for k, _ in cells[0].columns))
     epochs = add_true_track(epochs, first)
@@ -336,12 +334,13 @@ def chunk_memory(spec: Spec, number: int, runs: int) -> float:
     return float(runs) * (M * 3 * 8 * 6 + N * len(spec.filters) * 700)
 
 
-def check_memory(tasks: list, jobs: int, backend: str, scheduler: str | None) -> None:
+def check_memory(tasks: list, execution: Execution) -> None:
     """Refuse, before any chunk runs, chunks that the local workers cannot hold together (one line
     with the estimate). Remote Dask workers are not checked (their memory is not known here)."""
     from nespm_cli.experiments.backend import ENV_SCHEDULER
 
-    if not tasks or (backend == "dask" and (scheduler or os.environ.get(ENV_SCHEDULER))):
+    jobs = execution.jobs
+    if not tasks or (execution.backend == "dask" and (execution.scheduler or os.environ.get(ENV_SCHEDULER))):
         return
     avail = available_memory()
     if avail is None:

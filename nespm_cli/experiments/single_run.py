@@ -11,8 +11,9 @@ from nespm_cli.errors import NespmError
 from nespm_cli.experiments.mc import simulate
 from nespm_cli.experiments.spec import Spec, track_inputs, validate
 from nespm_cli.experiments.store import write_parquet_atomic
-from nespm_cli.experiments.metrics import divergence, run_metrics
+from nespm_cli.experiments.metrics import divergence, run_metrics, sensor_nis
 from nespm_cli.nav.rotations import dcm_to_euler
+from nespm_cli.nav.state import parse_layout
 
 
 def run_single(spec: Spec, track: int, filt: str, run: int, clean: bool = False, out: str | None = None,
@@ -52,6 +53,7 @@ def run_single(spec: Spec, track: int, filt: str, run: int, clean: bool = False,
     e0 = truth.epoch_index
     div, why = divergence(err, o.diverged, truth.t[e0] - truth.t[e0[0]], spec.divergence)
     m = run_metrics(err, div)
+    m.update(sensor_nis(o))
     summary = {"track": track, "filter": filt, "run": run, "clean": clean, "scenario": spec.scenario,
                "schedule": spec.corruption.schedule, **{k: (bool(v[0]) if k == "diverged" else (int(v[0]) if k == "n_samples" else float(v[0])))
                                              for k, v in m.items()}}
@@ -74,9 +76,12 @@ def run_single(spec: Spec, track: int, filt: str, run: int, clean: bool = False,
             if not clean:
                 ts[f"ba_{c}_true"] = real.b_a[0, i]
                 ts[f"bg_{c}_true"] = real.b_g[0, i]
-        names = ["dvN", "dvE", "dvD", "dpsiN", "dpsiE", "dpsiD", "baX", "baY", "baZ", "bgX", "bgY", "bgZ"]
-        for i, c in enumerate(names):
+        for i, c in enumerate(parse_layout(o.layout).labels):  # dvN ... bgZ, with dpN, dpE, dpD first for 15 states
             ts[f"sigma_{c}"] = np.sqrt(o.P_diag[0, :, i])
+        ts["north_err"], ts["east_err"], ts["down_err"] = err.ne[0, :, 0], err.ne[0, :, 1], err.down[0]
+        for name, rec in o.sensors.items():  # per sensor: measurements applied and their NIS, per epoch interval
+            ts[f"{name}_count"] = np.bincount(np.searchsorted(ts["t"].to_numpy(), rec.t[rec.used[0]], side="left"),
+                                              minlength=len(ts))[: len(ts)]
         if o.noise_std is not None:  # adaptive filters: the network std of the interval ending at the epoch
             for key, arr in (("acc", o.noise_std[0]), ("gyro", o.noise_std[1])):
                 for i, c in enumerate("xyz"):

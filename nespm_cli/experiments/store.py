@@ -369,10 +369,10 @@ class ResultsFolder:
             out.append(self.path(name))
         return out
 
-    def run(self, fn: Callable, tasks: list[Task], jobs: int, backend: str, scheduler: str | None,
-            label: str, progress: bool = True, unit: str = "filter-epochs") -> None:
-        """Compute ``tasks`` (``fn(*task.args) -> (key, timings)``) where the backend says, with
-        a progress display fed by the workers' reports (:mod:`nespm_cli.experiments.progress`).
+    def run(self, fn: Callable, tasks: list[Task], execution, label: str, unit: str = "filter-epochs") -> None:
+        """Compute ``tasks`` (``fn(*task.args) -> (key, timings)``) where ``execution`` (an
+        :class:`nespm_cli.experiments.backend.Execution`) says, with a progress display fed by the
+        workers' reports (:mod:`nespm_cli.experiments.progress`).
 
         A worker process that dies (killed by the system, e.g. out of memory) ends the command
         with one line naming the chunks it was computing; finished chunks are kept."""
@@ -382,9 +382,10 @@ class ResultsFolder:
             return
         units = {t.key: t.units for t in tasks}
         finished: set[str] = set()
-        results = parallel_map(fn, [t.args for t in tasks], jobs, backend, scheduler)
+        ex = execution
+        results = parallel_map(fn, [t.args for t in tasks], ex.jobs, ex.backend, ex.scheduler)
         try:
-            with Progress(label, sum(units.values()), len(tasks), unit=unit, enabled=progress) as bar, \
+            with Progress(label, sum(units.values()), len(tasks), unit=unit, enabled=ex.progress) as bar, \
                     Poller(bar, self.chunks) as poller:
                 for key, timings in results:
                     finished.add(key)

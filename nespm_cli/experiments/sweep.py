@@ -16,6 +16,7 @@ import pandas as pd
 
 from nespm_cli.errors import NespmError
 from nespm_cli.experiments.mc import Cell, run_cells
+from nespm_cli.experiments.backend import Execution
 from nespm_cli.experiments.spec import Spec, couple_filter, validate
 
 
@@ -88,10 +89,12 @@ def sweep_cells(spec: Spec, param: str, values: list[float]) -> list[Cell]:
             for i, v in enumerate(values)]
 
 
-def run_sweep(spec: Spec, param: str, values: list[float], out_dir: str | Path, jobs: int = 2,
-              progress: bool = True, argv=None, backend: str = "loky", scheduler: str | None = None) -> pd.DataFrame:
-    """Run (or resume) the sweep into ``out_dir``; metrics gain the columns ``param``, ``value``."""
+def run_sweep(spec: Spec, param: str, values: list[float], out_dir: str | Path, execution: Execution | None = None,
+              *, jobs: int | None = None, progress: bool | None = None, argv=None, backend: str | None = None,
+              scheduler: str | None = None) -> pd.DataFrame:
+    """Run (or resume) the sweep into ``out_dir``; metrics gain the columns ``param``, ``value``.
+    ``execution``: where the chunks run (the keyword arguments are its fields, as :func:`run_mc`)."""
+    ex = Execution.of(execution, jobs=jobs, progress=progress, argv=argv, backend=backend, scheduler=scheduler)
     cells = sweep_cells(spec, param, values)
     options = {**validate(spec).as_dict(), "sweep": {"param": param, "values": list(values)}}
-    return run_cells(cells, options, out_dir, jobs=jobs, progress=progress, argv=argv, label="sweep",
-                     backend=backend, scheduler=scheduler)
+    return run_cells(cells, options, out_dir, ex, label="sweep")

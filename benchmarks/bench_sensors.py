@@ -1,0 +1,87 @@
+"""Cost of position in the state and of more sensors, per run-step, side by side.
+
+One run-step is one Monte Carlo run advanced by one IMU step (its share of every update included).
+For each configuration the filter runs over the whole of embedded track 5 (400 s, 39,900 IMU
+steps) on R = 100 realizations, on one core (BLAS and OpenMP held to one thread), the channels
+built as ``mc`` builds them; the cost is the median of ``--repeat`` runs after a warm-up,
+divided by R x steps. Configurations:
+
+* ``12 dvl``: the papers' 12 states with the DVL at the GT epochs;
+* ``15 dvl``: position in the state, the same DVL;
+* ``15 dvl+depth+fix``: the DVL, a depth sensor every 1 s (off the IMU grid: each splits a step)
+  and a horizontal fix every 60 s.
+
+Run: ``.venv/bin/python benchmarks/bench_sensors.py [--filters ekf,ukf-nespm] [--repeat 3]``.
+Writes ``results/bench/sensors.json``.
+"""
+from __future__ import annotations
+
+import os
+
+for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ[_v] = "1"  # one core, before NumPy loads
+
+import argparse  # noqa: E402
+import json  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+CONFIGS = {"12 dvl": ("12", ("dvl",)), "15 dvl": ("15", ("dvl",)), "15 dvl+depth+fix": ("15", ("dvl", "depth", "fix"))}
+
+
+def inputs(state: str, sensors: tuple, R: int):
+    """``(name -> run_filter keyword arguments)`` for R realizations of track 5 (mc's own path)."""
+    from nespm_cli.data.corruption import draw, imu_errors
+    from nespm_cli.experiments.spec import Spec, filter_config, track_inputs, validate
+    from nespm_cli.experiments.suite import sensor_suite
+    from nespm_cli.filters import FilterConfig, initial_nav
+    from nespm_cli.sensors.channels import build_channel
+
+    spec = validate(Spec(tracks=(5,), runs=R, sensors=sensors, filters=("ekf",), filter_config=FilterConfig(state=state)))
+    track, truth = track_inputs(spec, 5)
+    e = truth.epoch_index
+    runs = np.arange(R)
+    real = draw(spec.seed, 5, runs, float(truth.t[e[-1]] - truth.t[e[0]]), spec.corruption)
+    ef, ew = imu_errors(real, truth.t)
+    nav0 = initial_nav(truth.pos[0], truth.v_n[0], truth.C_bn[0], real.dv0, real.dpsi0, real.dp0)
+    channels = [build_channel(s, track, truth, spec.seed, 5, runs) for s in sensor_suite(spec)]
+    return dict(cfg=filter_config(spec), f_meas=truth.f_b + ef, w_meas=truth.w_ib_b + ew, dt=truth.dt,
+                epoch_index=e, nav0=nav0, channels=channels), len(truth.dt)
+
+
+def main() -> None:
+    from nespm_cli.filters import run_filter
+
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--filters", default="ekf,ukf,ukf-nespm")
+    ap.add_argument("--runs", type=int, default=100)
+    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--out", default=str(ROOT / "results" / "bench" / "sensors.json"))
+    a = ap.parse_args()
+    res = {"runs": a.runs, "numpy": np.__version__, "cost_us": {}}
+    print(f"cost per run-step [µs], R = {a.runs}, one core, median of {a.repeat}")
+    print(f"{'filter':<12}" + "".join(f"{c:>20}" for c in CONFIGS) + f"{'ratio 15 all / 12':>20}")
+    for name in a.filters.split(","):
+        row = {}
+        for label, (state, sensors) in CONFIGS.items():
+            kw, steps = inputs(state, sensors, a.runs)
+            run_filter(name, **kw)  # warm-up (and the kernels' compile, once per machine)
+            times = []
+            for _ in range(a.repeat):
+                t0 = time.perf_counter()
+                run_filter(name, **kw)
+                times.append(time.perf_counter() - t0)
+            row[label] = 1e6 * float(np.median(times)) / (a.runs * steps)
+        res["cost_us"][name] = row
+        ratio = row["15 dvl+depth+fix"] / row["12 dvl"]
+        print(f"{name:<12}" + "".join(f"{row[c]:>20.3f}" for c in CONFIGS) + f"{ratio:>20.2f}", flush=True)
+    Path(a.out).parent.mkdir(parents=True, exist_ok=True)
+    Path(a.out).write_text(json.dumps(res, indent=1))
+    print(f"wrote {a.out}")
+
+
+if __name__ == "__main__":
+    main()
