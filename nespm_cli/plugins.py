@@ -146,6 +146,18 @@ class Registry:
         self.loaded[key] = module
         return module
 
+    def load_plugins(self, plugins) -> tuple[str, ...]:
+        """Discover the entry points, then import every plugin of ``plugins`` (files or modules;
+        idempotent: in the parent and again in every worker); return them as recorded: files as
+        absolute paths, module names as given."""
+        self.discover()
+        out = []
+        for p in plugins:
+            self.load_plugin(p)
+            path = Path(str(p)).expanduser()
+            out.append(str(path.resolve()) if path.is_file() else str(p))
+        return tuple(out)
+
     def load_plugin(self, path_or_module: str | Path) -> ModuleType:
         """Import a plugin (a ``.py`` file path, or an importable module name); return the module."""
         s = str(path_or_module)

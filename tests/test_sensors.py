@@ -28,6 +28,7 @@ from conftest import assert_one_error_line, nespm
 from nespm_cli.data.corruption import CorruptionConfig, draw
 from nespm_cli.errors import NespmError
 from nespm_cli.experiments.mc import simulate
+from nespm_cli.experiments.metrics import block_nees
 from nespm_cli.experiments.spec import Spec, track_inputs, validate
 from nespm_cli.experiments.suite import sensor_suite
 from nespm_cli.filters import FilterConfig
@@ -70,12 +71,12 @@ def aided():
         spec = validate(Spec(tracks=(5,), runs=16, filters=("ekf",), dvl="synthetic", sensors=("dvl", "depth", "fix"),
                              sensor_options=(("fix", "interval", "10"), ("fix", "std", "1")),
                              filter_config=FilterConfig(state="15")))
-    res, _, _ = simulate(spec, 5, np.arange(16))
-    return res["ekf"]
+    res, truth, _ = simulate(spec, 5, np.arange(16))
+    return (*res["ekf"][:2], truth)
 
 
 def test_fixes_bound_the_horizontal_error_and_are_consistent(aided):
-    out, err, _ = aided
+    out, err, truth = aided
     rms = float(np.sqrt((err.hpe**2).mean()))
     assert rms < 1.0, rms
     rec = out.sensors["fix"]
@@ -83,6 +84,11 @@ def test_fixes_bound_the_horizontal_error_and_are_consistent(aided):
     k = nis.size
     lo, hi = chi2.ppf(0.005, 2 * k) / k, chi2.ppf(0.995, 2 * k) / k
     assert k >= 16 * 38 and lo < nis.mean() < hi, (k, nis.mean(), lo, hi)
+    # per-block NEES of the position block: 3 for a consistent filter (measured 3.08; epochs are
+    # correlated, so the band is wider than a chi-square band of 16 x 400 independent draws)
+    e = truth.epoch_index
+    pos_nees = block_nees(out, "pos", truth.v_n[e], truth.C_bn[e], truth.pos[e])[:, 1:]
+    assert 2.0 < pos_nees.mean() < 4.5, pos_nees.mean()
 
 
 def test_depth_bounds_the_vertical_error(aided):
@@ -251,3 +257,28 @@ def test_recorded_depth_and_fix_files_at_their_own_stamps(tmp_path):
         assert out.sensors["fix"].used.sum() == 2 * 4
         assert np.allclose(out.sensors["depth"].t, t_d - tr.t[0]) and not out.dvl_used[30] and out.dvl_used[29]
         assert np.abs(err.down).max() < 0.2 and np.isfinite(err.hpe).all()
+
+
+def test_recorded_dvl_at_its_own_stamps_is_applied_at_them(tmp_path):
+    """A DVL file at 2 Hz, half a second off the GT epochs, holding the exact body velocity there:
+    the clean filters stay on the truth (each sample applied at its own time, the IMU step split
+    there) and every sample inside the track is used."""
+    from conftest import short_track
+    from nespm_cli.data.tracks import load_track, write_akit
+    from nespm_cli.sensors.channels import locate, truth_at
+
+    tr = short_track(5, 41)
+    t_dvl = tr.t[0] + np.arange(0.25, 40.0, 0.5)
+    spec0 = validate(Spec(tracks=(5,), runs=1, window="0:40"))
+    _, truth = track_inputs(spec0, 5)
+    at = truth_at(truth, *locate(truth, t_dvl - tr.t[0]))
+    v_b = np.einsum("kji,kj->ki", at.C_bn, at.v_n)  # C_bnᵀ v_n, no lever arm
+    folder = tmp_path / "data"
+    write_akit(dataclasses.replace(tr, channels={"dvl": (t_dvl, v_b)}), folder)
+    assert "dvl" in load_track(5, folder).channels
+    spec = validate(Spec(tracks=(5,), runs=1, filters=("ekf", "ukf"), data_dir=str(folder), tell_filter=False,
+                         filter_config=TINY))
+    res, _, _ = simulate(spec, 5, np.arange(1), clean=True)
+    for f, (out, err, _) in res.items():
+        assert out.sensors["dvl"].used.sum() == len(t_dvl), f
+        assert err.vel.max() < 1e-9 and err.att.max() < 1e-9, (f, err.vel.max(), err.att.max())

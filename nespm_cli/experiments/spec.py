@@ -25,7 +25,7 @@ from nespm_cli.experiments.inputs import DEFAULT_IMU_RATE, prepared
 from nespm_cli.experiments.metrics import DivergenceRule
 from nespm_cli.filters import FilterConfig
 from nespm_cli.filters.adaptive import BIAS_MODES
-from nespm_cli.filters.registry import discover_plugins, filter_names, get_filter, load_plugin
+from nespm_cli.filters.registry import FILTER_REGISTRY, filter_names, get_filter
 from nespm_cli.learn.noise_model import WINDOW, load_weights
 from nespm_cli.experiments.suite import check_suite, load_sensors
 from nespm_cli.nav.state import parse_layout
@@ -208,13 +208,7 @@ def load_filters(spec: Spec) -> Spec:
     """Import the spec's filter plugins and the installed ``nespm.filters`` entry points (in the
     parent and again in every worker; idempotent); return the spec with plugin files as
     absolute paths (module names stay as given)."""
-    discover_plugins()
-    plugins = []
-    for p in spec.filter_plugins:
-        load_plugin(p)
-        path = Path(str(p)).expanduser()
-        plugins.append(str(path.resolve()) if path.is_file() else str(p))
-    return dataclasses.replace(spec, filter_plugins=tuple(plugins))
+    return dataclasses.replace(spec, filter_plugins=FILTER_REGISTRY.load_plugins(spec.filter_plugins))
 
 
 def needs_noise_std(name: str) -> bool:

@@ -15,20 +15,14 @@ from pathlib import Path
 
 from nespm_cli.errors import NespmError
 from nespm_cli.nav.state import StateLayout
-from nespm_cli.sensors.registry import discover_plugins, get_sensor, load_plugin, sensor_files, sensor_names
+from nespm_cli.sensors.registry import SENSOR_REGISTRY, get_sensor, sensor_files, sensor_names
 from nespm_cli.sensors.source import Sensor, options_of
 
 
 def load_sensors(spec):
     """Import the spec's sensor plugins and the ``nespm.sensors`` entry points (idempotent; in the
     parent and in every worker); return the spec with plugin files as absolute paths."""
-    discover_plugins()
-    plugins = []
-    for p in spec.sensor_plugins:
-        load_plugin(p)
-        path = Path(str(p)).expanduser()
-        plugins.append(str(path.resolve()) if path.is_file() else str(p))
-    return dataclasses.replace(spec, sensor_plugins=tuple(plugins))
+    return dataclasses.replace(spec, sensor_plugins=SENSOR_REGISTRY.load_plugins(spec.sensor_plugins))
 
 
 def legacy_options(spec) -> dict:
