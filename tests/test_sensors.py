@@ -11,9 +11,9 @@ Physics pinned here (embedded track 5; each bound states what it is derived from
   velocity (the 6.7e-10). The NESPM points run at alpha = 0.5 here: at the papers' 1e-3 the
   weights (about 4e4 each) amplify the same round-off to 1e-8 m/s (test_regression pins that
   family with the measured spread).
-* fixes of std 1 m every 10 s: the 15-state EKF's horizontal RMS is below 1 m (measured 0.46 m)
+* fixes of std 1 m every 10 s: the 15-state EKF's horizontal RMS is below 1 m (measured 0.47 m)
   and the fixes' mean NIS lies in the two-sided 99 % χ² band of 2 x (number of fixes) dof.
-* depth of std 0.05 m: vertical RMS below 0.1 m (measured 0.029 m).
+* depth of std 0.05 m: vertical RMS below 0.1 m (measured 0.026 m).
 * the 15-state EKF with the DVL alone is no worse in velocity than the 12-state one.
 """
 from __future__ import annotations

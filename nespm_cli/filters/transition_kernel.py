@@ -7,10 +7,9 @@ Shapes as in :mod:`.kernels`; the error state is any layout of model.py, passed 
 the first index of the ``[pos, vel, att, ba, bg]`` blocks (-1 for an absent one,
 ``nav.state.StateLayout.offsets``), ``n`` states in all.
 
-Φ = Π (I + F dt): F has non-zero rows only for the *dynamic* blocks (pos, vel, att), so Φ keeps
-its bias rows [0 I]; only the dynamic rows are carried, ``Φ_dyn ← (I + F dt)_dyn Φ`` with the
-bias columns of F entering through the identity rows (the same sums as the dense product,
-without the zeros; for the papers' 12 states the same sums, in the same order, as before).
+Φ = Π (I + F dt): F has non-zero rows only for the position, velocity and attitude blocks, so Φ
+keeps its bias rows [0 I]; only the rows that change are formed (``transition_span``): for the
+papers' 12 states the same sums, in the same order, as the dense product's top six rows.
 """
 from __future__ import annotations
 
@@ -23,22 +22,22 @@ from nespm_cli.nav.kernels import GRAV_M, cycle_t, exp_t, gravity_t, load_t, mat
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def identity_plus_dt(M, dt, dyn):
-    """``M ← I + M dt`` in place for the dynamic rows ``dyn`` of F (M (n, n))."""
+def identity_plus_dt(M, dt, v):
+    """``M ← I + M dt`` in place for the velocity and attitude rows ``v .. v+5`` of F (M (n, n))."""
     n = M.shape[1]
-    for i in dyn:
+    for i in range(v, v + 6):
         for k in range(n):
             M[i, k] *= dt
         M[i, i] += 1.0
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def system_rows_s(x, f0, f1, f2, M, dt, off, dyn):
-    """Dynamic rows of ``I + F dt`` into ``M`` (n, n): F of model.system_matrix (Groves 14.2.4).
+def system_rows_s(x, f0, f1, f2, M, dt, off):
+    """The velocity and attitude rows of ``I + F dt`` into ``M`` (n, n): F of model.system_matrix
+    (Groves 14.2.4); the position rows (dp' = dv) are applied by transition_span directly.
 
     dv'   = (-[(2 w_ie + w_en) x] + [v x] J) dv - [f_n x] dpsi - C b_a  (+ dg_D/dD dp_D)
     dpsi' = -J dv - [w_in x] dpsi - C b_g        (J = d w_en / d v)
-    dp'   = dv
     """
     p, v, a, ba, bg = off[0], off[1], off[2], off[3], off[4]
     lat, h = x[0], x[2]
@@ -47,7 +46,7 @@ def system_rows_s(x, f0, f1, f2, M, dt, off, dyn):
     J10 = -1.0 / (R_N + h)
     J21 = -math.tan(lat) / (R_E + h)
     n = M.shape[1]
-    for i in dyn:
+    for i in range(v, v + 6):
         for k in range(n):
             M[i, k] = 0.0
     # -skew(2 w_ie + w_en)
@@ -94,11 +93,9 @@ def system_rows_s(x, f0, f1, f2, M, dt, off, dyn):
                 M[v + i, ba + k] = -x[6 + 3 * i + k]
             if bg >= 0:
                 M[a + i, bg + k] = -x[6 + 3 * i + k]
-    if p >= 0:  # dp' = dv; the vertical gravity gradient couples dp_D into dv_D
-        for i in range(3):
-            M[p + i, v + i] = 1.0
+    if p >= 0:  # the vertical gravity gradient couples dp_D into dv_D
         M[v + 2, p + 2] = gravity_gradient_t(lat, h, x[15])
-    identity_plus_dt(M, dt, dyn)
+    identity_plus_dt(M, dt, v)
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -110,9 +107,9 @@ def gravity_gradient_t(lat, h, sl):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def invariant_top_s(x, M, dt, S, dyn):
+def invariant_top_s(x, M, dt, S):
     """Rows 0-5 of ``I + F_inv dt`` into ``M`` (12, 12): F_inv of model.invariant_system_matrix
-    (the 12-state layout only; ``dyn`` its rows 0-5).
+    (the 12-state layout only).
 
     ρ̇ = −[(2ω_ie + ω_en)×] ρ + ([g×] + [v×][ω_ie×]) φ − C b_a − [v×] C b_g
     φ̇ = −J ρ + (J [v×] − [ω_in×]) φ − C b_g.      ``S`` (5, 3, 3) scratch.
@@ -152,7 +149,7 @@ def invariant_top_s(x, M, dt, S, dyn):
     for i in range(3):
         for k in range(3):
             M[3 + i, 3 + k] = (J[i, 0] * V[0, k] + J[i, 1] * V[1, k] + J[i, 2] * V[2, k]) - T[i, k]
-    identity_plus_dt(M, dt, dyn)
+    identity_plus_dt(M, dt, 0)
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -166,14 +163,17 @@ def skew_s(a0, a1, a2, out):
 @njit(cache=True, error_model="numpy")
 def transition_span(pos, v, C, b_a, b_g, f, w, dt, j0, j1, Phi, invariant, off):
     """Steps ``[j0, j1)`` in place on the solution; Φ (R, n, n) = Π (I + F dt) into ``Phi`` for the
-    layout ``off`` (``invariant``: F_inv of the right-invariant error, iekf.py, 12 states only)."""
+    layout ``off`` (``invariant``: F_inv of the right-invariant error, iekf.py, 12 states only).
+
+    Only the rows of Φ that change are formed. The velocity and attitude rows ``va = v .. v+5``
+    (adjacent in every layout): ``Φ_va ← M_va,va Φ_va + M_va,bias`` (the bias rows of Φ are
+    identity rows) ``+ M[vD, pD] Φ_pD`` (the vertical gravity gradient, with a position block);
+    the position rows ``Φ_p ← Φ_p + dt Φ_v`` (dp' = dv). For the papers' 12 states these are the
+    sums, in the order, of the dense product's top six rows.
+    """
     n = Phi.shape[1]
-    isdyn = np.zeros(n, dtype=np.bool_)
-    for b in range(3):  # pos, vel, att: the blocks with non-zero rows of F
-        if off[b] >= 0:
-            for i in range(3):
-                isdyn[off[b] + i] = True
-    dyn = np.flatnonzero(isdyn)
+    p, vo = off[0], off[1]
+    e = vo + 6  # first bias column
     S = np.empty((5, 3, 3))
     M = np.zeros((n, n))
     top = np.empty((n, n))
@@ -187,57 +187,80 @@ def transition_span(pos, v, C, b_a, b_g, f, w, dt, j0, j1, Phi, invariant, off):
         for j in range(j0, j1):
             f0, f1, f2 = f[r, j, 0] - ba0, f[r, j, 1] - ba1, f[r, j, 2] - ba2
             if invariant:
-                invariant_top_s(x, M, dt[j], S, dyn)
+                invariant_top_s(x, M, dt[j], S)
             else:
-                system_rows_s(x, f0, f1, f2, M, dt[j], off, dyn)
-            for i in dyn:
+                system_rows_s(x, f0, f1, f2, M, dt[j], off)
+            for i in range(vo, e):
                 for k in range(n):
                     s = 0.0
-                    for c in dyn:
+                    for c in range(vo, e):
                         s += M[i, c] * P[c, k]
-                    if not isdyn[k]:
+                    if k >= e:
                         s += M[i, k]  # the bias rows of Φ are identity rows
                     top[i, k] = s
-            for i in dyn:
+            if p >= 0:
+                g = M[vo + 2, p + 2]
+                for k in range(n):
+                    top[vo + 2, k] += g * P[p + 2, k]
+                for i in range(3):
+                    for k in range(n):
+                        P[p + i, k] += dt[j] * P[vo + i, k]  # Φ_v before this step's update
+            for i in range(vo, e):
                 for k in range(n):
                     P[i, k] = top[i, k]
             x = cycle_t(x, f0, f1, f2, w[r, j, 0] - bg0, w[r, j, 1] - bg1, w[r, j, 2] - bg2, dt[j])
         store_t(x, pos[r], v[r], C[r])
 
 
-@njit(cache=True, error_model="numpy")
-def points_span(pos, v, C, b_a, b_g, X, f, w, dt, j0, j1, pos_o, v_o, C_o, dp_o, off):
-    """The mean and the 2n offsets ``X`` (R, 2n, n) of each run through steps ``[j0, j1)``
-    (ukf-nespm.md eqs 35-38; layout ``off``) into ``pos_o``, ``v_o`` (R, 2n+1, 3), ``C_o`` (R, 2n+1, 3, 3),
-    and each point's position offset from point 0, NED [m], into ``dp_o`` (R, 2n+1, 3): its initial
-    ``dp`` plus the trapezoid integral of its velocity's difference from point 0's (eqs 28-30 in
-    deviation form, free of the cancellation of differencing latitudes)."""
-    S = X.shape[1] + 1
+@njit(cache=True, error_model="numpy", inline="always")
+def point_start(pos, v, C, b_a, b_g, X, r, s, off):
+    """Point ``s`` of run ``r`` at the start of a span (eqs 35-37): ``(x, b_a (3), b_g (3), dp (3))``,
+    point 0 the mean, point s > 0 the mean ⊕ ``X[r, s-1]`` (position ⊕ dp with a position block,
+    else unperturbed as the papers), with its own biases."""
     p, vo, a, ba, bg = off[0], off[1], off[2], off[3], off[4]
+    ba0, ba1, ba2, bg0, bg1, bg2 = b_a[r, 0], b_a[r, 1], b_a[r, 2], b_g[r, 0], b_g[r, 1], b_g[r, 2]
+    if s == 0:
+        return load_t(pos[r], v[r], C[r]), ba0, ba1, ba2, bg0, bg1, bg2, 0.0, 0.0, 0.0
+    d = X[r, s - 1]
+    lat, lon, h = pos[r, 0], pos[r, 1], pos[r, 2]
+    d0, d1, d2 = 0.0, 0.0, 0.0
+    if p >= 0:  # nav.state.position_plus
+        x0 = load_t(pos[r], v[r], C[r])
+        d0, d1, d2 = d[p], d[p + 1], d[p + 2]
+        lat, lon, h = lat + d0 / (x0[17] + h), lon + d1 / ((x0[18] + h) * x0[16]), h - d2
+    x = state_t(lat, lon, h, v[r, 0] + d[vo], v[r, 1] + d[vo + 1], v[r, 2] + d[vo + 2],
+                mul_t(exp_t(d[a], d[a + 1], d[a + 2]), matrix_t(C[r])))
+    if ba >= 0:
+        ba0, ba1, ba2 = ba0 + d[ba], ba1 + d[ba + 1], ba2 + d[ba + 2]
+    if bg >= 0:
+        bg0, bg1, bg2 = bg0 + d[bg], bg1 + d[bg + 1], bg2 + d[bg + 2]
+    return x, ba0, ba1, ba2, bg0, bg1, bg2, d0, d1, d2
+
+
+@njit(cache=True, error_model="numpy")
+def points_span(pos, v, C, b_a, b_g, X, f, w, dt, j0, j1, pos_o, v_o, C_o, off):
+    """The mean and the 2n offsets ``X`` (R, 2n, n) of each run through steps ``[j0, j1)``
+    (ukf-nespm.md eqs 35-38) into ``pos_o``, ``v_o`` (R, 2n+1, 3), ``C_o`` (R, 2n+1, 3, 3), for a
+    layout without a position block (position unperturbed, eq 35)."""
+    for r in range(pos.shape[0]):
+        for s in range(X.shape[1] + 1):
+            x, ba0, ba1, ba2, bg0, bg1, bg2, _, _, _ = point_start(pos, v, C, b_a, b_g, X, r, s, off)
+            for j in range(j0, j1):  # eq 38, the point compensating its own biases
+                x = cycle_t(x, f[r, j, 0] - ba0, f[r, j, 1] - ba1, f[r, j, 2] - ba2,
+                            w[r, j, 0] - bg0, w[r, j, 1] - bg1, w[r, j, 2] - bg2, dt[j])
+            store_t(x, pos_o[r, s], v_o[r, s], C_o[r, s])
+
+
+@njit(cache=True, error_model="numpy")
+def points_span_position(pos, v, C, b_a, b_g, X, f, w, dt, j0, j1, pos_o, v_o, C_o, dp_o, off):
+    """:func:`points_span` for a layout with a position block: point s starts at ``pos ⊕ dp``, and
+    its position offset from point 0, NED [m], goes into ``dp_o`` (R, 2n+1, 3): its initial ``dp``
+    plus the trapezoid integral of its velocity's difference from point 0's (eqs 28-30 in
+    deviation form, free of the cancellation of differencing latitudes)."""
     vc = np.empty((j1 - j0 + 1, 3))
     for r in range(pos.shape[0]):
-        for s in range(S):
-            # eqs 35-37: position ⊕ dp (unperturbed without a position block, as the papers),
-            # v + dv, exp([dpsi x]) C (point 0: the mean)
-            d0, d1, d2 = 0.0, 0.0, 0.0
-            if s == 0:
-                x = load_t(pos[r], v[r], C[r])
-                ba0, ba1, ba2, bg0, bg1, bg2 = b_a[r, 0], b_a[r, 1], b_a[r, 2], b_g[r, 0], b_g[r, 1], b_g[r, 2]
-            else:
-                d = X[r, s - 1]
-                lat, lon, h = pos[r, 0], pos[r, 1], pos[r, 2]
-                if p >= 0:  # nav.state.position_plus
-                    x0 = load_t(pos[r], v[r], C[r])
-                    d0, d1, d2 = d[p], d[p + 1], d[p + 2]
-                    lat, lon, h = lat + d0 / (x0[17] + h), lon + d1 / ((x0[18] + h) * x0[16]), h - d2
-                x = state_t(lat, lon, h, v[r, 0] + d[vo], v[r, 1] + d[vo + 1], v[r, 2] + d[vo + 2],
-                            mul_t(exp_t(d[a], d[a + 1], d[a + 2]), matrix_t(C[r])))
-                ba0, ba1, ba2 = b_a[r, 0], b_a[r, 1], b_a[r, 2]
-                bg0, bg1, bg2 = b_g[r, 0], b_g[r, 1], b_g[r, 2]
-                if ba >= 0:
-                    ba0, ba1, ba2 = ba0 + d[ba], ba1 + d[ba + 1], ba2 + d[ba + 2]
-                if bg >= 0:
-                    bg0, bg1, bg2 = bg0 + d[bg], bg1 + d[bg + 1], bg2 + d[bg + 2]
+        for s in range(X.shape[1] + 1):
+            x, ba0, ba1, ba2, bg0, bg1, bg2, d0, d1, d2 = point_start(pos, v, C, b_a, b_g, X, r, s, off)
             if s == 0:
                 vc[0, 0], vc[0, 1], vc[0, 2] = x[3], x[4], x[5]
             for j in range(j0, j1):  # eq 38, the point compensating its own biases

@@ -73,9 +73,11 @@ def truth_at(truth: ImuTruth, index: np.ndarray, frac: np.ndarray) -> Truth:
 
 
 def schedule(sensor: Sensor, truth: ImuTruth, seed: int, track: int) -> np.ndarray:
-    """A synthetic channel's times (K,) [s since the first epoch]: the GT epochs (``interval`` None)
-    or ``interval, 2 interval, ...`` up to the last epoch, jittered (one draw per track), kept
-    inside the span and increasing."""
+    """A synthetic channel's times (K,) [s since the first epoch]: the GT epochs (``interval`` None);
+    or every ``interval`` seconds up to the last epoch, each at the IMU sample nearest to
+    ``k x interval`` (a sensor sampled on the IMU's clock: at most half an IMU step, 5 ms at
+    100 Hz, from the nominal time, and no IMU step is split); with ``jitter``, the nominal times
+    moved by the jitter draw (one per track) and kept exactly, off the IMU grid, inside the span."""
     tg = grid_time(truth)
     epochs = tg[truth.epoch_index]
     every = sensor.interval()
@@ -83,8 +85,12 @@ def schedule(sensor: Sensor, truth: ImuTruth, seed: int, track: int) -> np.ndarr
         return epochs
     end = float(epochs[-1])
     t = np.arange(1, int(np.floor(end / every + 1e-9)) + 1) * every
-    t = jittered(sensor, t, seed, track)
-    return np.sort(t[(t > 0) & (t <= end)])
+    if sensor.opt.jitter:
+        t = jittered(sensor, t, seed, track)
+        return np.sort(t[(t > 0) & (t <= end)])
+    j = np.clip(np.searchsorted(tg, t), 1, len(tg) - 1)
+    nearest = np.where(t - tg[j - 1] <= tg[j] - t, j - 1, j)
+    return np.unique(tg[nearest[tg[nearest] > 0]])
 
 
 def recorded_times(sensor: Sensor, track, truth: ImuTruth) -> tuple[np.ndarray, np.ndarray]:

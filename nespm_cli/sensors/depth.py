@@ -56,7 +56,7 @@ class DepthMeasurement(Measurement):
 
 @dataclass(frozen=True)
 class DepthOptions(SensorOptions):
-    """Depth sensor options (:class:`SensorOptions`): std 0.05 m, every 1 s, from the truth."""
+    """Depth sensor options (:class:`SensorOptions`): std 0.05 m, at the GT epochs, from the truth."""
 
     std: float = 0.05
 
@@ -68,7 +68,7 @@ class Depth(Sensor):
     labels = ("depth",)
     observes = ("pos",)
     Options = DepthOptions
-    default_interval = 1.0
+    default_interval = None  # at the GT epochs (the track's own clock), like the DVL
 
     def true_values(self, truth: Truth) -> np.ndarray:
         u = lever_down(truth.C_bn, np.asarray(self.opt.lever_arm, dtype=float))
