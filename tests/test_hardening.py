@@ -124,13 +124,14 @@ def test_divergence_rule():
     att[2, 30] = 80.0  # large, but before --diverge-after: fine
     nees[3, 100:131] = 2000.0  # a 30 s window above 1000: nees
     nees[4, 100:110] = 2000.0  # 10 s of it: mean over any 30 s window 672 -> fine
-    div, why = divergence(errors(att, nees), np.array([True, False, False, False, False]), t)
-    assert why.tolist() == ["numeric", "attitude", "", "nees", ""]
-    assert div.tolist() == [True, True, False, True, False]
+    lost, why, inconsistent = divergence(errors(att, nees), np.array([True, False, False, False, False]), t)
+    assert why.tolist() == ["numeric", "attitude", "", "", ""]
+    assert lost.tolist() == [True, True, False, False, False]  # the NEES test does not lose a run ...
+    assert inconsistent.tolist() == [False, False, False, True, False]  # ... it marks it inconsistent
     nan_nees = np.full((1, 200), np.nan)  # a filter without covariance (ins): no NEES test
-    assert not divergence(errors(base_att[:1], nan_nees), np.array([False]), t)[0][0]
+    assert not divergence(errors(base_att[:1], nan_nees), np.array([False]), t)[2][0]
     strict = DivergenceRule(nees=500.0)
-    assert divergence(errors(att, nees), np.zeros(5, bool), t, strict)[1][4] == "nees"
+    assert divergence(errors(att, nees), np.zeros(5, bool), t, strict)[2][4]
 
 
 def test_large_misalignment_runs_are_counted_diverged(tmp_path, short_data_dir):

@@ -167,10 +167,11 @@ def run_chunk(cell: Cell, number: int, first: int, out_dir: str, last: int | Non
     e = truth.epoch_index
     t_rel = truth.t[e] - truth.t[e[0]]
     for name, (out, err, secs) in results.items():
-        div, why = divergence(err, out.diverged, t_rel, spec.divergence)
+        div, why, inconsistent = divergence(err, out.diverged, t_rel, spec.divergence)
         m = run_metrics(err, div)
         m.update(sensor_nis(out))
         m["diverged_reason"] = why
+        m["inconsistent"] = inconsistent
         m.update(q_factors(out.noise_std, filter_config(spec), len(runs)))
         df = pd.DataFrame({**extra, "track": number, "filter": name, "run": runs, "scenario": spec.scenario,
                            "schedule": spec.corruption.schedule, "seed": spec.seed, **m,

@@ -111,13 +111,19 @@ def sensor_nis(out) -> dict[str, np.ndarray]:
 
 @dataclass(frozen=True)
 class DivergenceRule:
-    """When a run counts as diverged (docs/filters.md, "Divergence"), besides a non-finite state or
-    a speed above 50 m/s (the engine's numeric test):
+    """When a run counts as *lost*, or as *inconsistent* (docs/filters.md, "Lost and inconsistent runs").
 
-    * ``att_deg`` [deg]: its attitude error exceeds this at any epoch after ``after_s``;
+    Lost (its estimate says nothing any more; its error sums are NaN, and the report compares the
+    filters on the runs no filter lost, with each filter's loss count beside): a non-finite state
+    or covariance or a speed above 50 m/s (the engine's numeric test), or
+
+    * ``att_deg`` [deg]: an attitude error above this at any epoch after ``after_s``.
+
+    Inconsistent (its covariance is overconfident, its estimate may still be good; it keeps its
+    errors in every average and is counted in ``inconsistent``):
+
     * ``nees``: its NEES averaged over any ``window_s`` [s] window after ``after_s`` exceeds this
-      (the 6-dof chi-square 99.9 % point is 22.5: a run 40x beyond it for half a minute is not
-      "overconfident", its covariance has lost the state).
+      (the 6-dof chi-square 99.9 % point is 22.5: 40x beyond it for half a minute).
     """
 
     att_deg: float = 45.0
@@ -127,8 +133,9 @@ class DivergenceRule:
 
 
 def divergence(err: EpochErrors, numeric: np.ndarray, t_rel: np.ndarray,
-               rule: DivergenceRule = DivergenceRule()) -> tuple[np.ndarray, np.ndarray]:
-    """``(diverged (R,) bool, reason (R,) str)``: ``numeric``, ``attitude``, ``nees`` or ``""``.
+               rule: DivergenceRule = DivergenceRule()) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(lost (R,) bool, reason (R,) str, inconsistent (R,) bool)``: ``reason`` is ``numeric``,
+    ``attitude`` or ``""`` (the run is not lost); ``inconsistent`` the NEES test of ``rule``.
 
     ``numeric`` (R,) is the engine's flag; ``t_rel`` (N,) [s] the epoch times from the first.
     """
@@ -147,8 +154,8 @@ def divergence(err: EpochErrors, numeric: np.ndarray, t_rel: np.ndarray,
             bad_nees = ((c[:, w:] - c[:, :-w]) / w).max(axis=1) > rule.nees
         else:
             bad_nees = np.zeros(len(numeric), dtype=bool)
-    reason = np.where(numeric, "numeric", np.where(bad_att, "attitude", np.where(bad_nees, "nees", "")))
-    return reason != "", reason.astype(object)
+    reason = np.where(numeric, "numeric", np.where(bad_att, "attitude", ""))
+    return reason != "", reason.astype(object), bad_nees & ~numeric
 
 
 def run_metrics(err: EpochErrors, diverged: np.ndarray) -> dict[str, np.ndarray]:

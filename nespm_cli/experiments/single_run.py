@@ -51,7 +51,7 @@ def run_single(spec: Spec, track: int, filt: str, run: int, clean: bool = False,
     results, truth, real = simulate(spec, track, np.array([run]), [filt], clean=clean, progress=progress)
     o, err, secs = results[filt]
     e0 = truth.epoch_index
-    div, why = divergence(err, o.diverged, truth.t[e0] - truth.t[e0[0]], spec.divergence)
+    div, why, inconsistent = divergence(err, o.diverged, truth.t[e0] - truth.t[e0[0]], spec.divergence)
     m = run_metrics(err, div)
     m.update(sensor_nis(o))
     summary = {"track": track, "filter": filt, "run": run, "clean": clean, "scenario": spec.scenario,
@@ -59,6 +59,7 @@ def run_single(spec: Spec, track: int, filt: str, run: int, clean: bool = False,
                                              for k, v in m.items()}}
     summary = {k: (None if isinstance(v, float) and not np.isfinite(v) else v) for k, v in summary.items()}
     summary["diverged_reason"] = str(why[0])
+    summary["inconsistent"] = bool(inconsistent[0])
     if out:
         e = truth.epoch_index
         ts = pd.DataFrame({"t": truth.t[e] - truth.t[e[0]], "dvl_used": o.dvl_used,

@@ -60,6 +60,7 @@ from nespm_cli.reports.stats import (
     PRACTICAL_PCT,
     check_practical_pct,
     ci_marks,
+    lost_by_any,
     improvement,
     interval_mark,
     metric_keys,
@@ -113,10 +114,11 @@ def default_reference(metrics: pd.DataFrame, reference: str | None = None) -> st
 
 
 def _sums(metrics: pd.DataFrame) -> pd.DataFrame:
-    """Per (track, filter): error sums over non-diverged runs, NEES mean and run counts."""
+    """Per (track, filter): error sums over the runs no filter lost (:func:`stats.lost_by_any`),
+    NEES mean over those runs, and run counts (``diverged``: this filter's lost runs)."""
     df = metrics.assign(
         diverged=metrics["diverged"].astype(bool),
-        ok=~metrics["diverged"].astype(bool),
+        ok=~lost_by_any(metrics),
     )
     ok = df[df["ok"]]
     grouped = ok.groupby(["track", "filter"], sort=False)
@@ -205,7 +207,7 @@ def filter_table(
         raise NespmError(f"n_boot must be >= 0, got {n_boot}")
     ref = default_reference(metrics, reference)
     tt = track_table(metrics)
-    ok = metrics[~metrics["diverged"].astype(bool)]
+    ok = metrics[~lost_by_any(metrics)]
     rows = []
     for name in filters_in_order(metrics):
         t = tt[tt["filter"] == name]
@@ -535,14 +537,14 @@ def _definitions(ref: str, n_boot: int, seed: int, practical_pct: float = PRACTI
 - **Horizontal position error (HPE)**: `hypot(north, east)` of estimate − truth [m] at each epoch.
   *RMS HPE*: eq 50 with `sse_hpe` (sum over the epochs of HPE²); *final HPE*: at the last epoch;
   *% of distance*: final HPE / horizontal distance the truth travelled over the track · 100. Final
-  HPE and its % are means over the non-diverged runs per track, then over tracks.
+  HPE and its % are means over the runs no filter lost (per track), then over tracks.
 - **{ref} Imprv.**: improvement of the reference filter `{ref}` over each other row, as in the
   papers' "ANUKF Imprv." column: `100 · (metric_row − metric_{ref}) / metric_row`. Positive
   means `{ref}` has the smaller error; the reference row shows "{DASH}". **Every improvement, its
   point and its interval, in every table and in the Summary, is computed over the runs that
   diverged in neither filter of the pair** (the pairs), per track with eqs 50–51; the VRMSE and
-  MRMSE columns use each filter's own non-diverged runs, so with divergences an improvement need
-  not equal the one computed from the two printed columns.
+  MRMSE columns use the runs that no filter lost (so every filter is judged on the same runs and
+  none looks better for having lost its hard runs), which with losses can be fewer than a pair's.
 - **95 % CI**: paired bootstrap percentile interval (2.5 %, 97.5 %) of that improvement. The same
   run index is the same realization for every filter, so per track the pairs are resampled with
   replacement (the same resample for both filters), eqs 50–51 are recomputed for both and the
@@ -558,18 +560,20 @@ def _definitions(ref: str, n_boot: int, seed: int, practical_pct: float = PRACTI
   meaningful, and says "no practical difference" below the threshold even when significant.
   The **best** filter of a metric is the one with the smaller paired track average against the
   most other filters (ties: the smaller track average over its own runs).
-- **mean NEES**: mean over the non-diverged runs of each run's epoch-averaged 6-DOF NEES of
+- **mean NEES**: mean over the runs no filter lost of each run's epoch-averaged 6-DOF NEES of
   `[δv, δψ]` (6 for a consistent filter; {DASH} for `ins`). **95 % NEES band**: the two-sided
   95 % band of the mean of n chi-square(6) values, `chi2.ppf([0.025, 0.975], 6 n) / n`
   (`metrics.nees_band(6, n)`), n = the runs averaged. Above the band the filter is
   *overconfident* (its covariance is too small), below *conservative*. The band is for one
   epoch's NEES averaged over n runs; each run's epoch average fluctuates less, so the band is a
   lenient test: a mean outside it is a clear inconsistency.
-- **diverged**: runs whose state or covariance became non-finite (or not positive definite),
-  whose speed exceeded 50 m/s, whose attitude error exceeded `--diverge-att-deg` (45 deg) after
-  `--diverge-after` (60 s), or whose NEES averaged over `--diverge-window` (30 s) exceeded
-  `--diverge-nees` (1000) after that, out of all runs (the reason per run is `diverged_reason`
-  in metrics.parquet); they are left out of every error number.
+- **diverged** (lost): runs whose state or covariance became non-finite (or not positive
+  definite), whose speed exceeded 50 m/s, or whose attitude error exceeded `--diverge-att-deg`
+  (45 deg) after `--diverge-after` (60 s), out of all runs (the reason per run is
+  `diverged_reason` in metrics.parquet); a run lost by any filter is left out of every filter's
+  error numbers (a filter that lost every run of a track excepted). A run whose NEES averaged over
+  `--diverge-window` (30 s) exceeded `--diverge-nees` (1000) is *inconsistent*
+  (`inconsistent` in metrics.parquet), not lost: it keeps its errors in every number.
 """
 
 

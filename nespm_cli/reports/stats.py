@@ -85,6 +85,20 @@ def track_rng(seed: int, track: Any) -> np.random.Generator:
     return np.random.default_rng([int(seed), int(track)])
 
 
+def lost_by_any(metrics: pd.DataFrame) -> pd.Series:
+    """(rows,) bool: the row's run (same ``track`` and ``run``, and ``value`` in a sweep) was lost
+    (``diverged``) by this or some other filter of ``metrics``. The per-filter tables leave these runs out for
+    every filter, so each filter is judged on the same runs and none looks better for losing
+    one; each filter's own loss count stands beside (docs/filters.md, "Lost and inconsistent
+    runs"). A filter that lost every run of a track (of a swept value) is left out of this rule
+    there: its numbers are undefined anyway, and the others keep theirs."""
+    group = [k for k in ("value", "track") if k in metrics.columns]
+    lost = metrics["diverged"].astype(bool)
+    all_lost = lost.groupby([metrics[k] for k in group + ["filter"]], sort=False).transform("all")
+    counted = lost & ~all_lost
+    return counted.groupby([metrics[k] for k in group + ["run"]], sort=False).transform("any").astype(bool) | lost
+
+
 def paired_runs(metrics: pd.DataFrame, track: Any, a: str, b: str) -> tuple[pd.DataFrame, pd.DataFrame]:
     """Rows of filters ``a`` and ``b`` on ``track`` for the runs diverged in neither, aligned by run."""
     sub = metrics[metrics["track"] == track]

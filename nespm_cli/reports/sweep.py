@@ -44,6 +44,7 @@ from nespm_cli.reports.stats import (
     NEES_DOF,
     PRACTICAL_PCT,
     ci_marks,
+    lost_by_any,
     interval_mark,
     paired_bootstrap,
     paired_improvement,
@@ -174,7 +175,7 @@ def filter_bootstrap(
     """
     keys = list(METRICS) + ["nees"]
     out = {k: np.full(max(n_boot, 0), np.nan) for k in keys}
-    d = metrics[metrics["filter"] == filt]
+    d = metrics[(metrics["filter"] == filt) & ~lost_by_any(metrics)]  # the runs no filter lost
     if d.empty or n_boot < 1:
         return out
     per_track: dict[str, list[np.ndarray]] = {k: [] for k in METRICS}
@@ -182,7 +183,7 @@ def filter_bootstrap(
     nees_sum = np.zeros(n_boot)
     nees_cnt = np.zeros(n_boot)
     for track in sorted(pd.unique(d["track"])):
-        t = d[(d["track"] == track) & ~d["diverged"].astype(bool)].sort_values("run")
+        t = d[d["track"] == track].sort_values("run")
         if len(t) == 0:
             complete = False
             continue
@@ -632,17 +633,20 @@ def render_sweep_report(
                              f"({r.diverged}/{r.runs}); its error metrics are undefined ({DASH}).")
         else:
             div_lines.append(f"- value {r.value:g}, `{r.filter}`: {r.diverged} of {r.runs} runs "
-                             "diverged and are left out of its error metrics.")
+                             "diverged (lost) and are left out of every filter's error metrics.")
     div_text = "\n".join(div_lines) if div_lines else "No run diverged."
     definitions = f"""## Definitions
 
 - Each value is one paired Monte Carlo experiment; run `r` of track `N` is the same realization
   (the same standard normals, scaled by the value) for every filter and every value.
 - **VRMSE** (anukf.md eq 50) per track: `sqrt(sum(sse_vel) / sum(n_samples))` over the runs that
-  did not diverge; **MRMSE** (eq 52) likewise with `sse_att`; both averaged over tracks as
-  `sqrt(mean over tracks of RMSE_track²)` (eq 51). **mean NEES**: mean of the per-run,
-  epoch-averaged 6-DOF NEES of `[δv, δψ]` over the non-diverged runs of all tracks.
-  **Divergence rate**: diverged runs / runs (all tracks).
+  no filter lost at that value (every filter judged on the same runs; a filter that lost every
+  run of a track is left out of that rule); **MRMSE** (eq 52) likewise with `sse_att`; both
+  averaged over tracks as `sqrt(mean over tracks of RMSE_track²)` (eq 51). **mean NEES**: mean
+  of the per-run, epoch-averaged 6-DOF NEES of `[δv, δψ]` over those runs.
+  **Divergence rate**: the filter's lost runs / runs (all tracks): a non-finite state, a speed
+  above 50 m/s or an attitude error above `--diverge-att-deg`. A run failing only the NEES test
+  is *inconsistent*, not lost: it keeps its errors.
 - **Intervals** `[lo, hi]`: 95 % bootstrap percentile intervals ({n_boot} resamples, seed {seed});
   the runs of each track are resampled with replacement and the metric recomputed. The
   divergence rate has a 95 % Wilson score interval.
