@@ -631,7 +631,8 @@ def test_report_horizontal_section_and_figure(tmp_path: Path) -> None:
     make_hpe_epochs(TRACKS, filters).to_parquet(tmp_path / "epochs.parquet")
     text = write_report(tmp_path, n_boot=50).read_text()
     sec = text.split("## Horizontal position error")[1].split("## Comparison")[0]
-    assert "| Track | Method | distance [m] | final HPE [m] | RMS HPE [m] | final HPE [% of distance] | diverged |" in sec
+    assert ("| Track | Method | distance [m] | final HPE [m] | RMS HPE [m] | final HPE [% of distance] | CEP50 [m] "
+            "| R95 [m] | diverged |") in sec
     ht = horizontal_table(m)
     for r in ht.itertuples(index=False):
         label = "average" if r.track is None else str(r.track)

@@ -203,6 +203,16 @@ def run_metrics(err: EpochErrors, diverged: np.ndarray) -> dict[str, np.ndarray]
     }
 
 
+def cep(radial: np.ndarray, p: float = 0.5) -> float:
+    """Circular error probable: the radius holding the fraction ``p`` of the horizontal errors
+    ``radial`` (R,) [m] (the sample quantile, linear interpolation; NaN entries left out). CEP50
+    is ``p = 0.5`` (for a circular Gaussian of std σ per axis: σ sqrt(2 ln 2) = 1.1774 σ), R95
+    ``p = 0.95``; NaN without a finite error."""
+    r = np.asarray(radial, dtype=float)
+    r = r[np.isfinite(r)]
+    return float(np.quantile(r, p)) if r.size else float("nan")
+
+
 def rmse(sse: np.ndarray, n: np.ndarray) -> float:
     """Eq 50 over a set of runs: sqrt(Σ sse / Σ n), NaN entries (diverged) left out."""
     ok = np.isfinite(sse)

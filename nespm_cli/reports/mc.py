@@ -34,6 +34,7 @@ import pandas as pd
 
 from nespm_cli.data.atomic import write_text_atomic
 from nespm_cli.errors import NespmError
+from nespm_cli.experiments.metrics import cep
 from nespm_cli.reports.figures import filter_colors, outage_spans, save_figure
 from nespm_cli.reports.markdown import (
     DASH,
@@ -275,7 +276,11 @@ def horizontal_table(metrics: pd.DataFrame) -> pd.DataFrame | None:
     if not has_hpe(metrics):
         return None
     tt = track_table(metrics)
-    cols = ["distance", "hpe_final", "hpe_rms", "hpe_final_pct", "diverged", "runs"]
+    kept = metrics[~lost_by_any(metrics)]
+    for q, col in ((0.5, "cep50"), (0.95, "r95")):  # over the runs no filter lost, at the final epoch
+        per = kept.groupby(["track", "filter"], sort=False)["hpe_final"].apply(lambda x, q=q: cep(x, q))
+        tt[col] = [per.get((tr, f), math.nan) for tr, f in zip(tt["track"], tt["filter"])]
+    cols = ["distance", "hpe_final", "hpe_rms", "hpe_final_pct", "cep50", "r95", "diverged", "runs"]
     rows = []
     for name in filters_in_order(metrics):
         t = tt[tt["filter"] == name]
@@ -283,6 +288,7 @@ def horizontal_table(metrics: pd.DataFrame) -> pd.DataFrame | None:
                      "hpe_final": float(t["hpe_final"].mean(skipna=False)),
                      "hpe_rms": track_average(t["hpe_rms"]),
                      "hpe_final_pct": float(t["hpe_final_pct"].mean(skipna=False)),
+                     "cep50": float(t["cep50"].mean(skipna=False)), "r95": float(t["r95"].mean(skipna=False)),
                      "diverged": int(t["diverged"].sum()), "runs": int(t["runs"].sum())})
     per_track = tt[["track", "filter"] + cols].to_dict("records")
     out = pd.DataFrame(rows + per_track, columns=["track", "filter"] + cols)
@@ -625,16 +631,17 @@ def _horizontal_md(metrics: pd.DataFrame) -> str:
                 "`metrics.parquet`: the folder was written by an older nespm; re-run `nespm mc` into a "
                 "new folder to get them.")
     headers = ["Track", "Method", "distance [m]", "final HPE [m]", "RMS HPE [m]",
-               "final HPE [% of distance]", "diverged"]
+               "final HPE [% of distance]", "CEP50 [m]", "R95 [m]", "diverged"]
     rows = [
         ["average" if r.track is None else str(r.track),
          r.filter, fmt(r.distance, ".1f"), fmt(r.hpe_final, ".4g"), fmt(r.hpe_rms, ".4g"),
-         fmt(r.hpe_final_pct, ".3g"), f"{r.diverged} / {r.runs}"]
+         fmt(r.hpe_final_pct, ".3g"), fmt(r.cep50, ".3g"), fmt(r.r95, ".3g"), f"{r.diverged} / {r.runs}"]
         for r in ht.itertuples(index=False)
     ]
-    return ("Final HPE and its % of distance: mean over the non-diverged runs (per track), then over "
-            "tracks; RMS HPE: eq 50 with `sse_hpe` per track and eq 51 over tracks; distance: the "
-            "truth's horizontal distance travelled (mean over tracks on the average rows).\n\n"
+    return ("Final HPE and its % of distance: mean over the runs no filter lost (per track), then over "
+            "tracks; RMS HPE: eq 50 with `sse_hpe` per track and eq 51 over tracks; CEP50 and R95: the "
+            "radii holding 50 % and 95 % of those runs' final horizontal errors (per track; mean over "
+            "tracks on the average rows); distance: the truth's horizontal distance travelled.\n\n"
             + md_table(headers, rows))
 
 
