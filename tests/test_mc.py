@@ -513,3 +513,12 @@ def test_invariant_and_cubature_filters_do_not_depend_on_jobs_or_chunks(tmp_path
     c = metrics(mc(tmp_path / "c", *base, "--chunk-size", "4", "--jobs", "1"))
     assert len(a) == 12 and not a["diverged"].any()
     pd.testing.assert_frame_equal(no_seconds(a), no_seconds(c), check_exact=True)
+
+
+def test_drift_rate_is_the_final_error_per_hour(mc_b):
+    """drift_m_per_h = hpe_final / duration x 3600, the duration the last epoch's time."""
+    m, ep = metrics(mc_b), epochs(mc_b)
+    for tr, g in m.groupby("track"):
+        duration = float(ep.loc[ep["track"] == tr, "t"].max())
+        np.testing.assert_allclose(g["drift_m_per_h"], g["hpe_final"] / duration * 3600.0, rtol=1e-12)
+    assert (m["drift_m_per_h"] > 0).all()

@@ -172,6 +172,7 @@ def run_chunk(cell: Cell, number: int, first: int, out_dir: str, last: int | Non
         m.update(sensor_nis(out))
         m["diverged_reason"] = why
         m["inconsistent"] = inconsistent
+        m["drift_m_per_h"] = m["hpe_final"] / max(float(t_rel[-1]), 1e-9) * 3600.0
         m.update(q_factors(out.noise_std, filter_config(spec), len(runs)))
         df = pd.DataFrame({**extra, "track": number, "filter": name, "run": runs, "scenario": spec.scenario,
                            "schedule": spec.corruption.schedule, "seed": spec.seed, **m,
