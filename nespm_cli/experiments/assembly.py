@@ -17,7 +17,8 @@ import pandas as pd
 
 #: columns of a series chunk averaged across runs: (column, also its std)
 MEAN_COLUMNS = (("vel_err", True), ("att_err", True), ("nees", False), ("north_err", False),
-                ("east_err", False), ("hpe", True))
+                ("east_err", False), ("hpe", True), ("nees_vel", False), ("nees_att", False), ("nees_pos", False))
+BLOCK_NEES = ("nees_vel", "nees_att", "nees_pos")  # per-block NEES of the series (NaN in older chunk files)
 
 
 class Moments:
@@ -64,6 +65,8 @@ def epoch_table(series: list[tuple[tuple, Path]], keys: tuple[str, ...] = ()) ->
         g["ok"] += (~bad).sum(axis=0)
         cols = {c: s[c].to_numpy(float).reshape(R, N) for c in ("vel_err", "att_err", "nees", "north_err",
                                                                "east_err")}
+        for c in BLOCK_NEES:
+            cols[c] = s[c].to_numpy(float).reshape(R, N) if c in s.columns else np.full((R, N), np.nan)
         cols["hpe"] = np.hypot(cols["north_err"], cols["east_err"])  # horizontal position error [m]
         for c, _ in MEAN_COLUMNS:
             g["moments"][c].add(np.where(bad, np.nan, cols[c]))
@@ -81,7 +84,8 @@ def epoch_table(series: list[tuple[tuple, Path]], keys: tuple[str, ...] = ()) ->
         row.update(dvl_used=g["dvl_used"], n_runs=g["ok"])
         rows.append(pd.DataFrame(row))
     order = [*keys, "track", "filter", "epoch", "t", "vel_err_mean", "vel_err_std", "att_err_mean", "att_err_std",
-             "nees_mean", "north_err_mean", "east_err_mean", "hpe_mean", "hpe_std", "dvl_used", "n_runs"]
+             "nees_mean", "north_err_mean", "east_err_mean", "hpe_mean", "hpe_std", "nees_vel_mean", "nees_att_mean",
+             "nees_pos_mean", "dvl_used", "n_runs"]
     return pd.concat(rows, ignore_index=True)[order]
 
 

@@ -26,7 +26,7 @@ from nespm_cli.experiments.assembly import epoch_table
 from nespm_cli.experiments.backend import Execution
 from nespm_cli.experiments.chunks import chunk_problem, concat_parquet, write_chunk
 from nespm_cli.experiments.inputs import READ_HASHES, verify_read
-from nespm_cli.experiments.metrics import divergence, epoch_errors, run_metrics, sensor_nis
+from nespm_cli.experiments.metrics import block_nees, divergence, epoch_errors, run_metrics, sensor_nis
 from nespm_cli.experiments.spec import (Spec, couple_filter, filter_config, load_filters, needs_noise_std,
                                         track_inputs, validate)
 from nespm_cli.experiments.suite import load_sensors, sensor_plugin_files, sensor_suite, suite_record
@@ -178,11 +178,13 @@ def run_chunk(cell: Cell, number: int, first: int, out_dir: str, last: int | Non
                            "schedule": spec.corruption.schedule, "seed": spec.seed, **m,
                            "seconds": secs / len(runs), "kernels": kernel_backend()})
         R, N = err.vel.shape
+        blocks = {f"nees_{b}": block_nees(out, b, truth.v_n[e], truth.C_bn[e], truth.pos[e]).ravel()
+                  for b in ("vel", "att", "pos")}  # per-block NEES (3 dof; NaN without the block)
         series = pd.DataFrame({
             **extra, "track": number, "filter": name, "run": np.repeat(runs, N), "epoch": np.tile(np.arange(N), R),
             "t": np.tile(t_rel, R), "vel_err": err.vel.ravel(), "att_err": err.att.ravel(),
             "nees": err.nees.ravel(), "north_err": err.ne[..., 0].ravel(), "east_err": err.ne[..., 1].ravel(),
-            "dvl_used": np.tile(out.dvl_used, R), "diverged": np.repeat(div, N),
+            **blocks, "dvl_used": np.tile(out.dvl_used, R), "diverged": np.repeat(div, N),
         })
         # series first: a metrics file marks the chunk complete
         write_chunk(series, chunks / chunk_name("series", number, name, first, tag), cell.experiment)
