@@ -29,12 +29,17 @@ def exact(tmp_path_factory) -> pd.DataFrame:
                            "--acc-bias-rw", "0", "--gyro-bias-rw", "0", "--window", "0:200", "--out", str(out),
                            "--no-progress", "--jobs", "1")
     assert rc == 0, err
-    return pd.read_parquet(out / "epochs.parquet")
+    return out
+
+
+@pytest.fixture(scope="module")
+def exact_epochs(exact) -> pd.DataFrame:
+    return pd.read_parquet(exact / "epochs.parquet")
 
 
 @pytest.mark.parametrize("block", ["vel", "att"])
-def test_anees_inside_its_bounds_when_the_model_is_exact(exact, block):
-    ep = exact[exact["epoch"] > 0]
+def test_anees_inside_its_bounds_when_the_model_is_exact(exact_epochs, block):
+    ep = exact_epochs[exact_epochs["epoch"] > 0]
     n = int(ep["n_runs"].iloc[0])
     lo, hi = nees_band(3, n)
     x = ep[f"nees_{block}_mean"].to_numpy()
@@ -46,5 +51,20 @@ def test_anees_inside_its_bounds_when_the_model_is_exact(exact, block):
     assert float(((x / 1.5 > lo) & (x / 1.5 < hi)).mean()) < 0.2
 
 
-def test_position_anees_is_absent_without_a_position_block(exact):
-    assert exact["nees_pos_mean"].isna().all()
+def test_position_anees_is_absent_without_a_position_block(exact_epochs):
+    assert exact_epochs["nees_pos_mean"].isna().all()
+
+
+def test_report_draws_the_anees_against_its_bounds(exact):
+    """The report's ANEES figure (one panel per block the folder holds) and its inside fraction,
+    the same number the test above computes."""
+    from nespm_cli.reports.consistency import anees_blocks, inside_fraction
+
+    rc, _, err = nespm("report", str(exact))
+    assert rc == 0, err
+    png = exact / "figures" / "anees_track5.png"
+    assert png.stat().st_size > 10_000 and "(figures/anees_track5.png)" in (exact / "report.md").read_text()
+    ep = pd.read_parquet(exact / "epochs.parquet")
+    ep = ep[ep["epoch"] > 0]
+    assert [c for c, _ in anees_blocks(ep)] == ["nees_vel_mean", "nees_att_mean"]
+    assert inside_fraction(ep["nees_vel_mean"].to_numpy(), ep["n_runs"].to_numpy()) >= 0.9

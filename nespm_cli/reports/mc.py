@@ -35,6 +35,7 @@ import pandas as pd
 from nespm_cli.data.atomic import write_text_atomic
 from nespm_cli.errors import NespmError
 from nespm_cli.experiments.metrics import cep
+from nespm_cli.reports.consistency import anees_figure
 from nespm_cli.reports.figures import filter_colors, outage_spans, save_figure
 from nespm_cli.reports.markdown import (
     DASH,
@@ -870,7 +871,9 @@ def plot_track_figures(
     ``vel_track<N>.png`` and ``att_track<N>.png``: mean ± 1 std of the error norms over time
     per filter, shading epochs (t > 0) where no filter applied a DVL update;
     ``hpe_track<N>.png`` (only when ``epochs`` has ``hpe_mean`` and ``hpe_std``): the same for
-    the horizontal position error; ``path_track<N>.png``: true and mean estimated horizontal track.
+    the horizontal position error; ``path_track<N>.png``: true and mean estimated horizontal track;
+    ``anees_track<N>.png`` (folders with the per-block NEES): the ANEES of each block over time
+    against its chi-square bounds (:mod:`nespm_cli.reports.consistency`).
     """
     import matplotlib
 
@@ -901,6 +904,10 @@ def plot_track_figures(
         paths.append(_track_figure(ep, present, colors,
                                    f"Horizontal track — {tail}",
                                    fig_dir / f"path_track{track}.png"))
+        anees = anees_figure(ep, present, colors, f"ANEES per block against its 95 % chi-square bounds — {tail}",
+                             fig_dir / f"anees_track{track}.png")
+        if anees is not None:
+            paths.append(anees)
     return paths
 
 
