@@ -405,6 +405,21 @@ def report(
     typer.echo(f"wrote {path}")
 
 
+@app.command()
+def export(
+    folder: Path = typer.Argument(..., help="A finished 'nespm mc' or 'nespm sweep' folder."),
+    fmt: str = typer.Option("csv", "--format", help="csv (one file per table) or mat (one MATLAB .mat, a struct per table)."),
+    out: Optional[Path] = typer.Option(None, "--out", help="Output folder (default FOLDER/export)."),
+    series: bool = typer.Option(False, "--series", help="Also the per-run per-epoch errors of the chunk series files (large)."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace existing output files."),
+) -> None:
+    """Export metrics, epochs (and --series) as CSV or a MATLAB .mat file (docs/results-schema.md)."""
+    from nespm_cli.reports.export import export_folder
+
+    for p in export_folder(folder, fmt, out, series, overwrite):
+        typer.echo(f"wrote {p}")
+
+
 def _epoch_bar(bar, epochs: int):
     """A ``train_processnet`` progress callback that advances one rich bar per sensor."""
     tasks: dict = {}
