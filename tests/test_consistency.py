@@ -5,7 +5,8 @@ constant biases the filter is told, bias random walks off, small initial errors:
 regime), the per-epoch ANEES of each 3-dof block over N runs lies inside its two-sided 95 %
 bounds ``chi2.ppf([0.025, 0.975], 3 N) / N`` at about 95 % of the epochs. Measured on embedded
 track 5, 50 runs, the whole track: EKF velocity ANEES mean 2.99, inside at 95.2 % of the epochs,
-attitude 3.06, 97.5 % (UKF-NESPM the same to 0.3 %). The test asks at least 90 % on the first
+attitude 3.06, 97.5 % (UKF-NESPM the same to 0.3 %); the DVL's ANIS (3 dof) 3.02, 96 % on the first
+200 s. The tests ask at least 90 % on the first
 200 s (an overconfident or conservative P by a factor of 1.5 leaves it below 20 %).
 """
 from __future__ import annotations
@@ -68,3 +69,18 @@ def test_report_draws_the_anees_against_its_bounds(exact):
     ep = ep[ep["epoch"] > 0]
     assert [c for c, _ in anees_blocks(ep)] == ["nees_vel_mean", "nees_att_mean"]
     assert inside_fraction(ep["nees_vel_mean"].to_numpy(), ep["n_runs"].to_numpy()) >= 0.9
+
+
+def test_dvl_anis_inside_its_bounds_when_the_model_is_exact(exact_epochs):
+    """The DVL's ANIS (3 dof, one measurement per epoch per run) inside chi2.ppf([0.025, 0.975], 3 n)/n
+    at >= 90 % of the epochs with a measurement."""
+    from scipy.stats import chi2
+
+    ep = exact_epochs[exact_epochs["nis_dvl_n"] > 0]
+    n = ep["nis_dvl_n"].to_numpy()
+    lo, hi = chi2.ppf(0.025, 3 * n) / n, chi2.ppf(0.975, 3 * n) / n
+    x = ep["nis_dvl_mean"].to_numpy()
+    inside = float(((x > lo) & (x < hi)).mean())
+    print(f"DVL ANIS mean {x.mean():.3f}, inside {inside:.3f}")
+    assert inside >= 0.90 and 2.7 < x.mean() < 3.3, (inside, x.mean())
+    assert np.isnan(exact_epochs.loc[exact_epochs["epoch"] == 0, "nis_dvl_mean"]).all()  # no DVL at the start

@@ -57,10 +57,12 @@ def epoch_table(series: list[tuple[tuple, Path]], keys: tuple[str, ...] = ()) ->
         N = int(s["epoch"].max()) + 1
         R = len(s) // N
         g = groups.get(key)
+        nis_cols = sorted(c for c in s.columns if c.startswith("nis_"))  # one per sensor (a chunk's own)
         if g is None:
             g = groups[key] = {"t": s["t"].to_numpy()[:N], "dvl_used": s["dvl_used"].to_numpy()[:N],
                                "ok": np.zeros(N, dtype=np.int64),
-                               "moments": {c: Moments(N) for c, _ in MEAN_COLUMNS}}
+                               "moments": {c: Moments(N) for c, _ in MEAN_COLUMNS},
+                               "nis": {c: Moments(N) for c in nis_cols}}
         bad = s["diverged"].to_numpy().reshape(R, N)
         g["ok"] += (~bad).sum(axis=0)
         cols = {c: s[c].to_numpy(float).reshape(R, N) for c in ("vel_err", "att_err", "nees", "north_err",
@@ -70,6 +72,9 @@ def epoch_table(series: list[tuple[tuple, Path]], keys: tuple[str, ...] = ()) ->
         cols["hpe"] = np.hypot(cols["north_err"], cols["east_err"])  # horizontal position error [m]
         for c, _ in MEAN_COLUMNS:
             g["moments"][c].add(np.where(bad, np.nan, cols[c]))
+        for c in g["nis"]:
+            x = s[c].to_numpy(float).reshape(R, N) if c in s.columns else np.full((R, N), np.nan)
+            g["nis"][c].add(np.where(bad, np.nan, x))
     rows = []
     for key in sorted(groups):
         g = groups[key]
@@ -81,12 +86,16 @@ def epoch_table(series: list[tuple[tuple, Path]], keys: tuple[str, ...] = ()) ->
             row[f"{c}_mean"] = mean
             if with_std:
                 row[f"{c}_std"] = std
-        row.update(dvl_used=g["dvl_used"], n_runs=g["ok"])
+        nis = {}
+        for c, mom in g["nis"].items():
+            nis[f"{c}_mean"], nis[f"{c}_n"] = mom.result()[0], mom.n.astype(np.int64)
+        row.update(dvl_used=g["dvl_used"], n_runs=g["ok"], **nis)
         rows.append(pd.DataFrame(row))
     order = [*keys, "track", "filter", "epoch", "t", "vel_err_mean", "vel_err_std", "att_err_mean", "att_err_std",
              "nees_mean", "north_err_mean", "east_err_mean", "hpe_mean", "hpe_std", "nees_vel_mean", "nees_att_mean",
              "nees_pos_mean", "dvl_used", "n_runs"]
-    return pd.concat(rows, ignore_index=True)[order]
+    table = pd.concat(rows, ignore_index=True)
+    return table[order + sorted(c for c in table.columns if c.startswith("nis_"))]
 
 
 __all__ = ["MEAN_COLUMNS", "Moments", "epoch_table"]

@@ -96,6 +96,26 @@ def block_nees(out, block: str, v_true: np.ndarray, C_true: np.ndarray, pos_true
     return (e * sol).sum(axis=-1)
 
 
+def epoch_nis(out, t_epochs: np.ndarray) -> dict[str, np.ndarray]:
+    """``{nis_<sensor>: (R, N)}``: per run, the NIS of the sensor's measurements applied in the GT
+    interval ending at each epoch ``(t_{k-1}, t_k]`` (their mean if several; NaN where none was
+    applied). For a sensor at the GT epochs (the DVL, depth by default) that is its NIS at the epoch."""
+    res = {}
+    t_epochs = np.asarray(t_epochs, dtype=float)
+    for name, rec in getattr(out, "sensors", {}).items():
+        nis = rec.nis()  # (R, K)
+        R, N = nis.shape[0], len(t_epochs)
+        k = np.clip(np.searchsorted(t_epochs, np.asarray(rec.t, dtype=float) - 1e-9, side="left"), 0, N - 1)
+        ok = np.isfinite(nis)
+        rows, cols = np.broadcast_to(np.arange(R)[:, None], nis.shape), np.broadcast_to(k, nis.shape)
+        total, count = np.zeros((R, N)), np.zeros((R, N))
+        np.add.at(total, (rows[ok], cols[ok]), nis[ok])  # scatter-add over runs and measurements at once
+        np.add.at(count, (rows[ok], cols[ok]), 1.0)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            res[f"nis_{name}"] = np.where(count > 0, total / count, np.nan)
+    return res
+
+
 def sensor_nis(out) -> dict[str, np.ndarray]:
     """``{nis_<sensor>: (R,) mean NIS over the measurements applied in each run}`` (NaN where none
     was applied or the filter reports no innovation); its χ² expectation is the sensor's dimension."""
