@@ -84,3 +84,14 @@ def test_dvl_anis_inside_its_bounds_when_the_model_is_exact(exact_epochs):
     print(f"DVL ANIS mean {x.mean():.3f}, inside {inside:.3f}")
     assert inside >= 0.90 and 2.7 < x.mean() < 3.3, (inside, x.mean())
     assert np.isnan(exact_epochs.loc[exact_epochs["epoch"] == 0, "nis_dvl_mean"]).all()  # no DVL at the start
+
+
+@pytest.mark.parametrize("block", ["vel", "att"])
+def test_coverage_of_the_filters_own_intervals(exact_epochs, block):
+    """With an exact model the 2-sigma intervals cover 95 +- 3 % of the errors (and 1 sigma about
+    68 %, 3 sigma about 99.7 %), averaged over runs, components and epochs."""
+    ep = exact_epochs[exact_epochs["epoch"] > 0]
+    c1, c2, c3 = (float(ep[f"cover{k}_{block}_mean"].mean()) for k in (1, 2, 3))
+    print(f"{block} coverage 1/2/3 sigma: {c1:.3f} {c2:.3f} {c3:.3f}")
+    assert abs(c2 - 0.954) < 0.03, c2
+    assert abs(c1 - 0.683) < 0.06 and c3 > 0.98, (c1, c3)

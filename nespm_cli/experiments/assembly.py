@@ -18,7 +18,9 @@ import pandas as pd
 #: columns of a series chunk averaged across runs: (column, also its std)
 MEAN_COLUMNS = (("vel_err", True), ("att_err", True), ("nees", False), ("north_err", False),
                 ("east_err", False), ("hpe", True), ("nees_vel", False), ("nees_att", False), ("nees_pos", False))
-BLOCK_NEES = ("nees_vel", "nees_att", "nees_pos")  # per-block NEES of the series (NaN in older chunk files)
+COVERAGE = tuple(f"cover{k}_{b}" for b in ("vel", "att", "pos") for k in (1, 2, 3))
+MEAN_COLUMNS = MEAN_COLUMNS + tuple((c, False) for c in COVERAGE)
+BLOCK_NEES = ("nees_vel", "nees_att", "nees_pos") + COVERAGE  # per-block columns (NaN in older chunk files)
 
 
 class Moments:
@@ -93,7 +95,7 @@ def epoch_table(series: list[tuple[tuple, Path]], keys: tuple[str, ...] = ()) ->
         rows.append(pd.DataFrame(row))
     order = [*keys, "track", "filter", "epoch", "t", "vel_err_mean", "vel_err_std", "att_err_mean", "att_err_std",
              "nees_mean", "north_err_mean", "east_err_mean", "hpe_mean", "hpe_std", "nees_vel_mean", "nees_att_mean",
-             "nees_pos_mean", "dvl_used", "n_runs"]
+             "nees_pos_mean", *(f"{c}_mean" for c in COVERAGE), "dvl_used", "n_runs"]
     table = pd.concat(rows, ignore_index=True)
     return table[order + sorted(c for c in table.columns if c.startswith("nis_"))]
 

@@ -26,7 +26,7 @@ from nespm_cli.experiments.assembly import epoch_table
 from nespm_cli.experiments.backend import Execution
 from nespm_cli.experiments.chunks import chunk_problem, concat_parquet, write_chunk
 from nespm_cli.experiments.inputs import READ_HASHES, verify_read
-from nespm_cli.experiments.metrics import (block_nees, divergence, epoch_errors, epoch_nis, run_metrics,
+from nespm_cli.experiments.metrics import (block_coverage, block_nees, divergence, epoch_errors, epoch_nis, run_metrics,
                                            sensor_nis)
 from nespm_cli.experiments.spec import (Spec, couple_filter, filter_config, load_filters, needs_noise_std,
                                         track_inputs, validate)
@@ -182,6 +182,8 @@ def run_chunk(cell: Cell, number: int, first: int, out_dir: str, last: int | Non
         blocks = {f"nees_{b}": block_nees(out, b, truth.v_n[e], truth.C_bn[e], truth.pos[e]).ravel()
                   for b in ("vel", "att", "pos")}  # per-block NEES (3 dof; NaN without the block)
         blocks.update({k: v.ravel() for k, v in epoch_nis(out, t_rel).items()})  # per-sensor NIS per epoch
+        blocks.update({f"cover{k}_{b}": block_coverage(out, b, k, truth.v_n[e], truth.C_bn[e], truth.pos[e]).ravel()
+                       for b in ("vel", "att", "pos") for k in (1, 2, 3)})  # inside ±kσ, per block
         series = pd.DataFrame({
             **extra, "track": number, "filter": name, "run": np.repeat(runs, N), "epoch": np.tile(np.arange(N), R),
             "t": np.tile(t_rel, R), "vel_err": err.vel.ravel(), "att_err": err.att.ravel(),

@@ -78,22 +78,45 @@ def epoch_errors(out, v_true: np.ndarray, C_true: np.ndarray, pos_true: np.ndarr
                        down=ned[..., 2])  # hpe derived from ne
 
 
+def block_error(out, block: str, v_true: np.ndarray, C_true: np.ndarray, pos_true: np.ndarray):
+    """``(e, P_b)``: the error ``truth ⊖ nav`` of one block (``pos``, ``vel``, ``att``) (R, N, 3) and its
+    covariance block (R, N, 3, 3), or None where the layout lacks the block or there is no covariance."""
+    from nespm_cli.nav.state import parse_layout
+
+    lay = parse_layout(out.layout)
+    if not lay.has(block) or np.isnan(out.P).all():
+        return None
+    e = {"pos": lambda: ned_offset(pos_true, out.pos), "vel": lambda: v_true - out.v_n,
+         "att": lambda: attitude_minus(C_true, out.C_bn)}[block]()
+    i = lay.slice(block)
+    return e, out.P[..., i, i]
+
+
 def block_nees(out, block: str, v_true: np.ndarray, C_true: np.ndarray, pos_true: np.ndarray) -> np.ndarray:
     """(R, N) NEES of one block (``pos``, ``vel``, ``att``) of the filter's layout: ``eᵀ P_b⁻¹ e``
     with ``e = truth ⊖ nav`` of that block and ``P_b`` its covariance block (3 on average for a
     consistent filter); NaN without a covariance or where the layout lacks the block."""
-    from nespm_cli.nav.state import parse_layout
-
-    lay = parse_layout(out.layout)
-    R, N = out.v_n.shape[:2]
-    if not lay.has(block) or np.isnan(out.P).all():
-        return np.full((R, N), np.nan)
-    e = {"pos": lambda: ned_offset(pos_true, out.pos), "vel": lambda: v_true - out.v_n,
-         "att": lambda: attitude_minus(C_true, out.C_bn)}[block]()
-    i = lay.slice(block)
+    got = block_error(out, block, v_true, C_true, pos_true)
+    if got is None:
+        return np.full(out.v_n.shape[:2], np.nan)
+    e, Pb = got
     with np.errstate(all="ignore"):
-        sol = np.linalg.solve(out.P[..., i, i], e[..., None])[..., 0]
+        sol = np.linalg.solve(Pb, e[..., None])[..., 0]
     return (e * sol).sum(axis=-1)
+
+
+def block_coverage(out, block: str, k: float, v_true: np.ndarray, C_true: np.ndarray,
+                   pos_true: np.ndarray) -> np.ndarray:
+    """(R, N) fraction of the block's 3 components inside ``±k σ`` of the filter's own variances
+    (0, 1/3, 2/3 or 1); a consistent filter's covers 68.3 / 95.4 / 99.7 % for k = 1, 2, 3. NaN
+    without the block or a covariance."""
+    got = block_error(out, block, v_true, C_true, pos_true)
+    if got is None:
+        return np.full(out.v_n.shape[:2], np.nan)
+    e, Pb = got
+    with np.errstate(invalid="ignore"):
+        sigma = np.sqrt(np.einsum("...ii->...i", Pb))
+        return (np.abs(e) <= k * sigma).mean(axis=-1)
 
 
 def epoch_nis(out, t_epochs: np.ndarray) -> dict[str, np.ndarray]:
