@@ -20,7 +20,7 @@ MEAN_COLUMNS = (("vel_err", True), ("att_err", True), ("nees", False), ("north_e
                 ("east_err", False), ("hpe", True), ("nees_vel", False), ("nees_att", False), ("nees_pos", False))
 COVERAGE = tuple(f"cover{k}_{b}" for b in ("vel", "att", "pos") for k in (1, 2, 3))
 MEAN_COLUMNS = MEAN_COLUMNS + tuple((c, False) for c in COVERAGE)
-BLOCK_NEES = ("nees_vel", "nees_att", "nees_pos") + COVERAGE  # per-block columns (NaN in older chunk files)
+BLOCK_COLUMNS = ("nees_vel", "nees_att", "nees_pos") + COVERAGE  # per-block columns (NaN in older chunk files)
 
 
 class Moments:
@@ -69,7 +69,7 @@ def epoch_table(series: list[tuple[tuple, Path]], keys: tuple[str, ...] = ()) ->
         g["ok"] += (~bad).sum(axis=0)
         cols = {c: s[c].to_numpy(float).reshape(R, N) for c in ("vel_err", "att_err", "nees", "north_err",
                                                                "east_err")}
-        for c in BLOCK_NEES:
+        for c in BLOCK_COLUMNS:
             cols[c] = s[c].to_numpy(float).reshape(R, N) if c in s.columns else np.full((R, N), np.nan)
         cols["hpe"] = np.hypot(cols["north_err"], cols["east_err"])  # horizontal position error [m]
         for c, _ in MEAN_COLUMNS:

@@ -26,7 +26,7 @@ from nespm_cli.experiments.assembly import epoch_table
 from nespm_cli.experiments.backend import Execution
 from nespm_cli.experiments.chunks import chunk_problem, concat_parquet, write_chunk
 from nespm_cli.experiments.inputs import READ_HASHES, verify_read
-from nespm_cli.experiments.metrics import (block_coverage, block_nees, divergence, epoch_errors, epoch_nis, run_metrics,
+from nespm_cli.experiments.metrics import (block_statistics, divergence, epoch_errors, epoch_nis, run_metrics,
                                            sensor_nis)
 from nespm_cli.experiments.spec import (Spec, couple_filter, filter_config, load_filters, needs_noise_std,
                                         track_inputs, validate)
@@ -167,6 +167,7 @@ def run_chunk(cell: Cell, number: int, first: int, out_dir: str, last: int | Non
                          "--chunk-size or fewer --jobs") from None
     e = truth.epoch_index
     t_rel = truth.t[e] - truth.t[e[0]]
+    cfg = filter_config(spec)
     for name, (out, err, secs) in results.items():
         div, why, inconsistent = divergence(err, out.diverged, t_rel, spec.divergence)
         m = run_metrics(err, div)
@@ -174,16 +175,14 @@ def run_chunk(cell: Cell, number: int, first: int, out_dir: str, last: int | Non
         m["diverged_reason"] = why
         m["inconsistent"] = inconsistent
         m["drift_m_per_h"] = m["hpe_final"] / max(float(t_rel[-1]), 1e-9) * 3600.0
-        m.update(q_factors(out.noise_std, filter_config(spec), len(runs)))
+        m.update(q_factors(out.noise_std, cfg, len(runs)))
         df = pd.DataFrame({**extra, "track": number, "filter": name, "run": runs, "scenario": spec.scenario,
                            "schedule": spec.corruption.schedule, "seed": spec.seed, **m,
                            "seconds": secs / len(runs), "kernels": kernel_backend()})
         R, N = err.vel.shape
-        blocks = {f"nees_{b}": block_nees(out, b, truth.v_n[e], truth.C_bn[e], truth.pos[e]).ravel()
-                  for b in ("vel", "att", "pos")}  # per-block NEES (3 dof; NaN without the block)
-        blocks.update({k: v.ravel() for k, v in epoch_nis(out, t_rel).items()})  # per-sensor NIS per epoch
-        blocks.update({f"cover{k}_{b}": block_coverage(out, b, k, truth.v_n[e], truth.C_bn[e], truth.pos[e]).ravel()
-                       for b in ("vel", "att", "pos") for k in (1, 2, 3)})  # inside ±kσ, per block
+        # per-block NEES and 1/2/3-sigma coverage, per-sensor NIS per epoch (NaN where not defined)
+        blocks = {k: v.ravel() for k, v in block_statistics(out, truth.v_n[e], truth.C_bn[e], truth.pos[e]).items()}
+        blocks.update({k: v.ravel() for k, v in epoch_nis(out, t_rel).items()})
         series = pd.DataFrame({
             **extra, "track": number, "filter": name, "run": np.repeat(runs, N), "epoch": np.tile(np.arange(N), R),
             "t": np.tile(t_rel, R), "vel_err": err.vel.ravel(), "att_err": err.att.ravel(),

@@ -105,18 +105,26 @@ def block_nees(out, block: str, v_true: np.ndarray, C_true: np.ndarray, pos_true
     return (e * sol).sum(axis=-1)
 
 
-def block_coverage(out, block: str, k: float, v_true: np.ndarray, C_true: np.ndarray,
-                   pos_true: np.ndarray) -> np.ndarray:
-    """(R, N) fraction of the block's 3 components inside ``±k σ`` of the filter's own variances
-    (0, 1/3, 2/3 or 1); a consistent filter's covers 68.3 / 95.4 / 99.7 % for k = 1, 2, 3. NaN
-    without the block or a covariance."""
-    got = block_error(out, block, v_true, C_true, pos_true)
-    if got is None:
-        return np.full(out.v_n.shape[:2], np.nan)
-    e, Pb = got
-    with np.errstate(invalid="ignore"):
-        sigma = np.sqrt(np.einsum("...ii->...i", Pb))
-        return (np.abs(e) <= k * sigma).mean(axis=-1)
+def block_statistics(out, v_true: np.ndarray, C_true: np.ndarray, pos_true: np.ndarray) -> dict[str, np.ndarray]:
+    """Per block (``vel``, ``att``, ``pos``), each error and covariance block formed once: ``nees_<block>``
+    (R, N) as :func:`block_nees`, and ``cover<k>_<block>`` (R, N) the fraction of the block's 3
+    components inside ``±k σ`` of the filter's own variances for k = 1, 2, 3 (0, 1/3, 2/3 or 1; a
+    consistent filter covers 68.3 / 95.4 / 99.7 %). NaN without the block or a covariance."""
+    res = {}
+    nan = np.full(out.v_n.shape[:2], np.nan)
+    for block in ("vel", "att", "pos"):
+        got = block_error(out, block, v_true, C_true, pos_true)
+        if got is None:
+            res[f"nees_{block}"] = nan
+            res.update({f"cover{k}_{block}": nan for k in (1, 2, 3)})
+            continue
+        e, Pb = got
+        with np.errstate(all="ignore"):
+            res[f"nees_{block}"] = (e * np.linalg.solve(Pb, e[..., None])[..., 0]).sum(axis=-1)
+            sigma = np.sqrt(np.einsum("...ii->...i", Pb))
+            for k in (1, 2, 3):
+                res[f"cover{k}_{block}"] = (np.abs(e) <= k * sigma).mean(axis=-1)
+    return res
 
 
 def epoch_nis(out, t_epochs: np.ndarray) -> dict[str, np.ndarray]:

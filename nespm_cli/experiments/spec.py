@@ -27,7 +27,7 @@ from nespm_cli.filters import FilterConfig
 from nespm_cli.filters.adaptive import BIAS_MODES
 from nespm_cli.filters.registry import FILTER_REGISTRY, filter_names, get_filter
 from nespm_cli.learn.noise_model import WINDOW, load_weights
-from nespm_cli.experiments.suite import check_suite, load_sensors
+from nespm_cli.experiments.suite import check_suite, dvl_of, load_sensors
 from nespm_cli.nav.state import parse_layout
 from nespm_cli.nav.synthesis import ImuTruth
 
@@ -135,7 +135,7 @@ def validate(spec: Spec) -> Spec:
     spec = dataclasses.replace(spec, track_corrections=resolve_corrections(spec))
     durations = {n: track_inputs(spec, n)[0].duration
                  for n in spec.tracks}
-    sensor_suite = check_suite(spec, layout, {n: track_inputs(spec, n)[0] for n in spec.tracks})
+    check_suite(spec, layout, {n: track_inputs(spec, n)[0] for n in spec.tracks})
     if adaptive and spec.imu == "recorded":  # one network window per DVL interval
         for n in spec.tracks:
             steps = np.diff(track_inputs(spec, n)[1].epoch_index)
@@ -152,12 +152,7 @@ def validate(spec: Spec) -> Spec:
                     f"--outage-start {spec.outage_start:g} + --outage-length {spec.outage_length:g} s "
                     f"ends past track {n}'s end ({dur:.1f} s)"
                 )
-    spec = dataclasses.replace(spec, filter_config=filter_config(spec))  # what the filters use, recorded as such
-    dvl = next((s for s in sensor_suite if s.name == "dvl"), None)
-    if dvl is not None:  # the DVL's filter std and lever arm, as the papers' configuration recorded them
-        spec = dataclasses.replace(spec, filter_config=dataclasses.replace(
-            spec.filter_config, dvl_std=dvl.r_std(), lever_arm=tuple(dvl.opt.lever_arm)))
-    return spec
+    return dataclasses.replace(spec, filter_config=filter_config(spec))  # what the filters use, recorded as such
 
 
 MAX_LEVER_ARM = 100.0  # [m] a DVL farther than this from the INS is a units or sign mistake
@@ -239,12 +234,15 @@ def track_inputs(spec: Spec, number: int) -> tuple[Track, ImuTruth]:
 def filter_config(spec: Spec) -> FilterConfig:
     """The tuning the filters run with: ``spec.filter_config`` told the truth about the corruption
     (:func:`couple_filter`, unless ``tell_filter`` is False), the filters' own white noise
-    (``filter_acc_noise``, ``filter_gyro_noise``) over it, the papers' DVL std and lever arm."""
+    (``filter_acc_noise``, ``filter_gyro_noise``) over it, and the DVL's filter std and lever arm as
+    the DVL sensor resolves them (:func:`nespm_cli.experiments.suite.dvl_of`; recorded in the manifest)."""
     fc = couple_filter(spec.filter_config, spec.corruption) if spec.tell_filter else spec.filter_config
     own = {k: float(v) for k, v in (("acc_noise", spec.filter_acc_noise), ("gyro_noise", spec.filter_gyro_noise))
            if v is not None}
-    r = spec.dvl_r_std if spec.dvl_r_std is not None else (0.02 if spec.dvl == "synthetic" else 0.1)
-    return dataclasses.replace(fc, dvl_std=r, lever_arm=tuple(spec.dvl_lever_arm), **own)
+    dvl = dvl_of(spec)
+    if dvl is not None:
+        own.update(dvl_std=dvl.r_std(), lever_arm=tuple(dvl.opt.lever_arm))
+    return dataclasses.replace(fc, **own)
 
 
 def couple_filter(fcfg: FilterConfig, corr: CorruptionConfig) -> FilterConfig:

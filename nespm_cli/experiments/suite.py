@@ -63,6 +63,14 @@ def sensor_suite(spec) -> list[Sensor]:
     return [get_sensor(name)(options_of(get_sensor(name), raw[name])) for name in spec.sensors]
 
 
+def dvl_of(spec) -> Sensor | None:
+    """The DVL of ``spec`` with its resolved options (legacy flags and ``--sensor-option``), or None."""
+    if "dvl" not in spec.sensors:
+        return None
+    cls = get_sensor("dvl")
+    return cls(options_of(cls, raw_options(spec)["dvl"]))
+
+
 def check_suite(spec, layout: StateLayout, tracks: dict) -> list[Sensor]:
     """Check the suite against the layout and the data: each sensor sees only blocks the layout
     holds; a recorded source exists on every track (``tracks``: ``{number: Track}``); the outage
@@ -97,5 +105,5 @@ def sensor_plugin_files(spec) -> list[Path]:
     return [p for name in spec.sensors for p in sensor_files(name)]
 
 
-__all__ = ["check_suite", "legacy_options", "load_sensors", "raw_options", "sensor_plugin_files", "sensor_suite",
+__all__ = ["check_suite", "dvl_of", "legacy_options", "load_sensors", "raw_options", "sensor_plugin_files", "sensor_suite",
            "suite_record"]

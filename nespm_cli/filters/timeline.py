@@ -61,9 +61,10 @@ class Timeline:
         self.dt = dt[base] * (hi - lo)
         self.base = base
         self.epochs = new_of[np.asarray(epoch_index, dtype=np.int64)]
-        cut_sample = {c: int(before[i]) + 1 for i, c in enumerate(cuts)}
-        self.samples = [np.array([cut_sample[(j, f)] if f > FRAC_TOL else new_of[j]
-                                  for j, f in zip(ch.index.tolist(), ch.frac.tolist())], dtype=np.int64)
+        key = step + frac  # increasing with the sorted cuts (0 < frac < 1)
+        self.samples = [np.where(ch.frac > FRAC_TOL,
+                                 before[np.clip(np.searchsorted(key, ch.index + ch.frac), 0, len(key) - 1)] + 1,
+                                 new_of[ch.index]).astype(np.int64)
                         for ch in channels]
 
     def expand(self, a: np.ndarray) -> np.ndarray:
