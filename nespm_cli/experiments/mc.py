@@ -36,6 +36,7 @@ from nespm_cli.experiments.store import (ResultsFolder, Task, chunk_firsts, file
 from nespm_cli.filters import FilterConfig, initial_nav, run_filter
 from nespm_cli.filters.kernels import kernel_backend
 from nespm_cli.filters.registry import plugin_files
+from nespm_cli.filters.smoother import smoothed_name
 from nespm_cli.learn.noise_model import default_weights, predict_interval_std
 from nespm_cli.sensors.channels import build_channel
 from nespm_cli.nav.earth import ned_offset
@@ -44,7 +45,9 @@ def simulate(spec: Spec, number: int, runs: np.ndarray, filters=None, clean: boo
              progress: Callable[[int], None] | None = None):
     """Run ``filters`` on the realizations ``runs`` of track ``number``.
 
-    Returns ``({filter: (FilterOutput, EpochErrors, seconds)}, truth, realization)``. Every filter
+    Returns ``({result: (FilterOutput, EpochErrors, seconds)}, truth, realization)``, a result
+    for each filter and, for those in ``spec.smooth``, one for its smoothed solution
+    (``<filter>-rts``). Every filter
     sees the same IMU, initial errors and sensor channels (one per sensor of ``spec.sensors``,
     :func:`nespm_cli.sensors.channels.build_channel`). ``clean``: the error-free IMU, initial
     solution and measurements. ``progress(done)``, if given, is called with the filter-epochs
@@ -78,11 +81,14 @@ def simulate(spec: Spec, number: int, runs: np.ndarray, filters=None, clean: boo
         t0 = time.perf_counter()
         step = None if progress is None else (lambda k, base=i * (len(e) - 1): progress(base + k))
         out = run_filter(name, cfg, f, w, truth.dt, e, nav0=nav0, noise_std=noise_std if name in adaptive else None,
-                         progress=step, channels=channels)
+                         progress=step, channels=channels, smooth=name in spec.smooth)
         if name in adaptive:
             t0 -= net_seconds / len(adaptive)  # the shared network pass, split
         err = epoch_errors(out, v_t, C_t, p_t)
-        results[name] = (out, err, time.perf_counter() - t0)
+        secs = time.perf_counter() - t0
+        if out.smoothed is not None:  # its seconds: the filter's with the recording and the backward pass
+            results[smoothed_name(name)] = (out.smoothed, epoch_errors(out.smoothed, v_t, C_t, p_t), secs)
+        results[name] = (out, err, secs)
     return results, truth, real
 
 
@@ -149,9 +155,10 @@ def run_chunk(cell: Cell, number: int, first: int, out_dir: str, last: int | Non
         last = min(first + spec.chunk_size, spec.runs)
     runs = np.arange(first, last)
     if filters is None:
-        filters = [f for f in spec.filters if chunk_problem(chunks / chunk_name("metrics", number, f, first, tag),
-                                                           cell.experiment) is not None
-                   or chunk_problem(chunks / chunk_name("series", number, f, first, tag), cell.experiment) is not None]
+        filters = list(dict.fromkeys(
+            f for r, f in spec.outputs
+            if any(chunk_problem(chunks / chunk_name(kind, number, r, first, tag), cell.experiment) is not None
+                   for kind in ("metrics", "series"))))
     todo = list(filters)
     timings = {}
     if not todo:
@@ -224,8 +231,8 @@ def assemble(folder: ResultsFolder, tasks: list, keys: tuple = ()) -> tuple[pd.D
 
     ``keys``: extra leading key columns (a sweep's ``param``, ``value``).
     """
-    entries = sorted(((tuple(dict(c.columns)[k] for k in keys), n, f, f0, c.tag)
-                      for c, n, f0, _ in tasks for f in c.spec.filters))
+    entries = sorted(((tuple(dict(c.columns)[k] for k in keys), n, r, f0, c.tag)
+                      for c, n, f0, _ in tasks for r, _ in c.spec.outputs))
     metrics_paths = folder.verified([chunk_name("metrics", n, f, f0, tag) for _, n, f, f0, tag in entries])
     series_paths = folder.verified([chunk_name("series", n, f, f0, tag) for _, n, f, f0, tag in entries])
     concat_parquet(metrics_paths, folder.out / "metrics.parquet")
@@ -234,8 +241,8 @@ def assemble(folder: ResultsFolder, tasks: list, keys: tuple = ()) -> tuple[pd.D
 
 
 def expected_chunks(tasks: list) -> set[str]:
-    """The names of every chunk file ``tasks`` make (metrics and series of each filter)."""
-    return {chunk_name(kind, n, f, f0, c.tag) for c, n, f0, _ in tasks for f in c.spec.filters
+    """The names of every chunk file ``tasks`` make (metrics and series of each filter and smoothed filter)."""
+    return {chunk_name(kind, n, r, f0, c.tag) for c, n, f0, _ in tasks for r, _ in c.spec.outputs
             for kind in ("metrics", "series")}
 
 
@@ -313,9 +320,9 @@ def run_cells(cells: list[Cell], options: dict, out_dir: str | Path, execution: 
     check_memory(tasks, ex)
 
     def missing(c: Cell, n: int, f0: int) -> tuple[str, ...]:
-        return tuple(f for f in c.spec.filters
-                     if not (folder.done(chunk_name("metrics", n, f, f0, c.tag))
-                             and folder.done(chunk_name("series", n, f, f0, c.tag))))
+        return tuple(dict.fromkeys(f for r, f in c.spec.outputs
+                                   if not (folder.done(chunk_name("metrics", n, r, f0, c.tag))
+                                           and folder.done(chunk_name("series", n, r, f0, c.tag)))))
 
     todo = [Task(chunk_key(c, n, f0), (_absolute(c), n, f0, str(out.resolve()), f1, fs),
                  len(fs) * (track_epochs(c.spec, n) - 1))
@@ -335,10 +342,13 @@ ROW_BYTES = 600  # [B] one metrics row in memory (pandas, ~35 columns), for the 
 def chunk_memory(spec: Spec, number: int, runs: int) -> float:
     """Estimated peak bytes of one chunk of ``runs`` runs of track ``number`` in a worker: the IMU
     and its errors (R x M x 3 floats, six arrays alive at once) and every filter's per-epoch
-    output, errors and series rows (about 700 bytes per run, epoch and filter)."""
+    output, errors and series rows (about 700 bytes per run, epoch and result), and a smoothed
+    filter's record (three n x n matrices and the solution per run and GT epoch; measurement times
+    between epochs add to it)."""
     truth = track_inputs(spec, number)[1]
     M, N = len(truth.dt), len(truth.epoch_index)
-    return float(runs) * (M * 3 * 8 * 6 + N * len(spec.filters) * 700)
+    n = spec.filter_config.layout.n
+    return float(runs) * (M * 3 * 8 * 6 + N * len(spec.outputs) * 700 + N * len(spec.smooth) * (3 * n * n + 30) * 8)
 
 
 def check_memory(tasks: list, execution: Execution) -> None:
@@ -352,7 +362,7 @@ def check_memory(tasks: list, execution: Execution) -> None:
     avail = available_memory()
     if avail is None:
         return
-    rows = sum(len(c.spec.filters) * (f1 - f0) for c, _, f0, f1 in tasks)
+    rows = sum(len(c.spec.outputs) * (f1 - f0) for c, _, f0, f1 in tasks)
     if rows * ROW_BYTES > avail / 2:
         raise NespmError(f"--runs {tasks[0][0].spec.runs}: the metrics table would hold {rows} rows (about "
                          f"{rows * ROW_BYTES / 1e9:.1f} GB in memory), more than half the {avail / 1e9:.1f} GB free here; "
@@ -382,7 +392,7 @@ def recover_timings(chunk_seconds: dict, tasks: list, chunks: Path) -> None:
     answer never reached a manifest (the parent was killed in between): from the chunk's own
     ``seconds`` column (seconds per run)."""
     for c, n, f0, _ in tasks:
-        for filt in c.spec.filters:
+        for filt, _ in c.spec.outputs:
             key = timing_key(c.tag, n, filt, f0)
             path = chunks / chunk_name("metrics", n, filt, f0, c.tag)
             if key not in chunk_seconds and chunk_problem(path, c.experiment) is None:

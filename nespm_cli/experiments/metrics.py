@@ -214,7 +214,8 @@ def run_metrics(err: EpochErrors, diverged: np.ndarray) -> dict[str, np.ndarray]
 
     Horizontal position (``docs/results-schema.md``): ``sse_hpe`` [m²] the sum over epochs of the
     squared HPE, ``hpe_final`` [m] at the last epoch, ``hpe_rms`` [m] = sqrt(sse_hpe / n_samples),
-    ``hpe_max`` [m], ``distance`` [m] the truth's horizontal distance travelled over the track
+    ``hpe_max`` [m], ``north_final`` / ``east_final`` [m] the final error's components (nav − truth,
+    for the scatter of final positions), ``distance`` [m] the truth's horizontal distance travelled over the track
     (a property of the truth: finite for diverged runs too) and ``hpe_final_pct`` =
     100 · hpe_final / distance (NaN when the truth did not move).
     """
@@ -227,11 +228,14 @@ def run_metrics(err: EpochErrors, diverged: np.ndarray) -> dict[str, np.ndarray]
         hpe = np.asarray(err.hpe, dtype=float)
         sse_hpe = nan_if_bad((hpe**2).sum(axis=1))
         hpe_final = nan_if_bad(hpe[:, -1])
+        ne_final = np.where(bad[:, None], np.nan, np.asarray(err.ne, dtype=float)[:, -1])
         distance = np.full(len(bad), float(np.asarray(err.dist, dtype=float)[-1]))
         hpe_final_pct = np.where(distance > 0, 100.0 * hpe_final / np.where(distance > 0, distance, 1.0), np.nan)
         hpe_cols = {
             "sse_hpe": sse_hpe,
             "hpe_final": hpe_final,
+            "north_final": ne_final[:, 0],
+            "east_final": ne_final[:, 1],
             "hpe_rms": np.sqrt(sse_hpe / n),
             "hpe_max": nan_if_bad(hpe.max(axis=1)),
             "distance": distance,

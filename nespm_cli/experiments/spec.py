@@ -26,6 +26,7 @@ from nespm_cli.experiments.metrics import DivergenceRule
 from nespm_cli.filters import FilterConfig
 from nespm_cli.filters.adaptive import BIAS_MODES
 from nespm_cli.filters.registry import FILTER_REGISTRY, filter_names, get_filter
+from nespm_cli.filters.smoother import smoothed_name
 from nespm_cli.learn.noise_model import WINDOW, load_weights
 from nespm_cli.experiments.suite import check_suite, dvl_of, load_sensors
 from nespm_cli.nav.state import parse_layout
@@ -70,12 +71,23 @@ class Spec:
     tell_filter: bool = True  # P0 and Q's white noise from the corruption (couple_filter); False: as given
     filter_acc_noise: float | None = None  # [m/s² per sample] the filters' own Q white noise, over the coupling
     filter_gyro_noise: float | None = None  # [rad/s per sample]
+    smooth: tuple = ()  # filters whose RTS-smoothed solution is reported too, as <filter>-rts (filters.smoother)
+
+    @property
+    def outputs(self) -> tuple:
+        """``((result name, filter), ...)``: each filter's own results, then each smoothed one's
+        (``<filter>-rts``, computed in the same pass as its filter)."""
+        return tuple((f, f) for f in self.filters) + tuple((smoothed_name(f), f) for f in self.smooth)
 
     def as_dict(self) -> dict:
         d = dataclasses.asdict(self)
         d["tracks"] = list(self.tracks)
         d["filters"] = list(self.filters)
         d["sensors"] = list(self.sensors)
+        if self.smooth:  # absent when off: folders made before the smoother keep their identity
+            d["smooth"] = list(self.smooth)
+        else:
+            d.pop("smooth")
         return json.loads(json.dumps(d, default=list))
 
 
@@ -91,6 +103,16 @@ def validate(spec: Spec) -> Spec:
     if len(set(spec.filters)) != len(spec.filters) or not spec.filters:
         raise NespmError("--filters: give each filter once, at least one")
     layout = parse_layout(spec.filter_config.state)
+    for f in spec.smooth:
+        if f not in spec.filters:
+            raise NespmError(f"--smooth {f}: not in --filters ({', '.join(spec.filters)}); the smoother runs on a "
+                             "filter of the study")
+        if not getattr(get_filter(f), "smoothable", False):
+            able = [n for n in spec.filters if getattr(get_filter(n), "smoothable", False)]
+            raise NespmError(f"--smooth {f}: this filter has no RTS smoother (of --filters, these have one: "
+                             f"{', '.join(able) or 'none'}; docs/filters.md)")
+    if len(set(spec.smooth)) != len(spec.smooth):
+        raise NespmError("--smooth: give each filter once")
     for f in spec.filters:
         if not get_filter(f).supports(layout):
             raise NespmError(f"--filters {f}: serves --state {' or '.join(get_filter(f).layouts)}, not {layout.name} "

@@ -17,10 +17,13 @@ from nespm_cli.filters.registry import register
 class EKF(ErrorStateFilter):
     """Closed-loop error-state EKF (state mean zero between steps)."""
 
+    smoothable = True
+
     def propagate(self, j0: int, j1: int, k: int = 0) -> None:
         span = self.span(j0, j1)
         Q = self.process_noise(span, k)
         Phi = self.transition(j0, j1)
+        self.last_transition = Phi
         self.P = Phi @ self.P @ np.swapaxes(Phi, -1, -2) + Q
         self.symmetrize()
 

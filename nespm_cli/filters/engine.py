@@ -47,6 +47,7 @@ from nespm_cli.filters import iekf  # noqa: F401
 from nespm_cli.filters.model import FilterConfig, NavState
 from nespm_cli.filters.protocol import ImuData
 from nespm_cli.filters.registry import filter_names, filter_source, get_filter
+from nespm_cli.filters.smoother import SmootherRecord, dead_reckoned_position
 from nespm_cli.filters.timeline import Timeline, dvl_channel
 from nespm_cli.sensors.source import Channel, Context
 
@@ -83,7 +84,8 @@ class FilterOutput:
     diagonal; ``b_a``, ``b_g`` (R, N, 3) bias compensation; ``diverged`` (R,); ``dvl_used`` (N,)
     whether a DVL update was applied at each epoch (in any run); ``sensors`` the
     :class:`SensorRecord` of each sensor by name; ``noise_std`` the adaptive filters' network std
-    ``(std_a, std_g)`` (R, N-1, 3), else None.
+    ``(std_a, std_g)`` (R, N-1, 3), else None; ``smoothed`` the RTS-smoothed solution (a
+    FilterOutput with no sensors) when ``run_filter(..., smooth=True)``, else None.
     """
 
     pos: np.ndarray
@@ -97,6 +99,7 @@ class FilterOutput:
     layout: str = "12"
     sensors: dict = field(default_factory=dict)
     noise_std: tuple | None = None
+    smoothed: "FilterOutput | None" = None
 
     @property
     def P6(self) -> np.ndarray:
@@ -126,6 +129,7 @@ def run_filter(
     noise_std: tuple[np.ndarray, np.ndarray] | None = None,
     progress: Callable[[int], None] | None = None,
     channels: list[Channel] | None = None,
+    smooth: bool = False,
 ) -> FilterOutput:
     """Run one filter over a batch of runs.
 
@@ -144,6 +148,8 @@ def run_filter(
         progress: optional ``progress(k)``, called each time the k-th GT interval is done.
         channels: the sensors' measurements (:class:`nespm_cli.sensors.source.Channel`), applied
             in this order at equal times; replaces ``dvl``/``dvl_mask``.
+        smooth: also run the fixed-interval RTS smoother (:mod:`nespm_cli.filters.smoother`; a
+            ``smoothable`` filter) and return its solution in ``out.smoothed``.
     """
     cls = get_filter(kind)
     if nav0 is None:
@@ -161,6 +167,9 @@ def run_filter(
     line = Timeline(dt, epoch_index, channels)
     f_meas, w_meas, dt = line.expand(f_meas), line.expand(w_meas), line.dt
     call = guarded(kind, R)
+    if smooth and not getattr(cls, "smoothable", False):
+        raise NespmError(f"--smooth: filter {kind} has no RTS smoother (filters with one: "
+                         f"{', '.join(n for n in filter_names() if getattr(get_filter(n), 'smoothable', False))})")
     filt = call(cls, "__init__", cfg, nav0, ImuData(f_meas, w_meas, dt), noise_std)
     cov = cls.has_covariance
     n = layout.n
@@ -213,25 +222,53 @@ def run_filter(
             out.dvl_used[epoch] = True
 
     imu_mode = cfg.time_update == "imu"
+    rts = SmootherRecord() if smooth else None
     with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
         record(0)
+        if rts is not None:
+            rts.start(filt)
         for a, b, k, epoch, todo in line.spans():
-            if imu_mode:
-                for j in range(a, b):
-                    call(filt.propagate, "propagate", j, j + 1, k)
-            else:
-                call(filt.propagate, "propagate", a, b, k)
+            if rts is not None:
+                rts.begin_span()
+            for j0, j1 in (((j, j + 1) for j in range(a, b)) if imu_mode else ((a, b),)):
+                call(filt.propagate, "propagate", j0, j1, k)
+                if rts is not None:
+                    rts.add_transition(filt.last_transition)
+            if rts is not None:
+                rts.prior(filt)
             if cov:
                 for c, i in todo:
                     apply(c, i, b - 1, epoch)
             call(filt.check, "check")
+            if rts is not None:
+                rts.posterior(filt, epoch)
             if epoch is not None:
                 record(epoch)
                 if progress is not None:
                     progress(epoch)
     out.diverged = np.asarray(call(lambda: filt.diverged, "diverged"), dtype=bool).reshape(R)
     out.noise_std = filt.noise_std
+    if rts is not None:
+        t_epochs = np.concatenate([[0.0], np.cumsum(dt)])[epoch_index]
+        out.smoothed = smoothed_output(out, rts, filt, t_epochs - t_epochs[0])
     return out
+
+
+def smoothed_output(out: FilterOutput, rts: SmootherRecord, filt, t_epochs: np.ndarray) -> FilterOutput:
+    """The RTS-smoothed solution of ``out`` (:meth:`SmootherRecord.smooth`): same epochs, layout and
+    divergence flags, no sensor records. Without a position block the smoothed position is the
+    filter's moved by the integral of the smoothing's velocity change
+    (:func:`nespm_cli.filters.smoother.dead_reckoned_position`; ``t_epochs`` (N,) [s])."""
+    R, N = out.v_n.shape[:2]
+    navs, P = rts.smooth(filt, N)
+    sm = FilterOutput(pos=np.empty((R, N, 3)), v_n=np.empty((R, N, 3)), C_bn=np.empty((R, N, 3, 3)), P=P,
+                      b_a=np.empty((R, N, 3)), b_g=np.empty((R, N, 3)), diverged=out.diverged.copy(),
+                      dvl_used=out.dvl_used.copy(), layout=out.layout)
+    for k, nav in enumerate(navs):
+        store(sm, k, nav)
+    if not filt.layout.has("pos"):
+        sm.pos = dead_reckoned_position(out.pos, sm.v_n - out.v_n, t_epochs)
+    return sm
 
 
 def store(out: FilterOutput, k: int, nav: NavState) -> None:

@@ -138,6 +138,7 @@ class IEKF(ErrorStateFilter):
     """
 
     invariant_error = True
+    smoothable = True
     per_run = ("P", "P_inv")
     #: the layouts this filter serves (the SE₂(3) error with position is not built yet)
     layouts = ("12",)
@@ -152,11 +153,25 @@ class IEKF(ErrorStateFilter):
     def propagate(self, j0: int, j1: int, k: int = 0) -> None:
         Q = self.process_noise(self.span(j0, j1), k)  # common coordinates, at the attitude before the span
         Phi = self.transition(j0, j1)  # Φ_inv: invariant_error is set
+        self.last_transition = Phi
         # Q is added at the end of the span (as the EKF's P ← Φ P Φᵀ + Q): mapped with T there
         Q_inv = covariance_to_invariant(np.broadcast_to(Q, self.P_inv.shape), self.nav.v_n)
         self.P_inv = Phi @ self.P_inv @ _swap(Phi) + Q_inv
         self.P_inv = 0.5 * (self.P_inv + _swap(self.P_inv))
         self._sync()
+
+    def smoother_covariance(self) -> np.ndarray:
+        return self.P_inv
+
+    def smoother_error(self, nav_to: NavState, nav_from: NavState) -> np.ndarray:
+        xi = invariant_log(nav_to.C_bn, nav_to.v_n, nav_from.C_bn, nav_from.v_n)
+        return np.concatenate([xi, nav_to.b_a - nav_from.b_a, nav_to.b_g - nav_from.b_g], axis=-1)
+
+    def smoother_retract(self, nav: NavState, x: np.ndarray) -> None:
+        invariant_feedback(nav, x)
+
+    def smoother_to_common(self, P: np.ndarray, nav: NavState) -> np.ndarray:
+        return covariance_to_common(P, nav.v_n)
 
     def measurement_jacobian(self, measurement: Measurement) -> np.ndarray:
         """H_inv (R, m, 12): the measurement's closed form where it has one (``H_invariant``; the

@@ -39,7 +39,7 @@ from nespm_cli.filters.model import (FilterConfig, NavState, feedback, invariant
 from nespm_cli.filters.unscented import UTWeights, safe_cholesky
 from nespm_cli.nav.products import mat_mul
 from nespm_cli.nav.rotations import exp_so3
-from nespm_cli.nav.state import StateLayout, parse_layout, position_plus
+from nespm_cli.nav.state import StateLayout, error, parse_layout, position_plus
 from nespm_cli.nav.strapdown import na_cycle
 from nespm_cli.sensors.measurement import Measurement
 
@@ -133,6 +133,11 @@ class ErrorStateFilter(Filter):
     invariant_error: bool = False
     #: the attributes holding per-run state besides the solution (``update_where`` restores them)
     per_run: tuple = ("P",)
+    #: whether the RTS smoother can run on this filter (:mod:`nespm_cli.filters.smoother`): its
+    #: covariance propagates as ``Φ P Φᵀ + Q`` and ``propagate`` leaves that Φ in ``last_transition``
+    smoothable: bool = False
+    #: (R, n, n) the Φ of the last ``propagate`` (smoothable filters)
+    last_transition: np.ndarray | None = None
 
     def __init__(self, cfg: FilterConfig, nav0: NavState, imu: ImuData, noise_std=None):
         if self.needs_noise_std and noise_std is None:
@@ -267,6 +272,23 @@ class ErrorStateFilter(Filter):
     def feedback(self, x: np.ndarray) -> None:
         """Close the loop: ``nav ⊕ x`` (x (R, n)) per block, biases into the compensation."""
         feedback(self.nav, x, self.layout)
+
+    # --- the RTS smoother's view of the filter (nespm_cli.filters.smoother) -------------------
+    def smoother_covariance(self) -> np.ndarray:
+        """(R, n, n) the covariance in the error coordinates ``propagate``'s Φ acts on."""
+        return self.P
+
+    def smoother_error(self, nav_to: NavState, nav_from: NavState) -> np.ndarray:
+        """(R, n) ``nav_to ⊖ nav_from`` in those coordinates (:func:`nespm_cli.nav.state.error`)."""
+        return error(self.layout, nav_to.pos, nav_to.v_n, nav_to.C_bn, nav_to.b_a, nav_to.b_g, nav_from)
+
+    def smoother_retract(self, nav: NavState, x: np.ndarray) -> None:
+        """``nav ⊕ x`` in place, ``x`` (R, n) in those coordinates."""
+        feedback(nav, x, self.layout)
+
+    def smoother_to_common(self, P: np.ndarray, nav: NavState) -> np.ndarray:
+        """(R, n, n) a covariance of those coordinates in the common error of :mod:`.model`, at ``nav``."""
+        return P
 
     def symmetrize(self) -> None:
         """``P ← (P + Pᵀ) / 2``."""
