@@ -237,6 +237,18 @@ def imu_errors(real: Realization, t: np.ndarray) -> tuple[np.ndarray, np.ndarray
     return e_f, e_w
 
 
+def true_biases(real: Realization, t_rel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The biases in the corrupted IMU at times ``t_rel`` (N,) [s since the first sample]: ``(b_a, b_g)``
+    each (R, N, 3) [m/s², rad/s], the base bias times its schedule factor (as :func:`imu_errors`
+    adds it to the step ending at that time; the white noise is not a bias)."""
+    S = real.acc_factors.shape[1]
+    if real.config.dynamic_bias == "segment":
+        seg = segment_index(np.asarray(t_rel, dtype=float), real.config.segment_s, S)
+    else:
+        seg = np.zeros(len(t_rel), dtype=np.int64)
+    return (real.acc_factors[:, seg, None] * real.b_a[:, None], real.gyro_factors[:, seg, None] * real.b_g[:, None])
+
+
 def dvl_noise(real: Realization, n_epochs: int) -> np.ndarray:
     """Synthetic DVL noise (R, N, 3) [m/s], N(0, dvl_noise²) per axis and epoch."""
     out = np.empty((len(real.runs), n_epochs, 3))

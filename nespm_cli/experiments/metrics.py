@@ -78,25 +78,35 @@ def epoch_errors(out, v_true: np.ndarray, C_true: np.ndarray, pos_true: np.ndarr
                        down=ned[..., 2])  # hpe derived from ne
 
 
-def block_error(out, block: str, v_true: np.ndarray, C_true: np.ndarray, pos_true: np.ndarray):
-    """``(e, P_b)``: the error ``truth ⊖ nav`` of one block (``pos``, ``vel``, ``att``) (R, N, 3) and its
-    covariance block (R, N, 3, 3), or None where the layout lacks the block or there is no covariance."""
+#: the blocks whose NEES and coverage are reported (those of the filter's layout with a known truth)
+STAT_BLOCKS = ("vel", "att", "pos", "ba", "bg")
+
+
+def block_error(out, block: str, v_true: np.ndarray, C_true: np.ndarray, pos_true: np.ndarray,
+                bias_true: tuple | None = None):
+    """``(e, P_b)``: the error ``truth ⊖ nav`` of one block (R, N, 3) and its covariance block
+    (R, N, 3, 3), or None where the layout lacks the block, there is no covariance, or (biases) the
+    truth is unknown. Blocks ``pos``, ``vel``, ``att`` and, with ``bias_true = (b_a, b_g)`` each
+    (R, N, 3) (the corruption's biases, :func:`nespm_cli.data.corruption.true_biases`), ``ba`` and
+    ``bg``: the residual bias ``b_true − b̂`` the state estimates."""
     from nespm_cli.nav.state import parse_layout
 
     lay = parse_layout(out.layout)
-    if not lay.has(block) or np.isnan(out.P).all():
+    if not lay.has(block) or np.isnan(out.P).all() or (block in ("ba", "bg") and bias_true is None):
         return None
     e = {"pos": lambda: ned_offset(pos_true, out.pos), "vel": lambda: v_true - out.v_n,
-         "att": lambda: attitude_minus(C_true, out.C_bn)}[block]()
+         "att": lambda: attitude_minus(C_true, out.C_bn), "ba": lambda: bias_true[0] - out.b_a,
+         "bg": lambda: bias_true[1] - out.b_g}[block]()
     i = lay.slice(block)
     return e, out.P[..., i, i]
 
 
-def block_nees(out, block: str, v_true: np.ndarray, C_true: np.ndarray, pos_true: np.ndarray) -> np.ndarray:
-    """(R, N) NEES of one block (``pos``, ``vel``, ``att``) of the filter's layout: ``eᵀ P_b⁻¹ e``
-    with ``e = truth ⊖ nav`` of that block and ``P_b`` its covariance block (3 on average for a
-    consistent filter); NaN without a covariance or where the layout lacks the block."""
-    got = block_error(out, block, v_true, C_true, pos_true)
+def block_nees(out, block: str, v_true: np.ndarray, C_true: np.ndarray, pos_true: np.ndarray,
+               bias_true: tuple | None = None) -> np.ndarray:
+    """(R, N) NEES of one block of the filter's layout: ``eᵀ P_b⁻¹ e`` with ``e = truth ⊖ nav`` of that
+    block and ``P_b`` its covariance block (3 on average for a consistent filter); NaN without a
+    covariance, where the layout lacks the block or its truth is unknown (:func:`block_error`)."""
+    got = block_error(out, block, v_true, C_true, pos_true, bias_true)
     if got is None:
         return np.full(out.v_n.shape[:2], np.nan)
     e, Pb = got
@@ -105,15 +115,22 @@ def block_nees(out, block: str, v_true: np.ndarray, C_true: np.ndarray, pos_true
     return (e * sol).sum(axis=-1)
 
 
-def block_statistics(out, v_true: np.ndarray, C_true: np.ndarray, pos_true: np.ndarray) -> dict[str, np.ndarray]:
-    """Per block (``vel``, ``att``, ``pos``), each error and covariance block formed once: ``nees_<block>``
+def block_statistics(out, v_true: np.ndarray, C_true: np.ndarray, pos_true: np.ndarray,
+                     bias_true: tuple | None = None, axes: bool = False) -> dict[str, np.ndarray]:
+    """Per block of :data:`STAT_BLOCKS`, each error and covariance block formed once: ``nees_<block>``
     (R, N) as :func:`block_nees`, and ``cover<k>_<block>`` (R, N) the fraction of the block's 3
     components inside ``±k σ`` of the filter's own variances for k = 1, 2, 3 (0, 1/3, 2/3 or 1; a
-    consistent filter covers 68.3 / 95.4 / 99.7 %). NaN without the block or a covariance."""
+    consistent filter covers 68.3 / 95.4 / 99.7 %). NaN without the block, a covariance or a truth.
+
+    ``axes``: also, per component (labels of :data:`nespm_cli.nav.state.BLOCKS`, e.g. ``dvN``),
+    ``e_<label>`` the error (truth ⊖ nav, SI units) and ``s_<label>`` the filter's std, each (R, N),
+    for the blocks the filter has (``--save-series axes``)."""
+    from nespm_cli.nav.state import BLOCKS
+
     res = {}
     nan = np.full(out.v_n.shape[:2], np.nan)
-    for block in ("vel", "att", "pos"):
-        got = block_error(out, block, v_true, C_true, pos_true)
+    for block in STAT_BLOCKS:
+        got = block_error(out, block, v_true, C_true, pos_true, bias_true)
         if got is None:
             res[f"nees_{block}"] = nan
             res.update({f"cover{k}_{block}": nan for k in (1, 2, 3)})
@@ -124,6 +141,9 @@ def block_statistics(out, v_true: np.ndarray, C_true: np.ndarray, pos_true: np.n
             sigma = np.sqrt(np.einsum("...ii->...i", Pb))
             for k in (1, 2, 3):
                 res[f"cover{k}_{block}"] = (np.abs(e) <= k * sigma).mean(axis=-1)
+        if axes:
+            for c, label in enumerate(BLOCKS[block][2]):
+                res[f"e_{label}"], res[f"s_{label}"] = e[..., c], sigma[..., c]
     return res
 
 

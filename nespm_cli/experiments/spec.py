@@ -35,6 +35,11 @@ from nespm_cli.nav.synthesis import ImuTruth
 SCENARIOS = ("nominal", "outage")
 
 
+#: what the per-run series chunks hold (docs/results-schema.md): error norms, block NEES and coverage,
+#: NIS; ``axes`` adds every state component's error and std
+SAVE_SERIES = ("norms", "axes")
+
+
 @dataclass(frozen=True)
 class Spec:
     """Everything that determines an experiment's numbers (``jobs`` does not)."""
@@ -72,6 +77,7 @@ class Spec:
     filter_acc_noise: float | None = None  # [m/s² per sample] the filters' own Q white noise, over the coupling
     filter_gyro_noise: float | None = None  # [rad/s per sample]
     smooth: tuple = ()  # filters whose RTS-smoothed solution is reported too, as <filter>-rts (filters.smoother)
+    save_series: str = "norms"  # per-run series kept in the chunks: norms, or axes (+ every component's error and std)
 
     @property
     def outputs(self) -> tuple:
@@ -84,10 +90,13 @@ class Spec:
         d["tracks"] = list(self.tracks)
         d["filters"] = list(self.filters)
         d["sensors"] = list(self.sensors)
-        if self.smooth:  # absent when off: folders made before the smoother keep their identity
+        # absent at their defaults: folders made before these options keep their identity
+        if self.smooth:
             d["smooth"] = list(self.smooth)
         else:
             d.pop("smooth")
+        if self.save_series == "norms":
+            d.pop("save_series")
         return json.loads(json.dumps(d, default=list))
 
 
@@ -111,6 +120,8 @@ def validate(spec: Spec) -> Spec:
             able = [n for n in spec.filters if getattr(get_filter(n), "smoothable", False)]
             raise NespmError(f"--smooth {f}: this filter has no RTS smoother (of --filters, these have one: "
                              f"{', '.join(able) or 'none'}; docs/filters.md)")
+    if spec.save_series not in SAVE_SERIES:
+        raise NespmError(f"--save-series: choose {' or '.join(SAVE_SERIES)}, got {spec.save_series!r}")
     if len(set(spec.smooth)) != len(spec.smooth):
         raise NespmError("--smooth: give each filter once")
     for f in spec.filters:

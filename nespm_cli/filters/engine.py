@@ -256,14 +256,16 @@ def run_filter(
 
 def smoothed_output(out: FilterOutput, rts: SmootherRecord, filt, t_epochs: np.ndarray) -> FilterOutput:
     """The RTS-smoothed solution of ``out`` (:meth:`SmootherRecord.smooth`): same epochs, layout and
-    divergence flags, no sensor records. Without a position block the smoothed position is the
+    divergence flags; its sensor records are empty (no update applied: NaN NIS). Without a position block the smoothed position is the
     filter's moved by the integral of the smoothing's velocity change
     (:func:`nespm_cli.filters.smoother.dead_reckoned_position`; ``t_epochs`` (N,) [s])."""
     R, N = out.v_n.shape[:2]
     navs, P = rts.smooth(filt, N)
     sm = FilterOutput(pos=np.empty((R, N, 3)), v_n=np.empty((R, N, 3)), C_bn=np.empty((R, N, 3, 3)), P=P,
                       b_a=np.empty((R, N, 3)), b_g=np.empty((R, N, 3)), diverged=out.diverged.copy(),
-                      dvl_used=out.dvl_used.copy(), layout=out.layout)
+                      dvl_used=out.dvl_used.copy(), layout=out.layout,
+                      sensors={name: SensorRecord(r.t, np.zeros_like(r.used), np.full_like(r.nu, np.nan),
+                                                  np.full_like(r.S, np.nan)) for name, r in out.sensors.items()})
     for k, nav in enumerate(navs):
         store(sm, k, nav)
     if not filt.layout.has("pos"):
