@@ -343,6 +343,11 @@ def test_metrics_schema(mc_b):
         np.testing.assert_array_equal(m[col].isna().to_numpy(), m["diverged"].to_numpy(), err_msg=col)
     ok = ~m["diverged"]
     assert (m.loc[ok, "max_vel_err"] >= m.loc[ok, "vrmse"]).all()
+    # every run counts: a lost run keeps its errors up to the point it was lost, with that time
+    np.testing.assert_allclose(m.loc[ok, "vrmse_alive"], m.loc[ok, "vrmse"], rtol=1e-12)
+    assert m.loc[ok, "lost_at"].isna().all()
+    lost = m[m["diverged"]]
+    assert np.isfinite(lost["lost_at"]).all() and np.isfinite(lost["vrmse_alive"]).all()  # (unit: test_metrics)
     ekf = m[m["filter"] == "ekf"]
     assert not ekf["diverged"].any() and np.isfinite(ekf["nees"]).all()
     # the filter helps: the DVL-aided ekf beats free-running ins (diverged or not) on every realization

@@ -156,3 +156,29 @@ def test_anees_bounds_are_the_chi_square_quantiles():
         lo, hi = nees_band(n, N)
         assert (lo, hi) == (chi2.ppf(0.025, N * n) / N, chi2.ppf(0.975, N * n) / N)
         assert lo < n < hi
+
+
+def test_lost_epoch_and_the_errors_before_it():
+    """A run lost by the engine at epoch 3, one beyond the attitude bound from epoch 6 (after 5 s),
+    one not lost: each keeps its errors up to that point, with the time."""
+    from nespm_cli.experiments.metrics import DivergenceRule, EpochErrors, alive_metrics, lost_epoch
+
+    N = 10
+    t = np.arange(N, dtype=float)
+    vel = np.tile(np.arange(1.0, N + 1), (3, 1))
+    att = np.full((3, N), 0.01)
+    att[1, 6:] = np.radians(60.0)
+    vel[0, 3:] = np.nan  # the engine lost run 0 at epoch 3
+    err = EpochErrors(vel=vel, att=att, nees=np.ones((3, N)), ne=np.zeros((3, N, 2)))
+    rule = DivergenceRule(att_deg=45.0, after_s=5.0)
+    reason = np.array(["numeric", "attitude", ""], dtype=object)
+    k = lost_epoch(err, reason, np.array([3, -1, -1]), t, rule)
+    assert k.tolist() == [3, 6, -1]
+    m = alive_metrics(err, k, t)
+    np.testing.assert_array_equal(m["lost_at"][:2], [3.0, 6.0])
+    assert np.isnan(m["lost_at"][2])
+    np.testing.assert_allclose(m["vrmse_alive"], [np.sqrt(np.mean(np.arange(1.0, 4) ** 2)),
+                                                  np.sqrt(np.mean(np.arange(1.0, 7) ** 2)),
+                                                  np.sqrt(np.mean(np.arange(1.0, N + 1) ** 2))], rtol=1e-14)
+    # where the engine's epoch is unknown, the first non-finite error marks it
+    assert lost_epoch(err, reason, None, t, rule).tolist() == [3, 6, -1]

@@ -26,8 +26,8 @@ from nespm_cli.experiments.assembly import epoch_table
 from nespm_cli.experiments.backend import Execution
 from nespm_cli.experiments.chunks import chunk_problem, concat_parquet, write_chunk
 from nespm_cli.experiments.inputs import READ_HASHES, verify_read
-from nespm_cli.experiments.metrics import (block_statistics, divergence, epoch_errors, epoch_nis, run_metrics,
-                                           sensor_nis)
+from nespm_cli.experiments.metrics import (alive_metrics, block_statistics, divergence, epoch_errors, epoch_nis,
+                                          lost_epoch, run_metrics, sensor_nis)
 from nespm_cli.experiments.spec import (Spec, couple_filter, filter_config, load_filters, needs_noise_std,
                                         track_inputs, validate)
 from nespm_cli.experiments.suite import load_sensors, sensor_plugin_files, sensor_suite, suite_record
@@ -180,6 +180,7 @@ def run_chunk(cell: Cell, number: int, first: int, out_dir: str, last: int | Non
     for name, (out, err, secs) in results.items():
         div, why, inconsistent = divergence(err, out.diverged, t_rel, spec.divergence)
         m = run_metrics(err, div)
+        m.update(alive_metrics(err, lost_epoch(err, why, out.lost_epoch, t_rel, spec.divergence), t_rel))
         m.update(sensor_nis(out))
         m["diverged_reason"] = why
         m["inconsistent"] = inconsistent

@@ -229,6 +229,42 @@ def divergence(err: EpochErrors, numeric: np.ndarray, t_rel: np.ndarray,
     return reason != "", reason.astype(object), bad_nees & ~numeric
 
 
+def lost_epoch(err: EpochErrors, reason: np.ndarray, numeric_epoch: np.ndarray | None, t_rel: np.ndarray,
+               rule: DivergenceRule = DivergenceRule()) -> np.ndarray:
+    """(R,) int: the first epoch at which each lost run was lost (−1: not lost), for ``reason`` of
+    :func:`divergence`: ``numeric`` the engine's (``FilterOutput.lost_epoch``; where it is unknown,
+    the first epoch with a non-finite error), ``attitude`` the first epoch after ``rule.after_s``
+    with the attitude error beyond ``rule.att_deg``."""
+    R, N = err.vel.shape
+    t_rel = np.asarray(t_rel, dtype=float)
+    with np.errstate(invalid="ignore"):
+        over = (t_rel >= rule.after_s) & (err.att > np.radians(rule.att_deg))
+        nonfinite = ~(np.isfinite(err.vel) & np.isfinite(err.att))
+    first = lambda m: np.where(m.any(axis=1), np.argmax(m, axis=1), N)  # noqa: E731
+    numeric = np.asarray(numeric_epoch if numeric_epoch is not None else np.full(R, -1), dtype=np.int64)
+    numeric = np.where(numeric >= 0, numeric, first(nonfinite))
+    reason = np.asarray(reason, dtype=object)
+    k = np.where(reason == "numeric", numeric, np.where(reason == "attitude", first(over), -1))
+    return np.where((k >= N) & (reason != ""), N - 1, k).astype(np.int64)
+
+
+def alive_metrics(err: EpochErrors, lost_k: np.ndarray, t_rel: np.ndarray) -> dict[str, np.ndarray]:
+    """Every run's errors up to the point it was lost (all epochs for a run not lost), (R,) each:
+    ``lost_at`` [s] the time of the first lost epoch (NaN: not lost), ``vrmse_alive`` [m/s],
+    ``mrmse_alive`` [rad], ``hpe_rms_alive`` [m] the RMS over the epochs before it (NaN for a run
+    lost at its first epoch)."""
+    N = err.vel.shape[1]
+    k = np.asarray(lost_k, dtype=np.int64)
+    end = np.where(k >= 0, k, N)
+    alive = np.arange(N)[None, :] < end[:, None]
+    with np.errstate(all="ignore"):
+        rms = lambda x: np.sqrt(np.where(alive, np.asarray(x, float) ** 2, 0.0).sum(axis=1) / end)  # noqa: E731
+        out = {"vrmse_alive": rms(err.vel), "mrmse_alive": rms(err.att), "hpe_rms_alive": rms(err.hpe)}
+    out = {c: np.where(end > 0, v, np.nan) for c, v in out.items()}
+    out["lost_at"] = np.where(k >= 0, np.asarray(t_rel, dtype=float)[np.clip(k, 0, N - 1)], np.nan)
+    return out
+
+
 def run_metrics(err: EpochErrors, diverged: np.ndarray) -> dict[str, np.ndarray]:
     """Per-run summary (R,) arrays; every error sum of a diverged run is NaN.
 

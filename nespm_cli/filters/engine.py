@@ -85,7 +85,8 @@ class FilterOutput:
     whether a DVL update was applied at each epoch (in any run); ``sensors`` the
     :class:`SensorRecord` of each sensor by name; ``noise_std`` the adaptive filters' network std
     ``(std_a, std_g)`` (R, N-1, 3), else None; ``smoothed`` the RTS-smoothed solution (a
-    FilterOutput with no sensors) when ``run_filter(..., smooth=True)``, else None.
+    FilterOutput with no sensors) when ``run_filter(..., smooth=True)``, else None; ``lost_epoch``
+    (R,) the first epoch recorded after the filter flagged the run diverged (−1: never).
     """
 
     pos: np.ndarray
@@ -100,6 +101,7 @@ class FilterOutput:
     sensors: dict = field(default_factory=dict)
     noise_std: tuple | None = None
     smoothed: "FilterOutput | None" = None
+    lost_epoch: np.ndarray | None = None
 
     @property
     def P6(self) -> np.ndarray:
@@ -223,6 +225,7 @@ def run_filter(
 
     imu_mode = cfg.time_update == "imu"
     rts = SmootherRecord() if smooth else None
+    out.lost_epoch = np.full(R, -1, dtype=np.int64)
     with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
         record(0)
         if rts is not None:
@@ -244,6 +247,7 @@ def run_filter(
                 rts.posterior(filt, epoch)
             if epoch is not None:
                 record(epoch)
+                out.lost_epoch[(out.lost_epoch < 0) & np.asarray(filt.diverged, dtype=bool)] = epoch
                 if progress is not None:
                     progress(epoch)
     out.diverged = np.asarray(call(lambda: filt.diverged, "diverged"), dtype=bool).reshape(R)
@@ -263,6 +267,7 @@ def smoothed_output(out: FilterOutput, rts: SmootherRecord, filt, t_epochs: np.n
     navs, P = rts.smooth(filt, N)
     sm = FilterOutput(pos=np.empty((R, N, 3)), v_n=np.empty((R, N, 3)), C_bn=np.empty((R, N, 3, 3)), P=P,
                       b_a=np.empty((R, N, 3)), b_g=np.empty((R, N, 3)), diverged=out.diverged.copy(),
+                      lost_epoch=out.lost_epoch.copy(),
                       dvl_used=out.dvl_used.copy(), layout=out.layout,
                       sensors={name: SensorRecord(r.t, np.zeros_like(r.used), np.full_like(r.nu, np.nan),
                                                   np.full_like(r.S, np.nan)) for name, r in out.sensors.items()})
