@@ -1,0 +1,114 @@
+"""The command line before click parses it: ``--config FILE`` (TOML) expanded into options, and
+``--tracks 5 6`` joined into one value."""
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+from nespm_cli.errors import NespmError
+
+
+_REPEATED = ("--filter-plugin", "--sensor-plugin", "--sensor-option")  # options given once per value
+
+
+def _config_paths(argv: list[str]) -> tuple[list[str], list[str]]:
+    """``(config files, argv without them)``: every ``--config FILE`` and ``--config=FILE``, in order."""
+    paths, rest, i = [], [], 0
+    while i < len(argv):
+        a = argv[i]
+        if a == "--config":
+            if i + 1 >= len(argv) or argv[i + 1].startswith("--"):
+                raise NespmError("--config needs a file")
+            paths.append(argv[i + 1])
+            i += 2
+            continue
+        if a.startswith("--config="):
+            if not a[len("--config="):]:
+                raise NespmError("--config needs a file")
+            paths.append(a[len("--config="):])
+            i += 1
+            continue
+        rest.append(a)
+        i += 1
+    return paths, rest
+
+
+def _config_options(path: Path) -> list[str]:
+    """The options of one TOML config file, as command-line words (one-line errors naming the file)."""
+    try:
+        import tomllib
+    except ModuleNotFoundError:  # Python 3.10
+        import tomli as tomllib
+    try:
+        text = path.read_bytes().decode("utf-8")
+        cfg = tomllib.loads(text)
+    except OSError as exc:
+        raise NespmError(f"--config {path}: cannot read ({exc.strerror})") from None
+    except UnicodeDecodeError as exc:
+        raise NespmError(f"--config {path}: not UTF-8 text (byte 0x{exc.object[exc.start]:02x} at offset "
+                         f"{exc.start})") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise NespmError(f"--config {path}: not valid TOML ({str(exc).splitlines()[0]})") from None
+    except RecursionError:
+        raise NespmError(f"--config {path}: nested too deeply") from None
+    opts: list[str] = []
+    for key, val in cfg.items():
+        flag = "--" + key.replace("_", "-")
+        if key == "sensors" and isinstance(val, dict):
+            opts += _sensor_tables(path, val)
+            continue
+        if isinstance(val, dict):
+            raise NespmError(f"--config {path}: [{key}] is a table; options are top-level keys (runs = 100)")
+        if isinstance(val, bool):
+            opts += [flag] if val else []
+        elif isinstance(val, list) and flag in _REPEATED:
+            opts += [x for v in val for x in (flag, str(v))]
+        elif isinstance(val, list):
+            opts += [flag] + [str(v) for v in val]
+        else:
+            opts += [flag, str(val)]
+    return opts
+
+
+def _sensor_tables(path: Path, tables: dict) -> list[str]:
+    """``[sensors.NAME]`` tables (in file order) as ``--sensors`` and ``--sensor-option`` words."""
+    words = ["--sensors", ",".join(tables)]
+    for name, table in tables.items():
+        if not isinstance(table, dict):
+            raise NespmError(f"--config {path}: sensors.{name} must be a table of options ([sensors.{name}])")
+        for k, v in table.items():
+            if isinstance(v, dict):
+                raise NespmError(f"--config {path}: sensors.{name}.{k} is a table; give option values")
+            text = ",".join(str(x) for x in v) if isinstance(v, list) else str(v).lower() if isinstance(v, bool) else str(v)
+            words += ["--sensor-option", f"{name}.{k}={text}"]
+    return words
+
+
+def expand_config(argv: list[str]) -> list[str]:
+    """Replace every ``--config FILE`` (or ``--config=FILE``) by the options in the TOML file,
+    in the order given, placed before the rest of the command line: a later file overrides an
+    earlier one, and explicit options override both."""
+    paths, rest = _config_paths(argv)
+    if not paths:
+        return argv
+    opts = [w for p in paths for w in _config_options(Path(p))]
+    cmd = 1 if rest and not rest[0].startswith("-") else 0
+    return rest[:cmd] + opts + rest[cmd:]
+
+
+def normalize_argv(argv: list[str]) -> list[str]:
+    """Let ``--tracks 5 6`` mean ``--tracks '5 6'`` (click options take one value)."""
+    out, i = [], 0
+    while i < len(argv):
+        a = argv[i]
+        if a in ("--tracks", "--test-tracks"):
+            vals = []
+            i += 1
+            while i < len(argv) and (not argv[i].startswith("-") or re.fullmatch(r"-\d+", argv[i])):
+                vals.append(argv[i])
+                i += 1
+            out += [a, " ".join(vals)]
+            continue
+        out.append(a)
+        i += 1
+    return out

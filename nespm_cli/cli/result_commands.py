@@ -1,0 +1,38 @@
+"""The commands that read a results folder: ``nespm report`` and ``nespm export``."""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import List, Optional
+
+import typer
+
+from nespm_cli.reports.stats import PRACTICAL_PCT
+
+
+def report(
+    out_dir: Path = typer.Argument(..., help="Folder written by 'nespm mc', 'nespm sweep' or 'nespm gp-ukf'."),
+    baseline: Optional[str] = typer.Option(None, "--baseline", help="Filter whose improvement over each other row is shown (the papers' 'Imprv.' column)."),
+    n_boot: int = typer.Option(2000, "--n-boot", help="Paired bootstrap resamples for the 95 % intervals."),
+    practical: float = typer.Option(PRACTICAL_PCT, "--practical", help="Smallest improvement [%] the summary calls practically meaningful (a difference must also be statistically significant)."),
+    beside: Optional[List[Path]] = typer.Option(None, "--beside", help="Another mc folder whose numbers are set beside this one's (e.g. the synthetic-IMU run of a recorded-IMU one); repeatable."),
+) -> None:
+    """Write DIR/report.md (Tables I/II layout, paired 95 % intervals, published values) and figures."""
+    from nespm_cli.reports.dispatch import write_report
+
+    path = write_report(out_dir, baseline, n_boot=n_boot, practical_pct=practical, beside=tuple(beside or ()))
+    typer.echo(path.read_text(encoding="utf-8"))
+    typer.echo(f"wrote {path}")
+
+
+def export(
+    folder: Path = typer.Argument(..., help="A finished 'nespm mc' or 'nespm sweep' folder."),
+    fmt: str = typer.Option("csv", "--format", help="csv (one file per table) or mat (one MATLAB .mat, a struct per table)."),
+    out: Optional[Path] = typer.Option(None, "--out", help="Output folder (default FOLDER/export)."),
+    series: bool = typer.Option(False, "--series", help="Also the per-run per-epoch errors of the chunk series files (large)."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace existing output files."),
+) -> None:
+    """Export metrics, epochs (and --series) as CSV or a MATLAB .mat file (docs/results-schema.md)."""
+    from nespm_cli.reports.export import export_folder
+
+    for p in export_folder(folder, fmt, out, series, overwrite):
+        typer.echo(f"wrote {p}")
