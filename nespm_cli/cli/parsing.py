@@ -75,6 +75,8 @@ def build_spec(**kw):
     kw["sensor_plugins"] = tuple(kw.get("sensor_plugins") or ())
     kw["sensors"] = tuple(s.strip() for s in kw.pop("sensors_").split(",") if s.strip())
     kw["sensor_options"] = tuple(parse_sensor_option(o) for o in kw.pop("sensor_option") or ())
+    if "smooth_" in kw:  # mc, sweep
+        kw["smooth"] = tuple(f.strip().lower() for f in kw.pop("smooth_").split(",") if f.strip())
     fields = {k: kw.pop(k) for k in FILTER_FIELDS}
     fcfg = FilterConfig(**{**fields, "q_clip": tuple(fields["q_clip"])})
     kw["divergence"] = DivergenceRule(att_deg=kw.pop("diverge_att_deg"), nees=kw.pop("diverge_nees"),
