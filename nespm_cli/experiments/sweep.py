@@ -50,6 +50,39 @@ def _alpha(spec: Spec, v: float) -> Spec:
     return dataclasses.replace(spec, filter_config=dataclasses.replace(spec.filter_config, alpha=v))
 
 
+def sensor_param(sensor: str, key: str) -> Callable[[Spec, float], Spec]:
+    """Set the option ``key`` of ``sensor`` (``--sensor-option SENSOR.KEY=value``, over any given one);
+    the sensor must be in ``--sensors``. Its draws come from its own seed stream, so the values are
+    paired: a std scales the same normals, an interval takes the same stream's first draws."""
+    def apply(spec: Spec, v: float) -> Spec:
+        if sensor not in spec.sensors:
+            raise NespmError(f"--param {sensor}.{key}: {sensor} is not in --sensors ({', '.join(spec.sensors)})")
+        opts = tuple(o for o in spec.sensor_options if (o[0], o[1]) != (sensor, key)) + ((sensor, key, f"{v!r}"),)
+        return dataclasses.replace(spec, sensor_options=opts)
+    return apply
+
+
+#: named sensor parameters (any ``SENSOR.KEY`` of a numeric option is a parameter too)
+SENSOR_PARAMS = {
+    "fix-interval": ("fix", "interval", "position fix interval [s]"),
+    "fix-std": ("fix", "std", "position fix std [m]"),
+    "depth-std": ("depth", "std", "depth sensor std [m]"),
+    "heading-std": ("heading", "std", "heading sensor std [deg]"),
+}
+
+
+def sensor_param_of(param: str) -> Param | None:
+    """The :class:`Param` of a sensor parameter: a name of :data:`SENSOR_PARAMS` or ``SENSOR.KEY``."""
+    if param in SENSOR_PARAMS:
+        sensor, key, label = SENSOR_PARAMS[param]
+        return Param(label, sensor_param(sensor, key))
+    if "." in param:
+        sensor, key = param.split(".", 1)
+        if sensor and key.isidentifier():
+            return Param(f"{sensor} {key}", sensor_param(sensor, key), positive=False)
+    return None
+
+
 PARAMS: dict[str, Param] = {
     "misalignment-deg": Param("initial misalignment std per axis [deg]", _corr(misalignment_deg=None)),
     "heading-deg": Param("initial heading misalignment std [deg]", _corr(heading_deg=None)),
@@ -62,6 +95,12 @@ PARAMS: dict[str, Param] = {
     "outage-length": Param("DVL outage length [s]", _outage),
     "alpha": Param("UKF sigma-point spread alpha", _alpha),
 }
+
+
+def param_label(param: str) -> str:
+    """The axis label (with unit) of a sweep parameter; the name itself when it has none."""
+    p = PARAMS.get(param) or sensor_param_of(param)
+    return p.label if p is not None else param
 
 
 def parse_values(text: str) -> list[float]:
@@ -80,9 +119,10 @@ def parse_values(text: str) -> list[float]:
 
 def sweep_cells(spec: Spec, param: str, values: list[float]) -> list[Cell]:
     """One validated cell per value; chunk files are tagged ``v00-``, ``v01-``, ..."""
-    if param not in PARAMS:
-        raise NespmError(f"--param: unknown parameter {param!r}; choose from {', '.join(PARAMS)}")
-    p = PARAMS[param]
+    p = PARAMS.get(param) or sensor_param_of(param)
+    if p is None:
+        raise NespmError(f"--param: unknown parameter {param!r}; choose from {', '.join([*PARAMS, *SENSOR_PARAMS])} "
+                         "or a sensor option SENSOR.KEY (e.g. fix.interval)")
     if p.positive and min(values) <= 0:
         raise NespmError(f"--values: {param} values must be positive, got {min(values):g}")
     return [Cell(validate(p.apply(spec, v)), tag=f"v{i:02d}-", columns=(("param", param), ("value", float(v))))
