@@ -34,6 +34,24 @@ def test_plain_lines_with_eta():
     assert fmt_seconds(75) == "75 s" and fmt_seconds(725) == "12 min 5 s" and fmt_seconds(None) == "?"
 
 
+def test_eta_excludes_the_start_up(monkeypatch):
+    """The kernels compile before the first unit is reported: an ETA from the whole elapsed time said
+    "26 h" while they compiled. The ETA uses the rate since the first report: 60 s of start-up, 10
+    units reported at 60 s, 100 at 69 s: 10 units/s, 900 left -> 90 s (the whole elapsed time: 621 s)."""
+    import nespm_cli.experiments.progress as progress
+
+    clock = [1000.0]
+    monkeypatch.setattr(progress.time, "monotonic", lambda: clock[0])
+    bar = Progress("mc", total=1000, chunks=4, enabled=False)
+    assert bar.eta() is None
+    clock[0] += 60.0  # start-up: imports and compilation, no unit reported
+    bar.set_running(10)
+    assert bar.eta() is None and "ETA once a rate is measured" in bar.line()  # one report: no rate yet
+    clock[0] += 9.0
+    bar.set_running(100)
+    assert abs(bar.eta() - 9.0 * 900 / 90) < 1e-9
+
+
 def test_simulate_reports_every_epoch_of_every_filter(short_data_dir):
     spec = validate(Spec(tracks=(5,), runs=2, filters=("ins", "ekf"), data_dir=str(short_data_dir)))
     seen = []

@@ -105,6 +105,7 @@ class Progress:
         self.finished_chunks = 0
         self.t0 = time.monotonic()
         self._last_line = self.t0
+        self._first: tuple[float, int] | None = None  # (time, units) of the first report with units done
         self._bar = None
         self._lock = threading.Lock()
         tty = getattr(self.stream, "isatty", lambda: False)
@@ -116,28 +117,41 @@ class Progress:
         return min(self.finished_units + self.running_units, self.total)
 
     def eta(self) -> float | None:
-        el = time.monotonic() - self.t0
-        if self.done <= 0 or el <= 0:
+        """Seconds left at the rate measured since the first unit was reported, so the start-up (the
+        workers' imports and the kernels' compilation, before any unit) does not count; None until
+        a second report shows a rate."""
+        now, done = time.monotonic(), self.done
+        if self._first is None:
             return None
-        return el * (self.total - self.done) / self.done
+        t1, d1 = self._first
+        if done <= d1 or now <= t1:
+            return None
+        return (now - t1) * (self.total - done) / (done - d1)
 
     def line(self) -> str:
         el = time.monotonic() - self.t0
         pct = 100.0 * self.done / self.total
         return (f"{self.label}: {pct:.0f} % ({self.done}/{self.total} {self.unit}, {self.finished_chunks}/{self.chunks} "
-                f"chunks) {fmt_seconds(el)} elapsed, ETA {fmt_seconds(self.eta())}")
+                f"chunks) {fmt_seconds(el)} elapsed, " + (f"ETA {fmt_seconds(eta)}" if (eta := self.eta()) is not None
+                                                            else "ETA once a rate is measured"))
 
     # --- updates ---------------------------------------------------------------------
     def set_running(self, units: int) -> None:
         with self._lock:
             self.running_units = int(units)
+            self._note_first()
         self._show()
 
     def chunk_done(self, units: int) -> None:
         with self._lock:
             self.finished_units += int(units)
             self.finished_chunks += 1
+            self._note_first()
         self._show()
+
+    def _note_first(self) -> None:
+        if self._first is None and self.done > 0:
+            self._first = (time.monotonic(), self.done)
 
     def _show(self, force: bool = False) -> None:
         if not self.enabled:
