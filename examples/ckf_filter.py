@@ -7,6 +7,7 @@ Written only against nespm's public filter protocol (docs/plugins.md):
 Run it beside the EKF::
 
     nespm mc --filter-plugin examples/ckf_filter.py --filters ekf,ckf-example --tracks 5 --runs 8
+    nespm mc ... --filter-option ckf-example.q_scale=2     # its own option (``option_defaults``)
 
 The filter (Arasaratnam & Haykin 2009, third-degree spherical-radial cubature rule):
 
@@ -48,10 +49,16 @@ def cubature_moments(Y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 @register("ckf-example")
 class CubatureKF(ErrorStateFilter):
-    """Error-state CKF: cubature points through the linearised transition and the nonlinear measurement."""
+    """Error-state CKF: cubature points through the linearised transition and the nonlinear measurement.
+
+    Its own option ``q_scale`` (default 1): the process noise Q is multiplied by it, a common tuning
+    knob (``--filter-option ckf-example.q_scale=2``; recorded in the manifest, sweepable as
+    ``sweep --param ckf-example.q_scale``)."""
+
+    option_defaults = {"q_scale": 1.0}
 
     def propagate(self, j0: int, j1: int, k: int = 0) -> None:
-        Q = self.process_noise(self.span(j0, j1), k)  # before the solution moves (adaptive Q uses C_bn)
+        Q = self.options["q_scale"] * self.process_noise(self.span(j0, j1), k)  # before the solution moves
         Phi = self.transition(j0, j1)  # moves self.nav through steps [j0, j1)
         X = cubature_points(self.cholesky())
         Y = X @ np.swapaxes(Phi, -1, -2)

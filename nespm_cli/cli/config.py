@@ -8,7 +8,7 @@ from pathlib import Path
 from nespm_cli.errors import NespmError
 
 
-_REPEATED = ("--filter-plugin", "--sensor-plugin", "--sensor-option")  # options given once per value
+_REPEATED = ("--filter-plugin", "--sensor-plugin", "--sensor-option", "--filter-option")  # options given once per value
 
 
 def _config_paths(argv: list[str]) -> tuple[list[str], list[str]]:
@@ -57,6 +57,9 @@ def _config_options(path: Path) -> list[str]:
         if key == "sensors" and isinstance(val, dict):
             opts += _sensor_tables(path, val)
             continue
+        if key == "filters" and isinstance(val, dict):
+            opts += _filter_tables(path, val)
+            continue
         if isinstance(val, dict):
             raise NespmError(f"--config {path}: [{key}] is a table; options are top-level keys (runs = 100)")
         if isinstance(val, bool):
@@ -70,18 +73,30 @@ def _config_options(path: Path) -> list[str]:
     return opts
 
 
-def _sensor_tables(path: Path, tables: dict) -> list[str]:
-    """``[sensors.NAME]`` tables (in file order) as ``--sensors`` and ``--sensor-option`` words."""
-    words = ["--sensors", ",".join(tables)]
+def _option_words(path: Path, kind: str, flag: str, tables: dict) -> list[str]:
+    """``[KIND.NAME]`` tables as ``FLAG NAME.KEY=VALUE`` words (one-line errors naming the file)."""
+    words = []
     for name, table in tables.items():
         if not isinstance(table, dict):
-            raise NespmError(f"--config {path}: sensors.{name} must be a table of options ([sensors.{name}])")
+            raise NespmError(f"--config {path}: {kind}.{name} must be a table of options ([{kind}.{name}])")
         for k, v in table.items():
             if isinstance(v, dict):
-                raise NespmError(f"--config {path}: sensors.{name}.{k} is a table; give option values")
+                raise NespmError(f"--config {path}: {kind}.{name}.{k} is a table; give option values")
             text = ",".join(str(x) for x in v) if isinstance(v, list) else str(v).lower() if isinstance(v, bool) else str(v)
-            words += ["--sensor-option", f"{name}.{k}={text}"]
+            words += [flag, f"{name}.{k}={text}"]
     return words
+
+
+def _filter_tables(path: Path, tables: dict) -> list[str]:
+    """``[filters.NAME]`` tables (in file order) as ``--filters`` and ``--filter-option`` words, as
+    ``[sensors.NAME]`` (TOML cannot hold both ``filters = "..."`` and ``[filters.NAME]``; a filter
+    without options is an empty table)."""
+    return ["--filters", ",".join(tables)] + _option_words(path, "filters", "--filter-option", tables)
+
+
+def _sensor_tables(path: Path, tables: dict) -> list[str]:
+    """``[sensors.NAME]`` tables (in file order) as ``--sensors`` and ``--sensor-option`` words."""
+    return ["--sensors", ",".join(tables)] + _option_words(path, "sensors", "--sensor-option", tables)
 
 
 def expand_config(argv: list[str]) -> list[str]:

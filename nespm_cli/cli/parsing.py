@@ -55,11 +55,12 @@ def warning_mode(mode: str) -> None:
     set_warning_mode(mode)
 
 
-def parse_sensor_option(text: str) -> tuple[str, str, str]:
+def parse_sensor_option(text: str, flag: str = "--sensor-option") -> tuple[str, str, str]:
     """``NAME.KEY=VALUE`` -> ``(NAME, KEY, VALUE)`` (one-line error otherwise)."""
     m = re.fullmatch(r"\s*([A-Za-z0-9_-]+)\.([A-Za-z0-9_]+)\s*=(.*)", text)
     if not m:
-        raise NespmError(f"--sensor-option {text!r}: expected NAME.KEY=VALUE, e.g. fix.interval=10")
+        example = "fix.interval=10" if flag == "--sensor-option" else "ukf.alpha=0.5"
+        raise NespmError(f"{flag} {text!r}: expected NAME.KEY=VALUE, e.g. {example}")
     return m.group(1), m.group(2), m.group(3).strip()
 
 
@@ -75,6 +76,7 @@ def build_spec(**kw):
     kw["sensor_plugins"] = tuple(kw.get("sensor_plugins") or ())
     kw["sensors"] = tuple(s.strip() for s in kw.pop("sensors_").split(",") if s.strip())
     kw["sensor_options"] = tuple(parse_sensor_option(o) for o in kw.pop("sensor_option") or ())
+    kw["filter_options"] = tuple(parse_sensor_option(o, "--filter-option") for o in kw.pop("filter_option") or ())
     if "smooth_" in kw:  # mc, sweep
         kw["smooth"] = tuple(f.strip().lower() for f in kw.pop("smooth_").split(",") if f.strip())
     fields = {k: kw.pop(k) for k in FILTER_FIELDS}

@@ -28,8 +28,8 @@ from nespm_cli.experiments.chunks import chunk_problem, concat_parquet, write_ch
 from nespm_cli.experiments.inputs import READ_HASHES, verify_read
 from nespm_cli.experiments.metrics import (alive_metrics, block_statistics, divergence, epoch_errors, epoch_nis,
                                           lost_epoch, run_metrics, sensor_nis)
-from nespm_cli.experiments.spec import (Spec, couple_filter, filter_config, load_filters, needs_noise_std,
-                                        track_inputs, validate)
+from nespm_cli.experiments.spec import (Spec, couple_filter, filter_config, filter_config_of, load_filters,
+                                        needs_noise_std, track_inputs, validate)
 from nespm_cli.experiments.suite import load_sensors, sensor_plugin_files, sensor_suite, suite_record
 from nespm_cli.experiments.store import (ResultsFolder, Task, chunk_firsts, file_hashes, run_blocks,
                                         write_parquet_atomic)
@@ -80,7 +80,8 @@ def simulate(spec: Spec, number: int, runs: np.ndarray, filters=None, clean: boo
     for i, name in enumerate(names):
         t0 = time.perf_counter()
         step = None if progress is None else (lambda k, base=i * (len(e) - 1): progress(base + k))
-        out = run_filter(name, cfg, f, w, truth.dt, e, nav0=nav0, noise_std=noise_std if name in adaptive else None,
+        out = run_filter(name, filter_config_of(spec, name, cfg), f, w, truth.dt, e, nav0=nav0,
+                         noise_std=noise_std if name in adaptive else None,
                          progress=step, channels=channels, smooth=name in spec.smooth)
         if name in adaptive:
             t0 -= net_seconds / len(adaptive)  # the shared network pass, split

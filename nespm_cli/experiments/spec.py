@@ -26,6 +26,7 @@ from nespm_cli.experiments.metrics import DivergenceRule
 from nespm_cli.filters import FilterConfig
 from nespm_cli.filters.adaptive import BIAS_MODES
 from nespm_cli.filters.registry import FILTER_REGISTRY, filter_names, get_filter
+from nespm_cli.filters.options import check_filter_options, configure
 from nespm_cli.filters.smoother import smoothed_name
 from nespm_cli.learn.noise_model import WINDOW, load_weights
 from nespm_cli.experiments.suite import check_suite, dvl_of, load_sensors
@@ -77,6 +78,7 @@ class Spec:
     filter_acc_noise: float | None = None  # [m/s² per sample] the filters' own Q white noise, over the coupling
     filter_gyro_noise: float | None = None  # [rad/s per sample]
     smooth: tuple = ()  # filters whose RTS-smoothed solution is reported too, as <filter>-rts (filters.smoother)
+    filter_options: tuple = ()  # ((filter, key, value), ...): --filter-option NAME.KEY=VALUE, [filters.NAME]
     save_series: str = "norms"  # per-run series kept in the chunks: norms, or axes (+ every component's error and std)
 
     @property
@@ -97,6 +99,12 @@ class Spec:
             d.pop("smooth")
         if self.save_series == "norms":
             d.pop("save_series")
+        if self.filter_options:
+            d["filter_options"] = [list(o) for o in self.filter_options]
+        else:
+            d.pop("filter_options")
+        if not self.filter_config.options:
+            d["filter_config"].pop("options")
         return json.loads(json.dumps(d, default=list))
 
 
@@ -112,6 +120,7 @@ def validate(spec: Spec) -> Spec:
     if len(set(spec.filters)) != len(spec.filters) or not spec.filters:
         raise NespmError("--filters: give each filter once, at least one")
     layout = parse_layout(spec.filter_config.state)
+    spec = dataclasses.replace(spec, filter_options=check_filter_options(spec.filter_options, spec.filters, get_filter))
     for f in spec.smooth:
         if f not in spec.filters:
             raise NespmError(f"--smooth {f}: not in --filters ({', '.join(spec.filters)}); the smoother runs on a "
@@ -276,6 +285,12 @@ def filter_config(spec: Spec) -> FilterConfig:
     if dvl is not None:
         own.update(dvl_std=dvl.r_std(), lever_arm=tuple(dvl.opt.lever_arm))
     return dataclasses.replace(fc, **own)
+
+
+def filter_config_of(spec: Spec, name: str, cfg: FilterConfig | None = None) -> FilterConfig:
+    """The FilterConfig filter ``name`` runs with: the study's (``cfg``, default
+    :func:`filter_config`) with its ``--filter-option`` values (:func:`nespm_cli.filters.options.configure`)."""
+    return configure(cfg if cfg is not None else filter_config(spec), name, get_filter(name), spec.filter_options)
 
 
 def couple_filter(fcfg: FilterConfig, corr: CorruptionConfig) -> FilterConfig:

@@ -71,15 +71,26 @@ SENSOR_PARAMS = {
 }
 
 
-def sensor_param_of(param: str) -> Param | None:
-    """The :class:`Param` of a sensor parameter: a name of :data:`SENSOR_PARAMS` or ``SENSOR.KEY``."""
+def filter_param(filt: str, key: str) -> Callable[[Spec, float], Spec]:
+    """Set the option ``key`` of filter ``filt`` (``--filter-option FILTER.KEY=value``, over any given
+    one): a plugin's own option or a tunable field (``ukf.alpha``); checked by ``validate``."""
+    def apply(spec: Spec, v: float) -> Spec:
+        opts = tuple(o for o in spec.filter_options if (o[0], o[1]) != (filt, key)) + ((filt, key, f"{v!r}"),)
+        return dataclasses.replace(spec, filter_options=opts)
+    return apply
+
+
+def option_param_of(param: str, filters: tuple = ()) -> Param | None:
+    """The :class:`Param` of a sensor or filter option: a name of :data:`SENSOR_PARAMS`, or ``NAME.KEY``
+    (a filter's option when ``NAME`` is in ``filters``, else a sensor's)."""
     if param in SENSOR_PARAMS:
         sensor, key, label = SENSOR_PARAMS[param]
         return Param(label, sensor_param(sensor, key))
     if "." in param:
-        sensor, key = param.split(".", 1)
-        if sensor and key.isidentifier():
-            return Param(f"{sensor} {key}", sensor_param(sensor, key), positive=False)
+        name, key = param.split(".", 1)
+        if name and key.isidentifier():
+            make = filter_param if name in filters else sensor_param
+            return Param(f"{name} {key}", make(name, key), positive=False)
     return None
 
 
@@ -99,7 +110,7 @@ PARAMS: dict[str, Param] = {
 
 def param_label(param: str) -> str:
     """The axis label (with unit) of a sweep parameter; the name itself when it has none."""
-    p = PARAMS.get(param) or sensor_param_of(param)
+    p = PARAMS.get(param) or option_param_of(param)
     return p.label if p is not None else param
 
 
@@ -119,10 +130,10 @@ def parse_values(text: str) -> list[float]:
 
 def sweep_cells(spec: Spec, param: str, values: list[float]) -> list[Cell]:
     """One validated cell per value; chunk files are tagged ``v00-``, ``v01-``, ..."""
-    p = PARAMS.get(param) or sensor_param_of(param)
+    p = PARAMS.get(param) or option_param_of(param, tuple(spec.filters))
     if p is None:
         raise NespmError(f"--param: unknown parameter {param!r}; choose from {', '.join([*PARAMS, *SENSOR_PARAMS])} "
-                         "or a sensor option SENSOR.KEY (e.g. fix.interval)")
+                         "or an option SENSOR.KEY or FILTER.KEY (e.g. fix.interval, ukf.alpha)")
     if p.positive and min(values) <= 0:
         raise NespmError(f"--values: {param} values must be positive, got {min(values):g}")
     return [Cell(validate(p.apply(spec, v)), tag=f"v{i:02d}-", columns=(("param", param), ("value", float(v))))

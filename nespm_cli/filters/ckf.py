@@ -32,6 +32,8 @@ from nespm_cli.filters.ukf import UKF, UKFNespm
 class CubatureRule:
     """The third-degree spherical-radial point set for the sigma-point filters of :mod:`.ukf`."""
 
+    tunable = ()  # no alpha, beta, kappa: the cubature rule has no tuning
+
     def offsets(self, L: np.ndarray) -> np.ndarray:
         """The 2n cubature offsets (R, 2n, n) ``±√n L[:, i]``."""
         return cubature_offsets(L)

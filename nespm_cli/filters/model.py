@@ -79,6 +79,7 @@ class FilterConfig:
     q_clip: tuple = VALIDITY_CLIP  # validity bounds on the network std, x nominal std
     state: str = "12"  # error-state layout (nav.state): 12, 15 or a comma list of blocks
     p0_pos: tuple = (POS_STD_FLOOR, POS_STD_FLOOR, POS_STD_FLOOR)  # m, N E D
+    options: tuple = ()  # ((key, value), ...): a filter's own options (--filter-option; filters.options)
 
     @property
     def layout(self) -> StateLayout:

@@ -36,6 +36,7 @@ from nespm_cli.filters import kernels
 from nespm_cli.filters.adaptive import adaptive_q
 from nespm_cli.filters.model import (FilterConfig, NavState, feedback, invariant_system_matrix, process_noise,
                                      system_matrix)
+from nespm_cli.filters.options import option_values
 from nespm_cli.filters.unscented import UTWeights, safe_cholesky
 from nespm_cli.nav.products import mat_mul
 from nespm_cli.nav.rotations import exp_so3
@@ -67,6 +68,11 @@ class Filter:
     """
 
     name: str = ""
+    #: the filter's own options and their defaults (``--filter-option NAME.KEY=VALUE``; read them with
+    #: :func:`nespm_cli.filters.options.option_values` or :attr:`ErrorStateFilter.options`)
+    option_defaults: dict = {}
+    #: FilterConfig tuning fields it takes per filter (the sigma-point filters: alpha, beta, kappa)
+    tunable: tuple = ()
     has_covariance: bool = True
     needs_noise_std: bool = False
     adaptive_of: str | None = None
@@ -144,6 +150,7 @@ class ErrorStateFilter(Filter):
             raise NespmError(f"filter {self.name} needs the network noise std (noise_std)")
         self._noise_std = noise_std if self.needs_noise_std else None
         self.cfg = cfg
+        self.options = option_values(type(self), cfg)  # the filter's own options, defaults filled in
         self.layout = cfg.layout
         if not self.supports(self.layout):
             raise NespmError(f"filter {self.name} serves --state {' or '.join(self.layouts)}, not {self.layout.name}")

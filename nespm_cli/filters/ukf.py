@@ -26,6 +26,9 @@ class UKF(ErrorStateFilter):
     here); ``ckf`` and ``ckf-nespm`` are these classes with the cubature rule instead.
     """
 
+    #: FilterConfig fields this filter takes per filter (``--filter-option ukf.alpha=0.5``)
+    tunable = ("alpha", "beta", "kappa")
+
     def offsets(self, L: np.ndarray) -> np.ndarray:
         """Outer point offsets (R, S, n) from Cholesky factors ``L`` (R, n, n) of P."""
         return sigma_offsets(L, self.ut)
