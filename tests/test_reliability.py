@@ -149,11 +149,11 @@ def test_damaged_chunk_is_named_and_computed_again(tmp_path, finished, damage):
 
 def test_assembly_verifies_every_chunk(tmp_path, finished):
     from nespm_cli.errors import NespmError
-    from nespm_cli.experiments.store import ResultsFolder
+    from nespm_cli.experiments.store import GROWABLE, ResultsFolder
 
     out = copy_of(finished, tmp_path / "r")
     options = json.loads((out / "manifest.json").read_text())["options"]
-    folder = ResultsFolder(out, options, extendable=("runs",))
+    folder = ResultsFolder(out, options, extendable=GROWABLE)
     names = ["metrics-5-ekf-000000.parquet", "metrics-5-ekf-000002.parquet"]
     assert [p.name for p in folder.verified(names)] == names
     (out / "chunks" / names[1]).write_bytes(b"PAR1")

@@ -31,7 +31,7 @@ from nespm_cli.experiments.metrics import (alive_metrics, block_statistics, dive
 from nespm_cli.experiments.spec import (Spec, couple_filter, filter_config, filter_config_of, load_filters,
                                         needs_noise_std, track_inputs, validate)
 from nespm_cli.experiments.suite import load_sensors, sensor_plugin_files, sensor_suite, suite_record
-from nespm_cli.experiments.store import (ResultsFolder, Task, chunk_firsts, file_hashes, run_blocks,
+from nespm_cli.experiments.store import (GROWABLE, ResultsFolder, Task, chunk_firsts, file_hashes, run_blocks,
                                         write_parquet_atomic)
 from nespm_cli.filters import FilterConfig, initial_nav, run_filter
 from nespm_cli.filters.kernels import kernel_backend
@@ -155,12 +155,15 @@ def run_chunk(cell: Cell, number: int, first: int, out_dir: str, last: int | Non
     if last is None:
         last = min(first + spec.chunk_size, spec.runs)
     runs = np.arange(first, last)
-    if filters is None:
-        filters = list(dict.fromkeys(
-            f for r, f in spec.outputs
-            if any(chunk_problem(chunks / chunk_name(kind, number, r, first, tag), cell.experiment) is not None
-                   for kind in ("metrics", "series"))))
-    todo = list(filters)
+    asked = [(r, f) for r, f in spec.outputs if filters is None or f in filters]
+    # the results whose chunk files are missing or bad; a finished chunk is never rewritten (a smoothed
+    # filter added to a folder runs its filter again, but leaves the filter's files alone)
+    needed = {r for r, f in asked
+              if any(chunk_problem(chunks / chunk_name(kind, number, r, first, tag), cell.experiment) is not None
+                     for kind in ("metrics", "series"))}
+    if filters is not None and not needed:  # asked explicitly to compute finished ones: do
+        needed = {r for r, _ in asked}
+    todo = list(dict.fromkeys(f for r, f in asked if r in needed))
     timings = {}
     if not todo:
         return timings
@@ -179,6 +182,8 @@ def run_chunk(cell: Cell, number: int, first: int, out_dir: str, last: int | Non
     # the biases are known where the bench put them (a recorded IMU has its own, unknown)
     bias_true = true_biases(real, truth.t[e] - truth.t[0]) if spec.imu == "synthetic" else None
     for name, (out, err, secs) in results.items():
+        if name not in needed:
+            continue
         div, why, inconsistent = divergence(err, out.diverged, t_rel, spec.divergence)
         m = run_metrics(err, div)
         m.update(alive_metrics(err, lost_epoch(err, why, out.lost_epoch, t_rel, spec.divergence), t_rel))
@@ -309,7 +314,7 @@ def run_cells(cells: list[Cell], options: dict, out_dir: str | Path, execution: 
     change the results.
     """
     ex = execution.check()  # before --out is created
-    folder = ResultsFolder(out_dir, options, list(ex.argv) if ex.argv is not None else None, extendable=("runs",))
+    folder = ResultsFolder(out_dir, options, list(ex.argv) if ex.argv is not None else None, extendable=GROWABLE)
     first = cells[0].spec
     inputs = manifest_inputs(cells)
     folder.open(inputs=inputs, seed=first.seed, data_dir=first.data_dir or "embedded",

@@ -241,11 +241,42 @@ def check_existing(out: Path, options: dict, extendable: tuple[str, ...] = ()) -
         k = shrunk[0]
         raise NespmError(f"{out}: holds {before[k]} {k}; --{k} {options[k]} would drop finished work "
                          f"(give --{k} {before[k]} or more, or use a new --out folder)")
+    grown += check_grown_lists(out, before, options, sorted((k for k in diff if k in extendable and k not in grown),
+                                                           key=lambda k: ("filters", "smooth").index(k)
+                                                           if k in ("filters", "smooth") else 2))
     if set(diff) - set(grown):
         diff = sorted(set(diff) - set(grown))
         raise NespmError(f"{out}: holds results of a different experiment (differs in: {', '.join(diff)}); "
                          "use a new --out folder or the same options to resume")
     return old
+
+
+def _entries(value) -> list[str]:
+    return [json.dumps(v, sort_keys=True) for v in (value or [])]
+
+
+def check_grown_lists(out: Path, before: dict, options: dict, keys: list[str]) -> list[str]:
+    """The list options of ``keys`` that only grew (every old entry kept: ``filters``, ``smooth``, and
+    ``filter_options`` of filters the folder did not hold); one line for one that lost an entry."""
+    grown = []
+    old_filters = set(before.get("filters") or [])
+    for k in keys:
+        b, a = before.get(k), options.get(k)
+        if not all(v is None or isinstance(v, list) for v in (b, a)):
+            continue  # not a list option: a plain difference
+        lost = [e for e in _entries(b) if e not in _entries(a)]
+        if k == "filter_options":
+            added = [json.loads(e) for e in _entries(a) if e not in _entries(b)]
+            touched = sorted({e[0] for e in added if e[0] in old_filters} | {json.loads(e)[0] for e in lost})
+            if touched:
+                raise NespmError(f"{out}: holds results of filter {touched[0]} made with other --filter-option "
+                                 "values; use a new --out folder (or the same values to resume)")
+        elif lost:
+            gone = ", ".join(json.loads(e) if isinstance(json.loads(e), str) else e for e in lost)
+            raise NespmError(f"{out}: holds --{k.replace('_', '-')} {gone}; give it too (a study may grow, not "
+                             "shrink), or use a new --out folder")
+        grown.append(k)
+    return grown
 
 
 def run_blocks(old: dict | None, runs: int) -> list[tuple[int, int]]:
@@ -267,6 +298,13 @@ def run_blocks(old: dict | None, runs: int) -> list[tuple[int, int]]:
 def chunk_firsts(blocks: Iterable[tuple[int, int]], chunk_size: int) -> list[tuple[int, int]]:
     """``(first, last)`` run ranges of every chunk of ``blocks`` (runs ``first .. last-1``)."""
     return [(f0, min(f0 + chunk_size, end)) for start, end in blocks for f0 in range(start, end, chunk_size)]
+
+
+#: the identity scheme of a new folder (manifest ``identity``): its chunks' digest leaves out the
+#: options that may grow (:data:`GROWABLE`), so a study takes more runs, filters and smoothed filters
+#: without touching a finished chunk; folders made before it grow in runs only
+IDENTITY = 2
+GROWABLE = ("runs", "filters", "smooth", "filter_options")
 
 
 @dataclass(frozen=True)
@@ -306,12 +344,17 @@ class ResultsFolder:
         if self.out.exists() and not self.out.is_dir():
             raise NespmError(f"--out {self.out}: exists and is not a folder")
         self.lock = FolderLock(self.out)
+        mf = self.out / "manifest.json"
+        if mf.exists() and has_results(self.out) and read_manifest(mf).get("identity") != IDENTITY:
+            # a folder made before studies could grow: its chunks' identity leaves out the runs only
+            self.extendable = tuple(k for k in self.extendable if k == "runs")
         self.old = check_existing(self.out, self.options, self.extendable)
         check_inputs(self.out, self.old, inputs or {})
         self.chunks.mkdir(parents=True, exist_ok=True)
         shutil.rmtree(self.chunks / PROGRESS_DIR, ignore_errors=True)  # a killed run's stale reports
         old = self.old or {}
-        self.manifest = {"command": self.argv, "options": self.options, **extra, "inputs": inputs or {},
+        identity = {"identity": IDENTITY} if set(self.extendable) - {"runs"} else {}
+        self.manifest = {"command": self.argv, "options": self.options, **identity, **extra, "inputs": inputs or {},
                          "versions": versions(), "git_commit": git_commit(),
                          "started": old.get("started", now()), "finished": None,
                          "chunk_seconds": old.get("chunk_seconds", {})}
