@@ -6,18 +6,25 @@ A ``TrajectoryN`` folder may hold, besides the GT and DVL files (:mod:`nespm_cli
   positive down) -> ``Track.channels["depth"] = (t (K,), z (K, 1))``;
 * ``FIX_trajectoryN.csv``: columns exactly :data:`FIX_COLUMNS` (``Time [s]``, ``Latitude [rad]``,
   ``Longitude [rad]``), optionally with :data:`FIX_ALT_COLUMN` (``Altitude [m]``, positive up: a 3-D fix)
-  -> ``Track.channels["fix"] = (t (K,), z (K, 2 or 3))`` as ``[lat, lon(, alt)]``.
+  -> ``Track.channels["fix"] = (t (K,), z (K, 2 or 3))`` as ``[lat, lon(, alt)]``;
+* ``DVLBEAMS_trajectoryN.csv``: columns exactly :data:`BEAM_COLUMNS` (``Time [s]``, ``Beam 1 [m/s]`` ..
+  ``Beam 4 [m/s]``, the Janus beam velocities of docs/sensors.md) -> ``Track.channels["dvl-beams"] =
+  (t (K,), z (K, 4))``; a NaN cell is a lost beam (any subset of a row may be NaN);
+* ``HEADING_trajectoryN.csv``: columns exactly :data:`HEADING_COLUMNS` (``Time [s]``, ``Heading [rad]``,
+  the yaw of C_bn) -> ``Track.channels["heading"] = (t (K,), z (K, 1))``.
 
 ``t`` is the file's time [s] (the GT clock, not shifted); a row of NaN values is "no measurement at this
-stamp" (NaN in some but not all values of a row is refused). A header-only file gives K = 0. Refused,
-each in one line naming the file and the 1-based data row (:func:`read_channel`): a missing or unknown
-column, non-numeric text, a non-finite time, a stamp not after the previous row's (unsorted or a
-duplicate stamp), a stamp outside the GT span by more than :data:`STAMP_TOL`, an infinite value,
-|lat| > pi/2, |lon| > pi, a depth outside [:data:`DEPTH_MIN`, :data:`DEPTH_MAX`] m, |alt| >
-:data:`MAX_ABS_FIX_ALT` m.
+stamp" (NaN in some but not all values of a row is refused, except in the beam file). A header-only file
+gives K = 0. Refused, each in one line naming the file and the 1-based data row (:func:`read_channel`): a
+missing or unknown column, a beam file with other than four beam columns, non-numeric text, a non-finite
+time, a stamp not after the previous row's (unsorted or a duplicate stamp), a stamp outside the GT span by
+more than :data:`STAMP_TOL`, an infinite value, |lat| > pi/2, |lon| > pi, a depth outside
+[:data:`DEPTH_MIN`, :data:`DEPTH_MAX`] m, |alt| > :data:`MAX_ABS_FIX_ALT` m, |beam| >
+:data:`MAX_ABS_BEAM` m/s, |heading| > 2 pi.
 """
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -30,44 +37,69 @@ TIME = "Time [s]"
 DEPTH_COLUMNS = (TIME, "Depth [m]")
 FIX_COLUMNS = (TIME, "Latitude [rad]", "Longitude [rad]")
 FIX_ALT_COLUMN = "Altitude [m]"
+BEAM_COLUMNS = (TIME, "Beam 1 [m/s]", "Beam 2 [m/s]", "Beam 3 [m/s]", "Beam 4 [m/s]")
+BEAM_COLUMN = re.compile(r"Beam \d+ \[m/s\]")  # what a beam column looks like (counted, then checked)
+HEADING_COLUMNS = (TIME, "Heading [rad]")
 #: channel name -> file kind (``{KIND}_trajectoryN.csv``), in the order the files are listed
-CHANNEL_KINDS = {"depth": "DEPTH", "fix": "FIX"}
+CHANNEL_KINDS = {"depth": "DEPTH", "fix": "FIX", "dvl-beams": "DVLBEAMS", "heading": "HEADING"}
 STAMP_TOL = 1e-6  # [s]; a stamp may lie this far outside the GT span [t_gt[0], t_gt[-1]]
 DEPTH_MIN = -10.0  # [m]; shallower (above the surface) is a sign convention (altitude up) or units mistake
 DEPTH_MAX = 12_000.0  # [m]; deeper than any ocean (~10,994 m): not metres
 MAX_ABS_FIX_ALT = 12_000.0  # [m]; a 3-D fix's |altitude| beyond this is a units mistake
+MAX_ABS_BEAM = 20.0  # [m/s]; the tracks' speed limit: a beam velocity beyond it is not m/s (cm/s, mm/s)
+MAX_ABS_HEADING = 2.0 * np.pi  # [rad]; beyond a turn the heading is in degrees
 
 
 def read_channel(name: str, path: Path, t_gt: np.ndarray, gt_name: str = "the GT file") -> tuple[np.ndarray, np.ndarray]:
-    """``(t (K,), z (K, m))`` of the ``name`` (``"depth"`` | ``"fix"``) file ``path``, checked against the
-    GT time ``t_gt`` (N,) [s] of the file ``gt_name``; raises :class:`NespmError` as the module says."""
+    """``(t (K,), z (K, m))`` of the ``name`` (a key of :data:`CHANNEL_KINDS`) file ``path``, checked against
+    the GT time ``t_gt`` (N,) [s] of the file ``gt_name``; raises :class:`NespmError` as the module says."""
     if name not in CHANNEL_KINDS:
         raise ValueError(f"unknown channel {name!r} (known: {', '.join(CHANNEL_KINDS)})")
     df = read_frame(path)
-    allowed = DEPTH_COLUMNS if name == "depth" else FIX_COLUMNS + (FIX_ALT_COLUMN,)
+    allowed = {"depth": DEPTH_COLUMNS, "fix": FIX_COLUMNS + (FIX_ALT_COLUMN,), "dvl-beams": BEAM_COLUMNS,
+               "heading": HEADING_COLUMNS}[name]
     for col in df.columns:
-        if col not in allowed:
+        if col not in allowed and not (name == "dvl-beams" and BEAM_COLUMN.fullmatch(col)):
             expected = ", ".join(f"'{c}'" for c in allowed)
             if name == "fix":
                 expected = ", ".join(f"'{c}'" for c in FIX_COLUMNS) + f" and optionally '{FIX_ALT_COLUMN}'"
             raise NespmError(f"{path}: unknown column '{printable(col, QUOTE_LIMIT)}' (the columns must be exactly "
                              f"{expected})")
-    columns = DEPTH_COLUMNS if name == "depth" else FIX_COLUMNS + ((FIX_ALT_COLUMN,) * (FIX_ALT_COLUMN in df.columns))
+    if name == "dvl-beams":
+        _check_beam_columns(path, [c for c in df.columns if c != TIME])
+    columns = allowed if name != "fix" else FIX_COLUMNS + ((FIX_ALT_COLUMN,) * (FIX_ALT_COLUMN in df.columns))
     require_columns(path, df, columns)
     table = to_array(path, df, columns, nan_ok=columns[1:])
     t, z = table[:, 0], table[:, 1:]
     check_stamps(path, t, t_gt, gt_name)
-    check_nan_rows(path, z, columns[1:], "no measurement at this stamp")
+    if name != "dvl-beams":  # a lost beam is a NaN cell of its own
+        check_nan_rows(path, z, columns[1:], "no measurement at this stamp")
     if name == "depth":
         _check_bounds(path, z[:, 0], columns[1], DEPTH_MIN, DEPTH_MAX,
                       lambda v: f"{v!r} is outside {DEPTH_MIN:g} .. {DEPTH_MAX:g} m (metres, positive down, expected)")
-    else:
+    elif name == "fix":
         _check_bounds(path, z[:, 0], columns[1], -np.pi / 2, np.pi / 2, lambda v: f"|{v!r}| > pi/2 (radians expected)")
         _check_bounds(path, z[:, 1], columns[2], -np.pi, np.pi, lambda v: f"|{v!r}| > pi (radians expected)")
         if z.shape[1] == 3:
             _check_bounds(path, z[:, 2], columns[3], -MAX_ABS_FIX_ALT, MAX_ABS_FIX_ALT,
                           lambda v: f"|{v!r}| > {MAX_ABS_FIX_ALT:g} m (metres, positive up, expected)")
+    elif name == "dvl-beams":
+        for j, col in enumerate(columns[1:]):
+            _check_bounds(path, z[:, j], col, -MAX_ABS_BEAM, MAX_ABS_BEAM,
+                          lambda v: f"|{v!r}| > {MAX_ABS_BEAM:g} m/s (metres per second expected)")
+    else:
+        _check_bounds(path, z[:, 0], columns[1], -MAX_ABS_HEADING, MAX_ABS_HEADING,
+                      lambda v: f"|{v!r}| > 2 pi (radians expected)")
     return t, z
+
+
+def _check_beam_columns(path: Path, beams: list[str]) -> None:
+    """Refuse a beam file whose beam columns (``beams``, the header less ``Time [s]``) are not the four
+    of :data:`BEAM_COLUMNS`, in one line naming the file and what it has."""
+    if sorted(beams) != sorted(BEAM_COLUMNS[1:]):
+        have = ", ".join(f"'{printable(c, QUOTE_LIMIT)}'" for c in beams) or "none"
+        raise NespmError(f"{path}: {len(beams)} beam column{'s' if len(beams) != 1 else ''} ({have}); a DVLBEAMS "
+                         f"file has exactly four, '{BEAM_COLUMNS[1]}' .. '{BEAM_COLUMNS[4]}' (docs/data-format.md)")
 
 
 def check_stamps(path: Path, t: np.ndarray, t_gt: np.ndarray, gt_name: str) -> None:
@@ -107,11 +139,15 @@ def channel_columns(name: str, m: int) -> tuple[str, ...]:
         return DEPTH_COLUMNS
     if name == "fix" and m in (2, 3):
         return FIX_COLUMNS + ((FIX_ALT_COLUMN,) if m == 3 else ())
+    if name == "dvl-beams" and m == 4:
+        return BEAM_COLUMNS
+    if name == "heading" and m == 1:
+        return HEADING_COLUMNS
     raise ValueError(f"channel {name!r} with {m} value column(s) has no file format")
 
 
 def write_channels(channels: dict, tdir: Path, number: int) -> list[Path]:
-    """Write the ``"depth"`` / ``"fix"`` entries of ``channels`` as ``tdir/{DEPTH,FIX}_trajectory{number}.csv``
+    """Write the entries of ``channels`` named in :data:`CHANNEL_KINDS` as ``tdir/{KIND}_trajectory{number}.csv``
     (full precision, NaN as ``nan``, atomically); other names are not written. Returns the files written."""
     out = []
     for name, kind in CHANNEL_KINDS.items():

@@ -11,7 +11,10 @@
   the part of the step by ``na_cycle`` with the step's clean IMU, exactly what a perfect filter
   computes over the split step;
 * **values**: the recorded ones (NaN: none), or :meth:`Sensor.synthesize` (``clean``: the
-  error-free values);
+  error-free values); then the components the sensor loses on its own set to NaN
+  (:meth:`Sensor.lose_components`, e.g. a DVL's lost beams) and a row kept where
+  :meth:`Sensor.present` says (default: every component finite; NaN components of a kept row
+  are masked by the sensor's ``Measurement``);
 * **availability** (:func:`nespm_cli.sensors.source.availability`): never at t = 0, not in an
   outage window, not where the sensor's own rule or a dropout says no.
 """
@@ -116,8 +119,6 @@ def build_channel(sensor: Sensor, track, truth: ImuTruth, seed: int, number: int
         index, frac = locate(truth, t)
         where = truth_at(truth, index, frac)
         values = np.broadcast_to(z, (len(runs),) + z.shape)
-        ok = np.broadcast_to(np.isfinite(z).all(axis=-1), (len(runs), len(t)))
-        values = np.where(ok[..., None], values, 0.0)
     else:
         t = schedule(sensor, truth, seed, number)
         index, frac = locate(truth, t)
@@ -127,7 +128,9 @@ def build_channel(sensor: Sensor, track, truth: ImuTruth, seed: int, number: int
             values = np.broadcast_to(v, (len(runs),) + v.shape)
         else:
             values = sensor.synthesize(where, seed, number, runs)
-        ok = np.ones((len(runs), len(t)), dtype=bool)
+    values = sensor.lose_components(values, t, seed, number, runs)
+    ok = np.asarray(sensor.present(values), dtype=bool)
+    values = np.where(ok[..., None], values, 0.0)  # NaN stays only in the components a Measurement masks
     ok = ok & availability(sensor, t, where, seed, number, runs)
     return Channel(sensor, index, t, values, ok, frac)
 

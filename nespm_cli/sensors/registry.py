@@ -1,4 +1,5 @@
-"""Registry of the sensors by name: the built-ins (``dvl``, ``depth``, ``fix``) and user plugins.
+"""Registry of the sensors by name: the built-ins (``dvl``, ``depth``, ``fix``, ``dvl-beams``, ``heading``)
+and user plugins.
 
 The same rules as the filters' (:class:`nespm_cli.plugins.Registry`): ``@register("name")`` on a
 :class:`~nespm_cli.sensors.source.Sensor` subclass; ``--sensor-plugin FILE`` or an importable
@@ -14,12 +15,14 @@ from typing import Callable
 from nespm_cli.plugins import Registry
 from nespm_cli.sensors.depth import Depth
 from nespm_cli.sensors.dvl import Dvl
+from nespm_cli.sensors.dvl_beams import DvlBeams
 from nespm_cli.sensors.fix import Fix
+from nespm_cli.sensors.heading import Heading
 from nespm_cli.sensors.source import Sensor
 
 ENTRY_POINT_GROUP = "nespm.sensors"
 SENSOR_REGISTRY = Registry("sensor", Sensor, ENTRY_POINT_GROUP, "--sensors")
-for _name, _cls in (("dvl", Dvl), ("depth", Depth), ("fix", Fix)):
+for _name, _cls in (("dvl", Dvl), ("depth", Depth), ("fix", Fix), ("dvl-beams", DvlBeams), ("heading", Heading)):
     SENSOR_REGISTRY.register(_name, _cls)
 
 

@@ -157,6 +157,17 @@ class Sensor:
         """A sensor's own availability rule (K,) bool (e.g. fixes only at the surface), or None."""
         return None
 
+    def lose_components(self, values: np.ndarray, t: np.ndarray, seed: int, track: int,
+                        runs: np.ndarray) -> np.ndarray:
+        """``values`` (R, K, m) with the components a sensor loses on its own set to NaN (e.g. a
+        DVL's lost beams); ``t`` (K,) [s since the first epoch]. Default: unchanged."""
+        return values
+
+    def present(self, values: np.ndarray) -> np.ndarray:
+        """(R, K) whether a row of ``values`` (R, K, m) is a measurement: every component finite
+        (a sensor whose ``Measurement`` masks NaN components itself says: any)."""
+        return np.isfinite(values).all(axis=-1)
+
     # --- common behaviour ----------------------------------------------------------------------
     def check(self, layout: StateLayout) -> None:
         """Refuse a layout that cannot see what this sensor measures (one line)."""
@@ -297,7 +308,8 @@ def check_options(name: str, opt: SensorOptions) -> None:
 
     if opt.source not in SOURCES:
         raise bad("source", f"choose {' or '.join(SOURCES)}")
-    if not (math.isfinite(opt.std) and opt.std > 0):
+    derived = opt.std is None and type(opt).__dataclass_fields__["std"].default is None  # a sensor's own default
+    if not derived and not (isinstance(opt.std, (int, float)) and math.isfinite(opt.std) and opt.std > 0):
         raise bad("std", "must be a positive std")
     if opt.r_std is not None and not (math.isfinite(opt.r_std) and opt.r_std > 0):
         raise bad("r_std", "must be a positive std")
