@@ -263,6 +263,11 @@ def test_nis_per_available_beam_is_not_distorted_by_masked_rows():
         masked = (rec.nu == 0.0) & np.all(rec.S == np.eye(4), axis=-1)
         dof = 4 - masked.sum(-1)
         nis = rec.nis()
+        # the metrics' per-run NIS is scaled the same way: 4 Σ NIS / Σ dof (experiments.metrics.sensor_nis)
+        from nespm_cli.experiments.metrics import sensor_nis
+        per_run = np.where(rec.used, nis, 0.0).sum(1) / np.where(rec.used, dof, 0).sum(1)
+        np.testing.assert_allclose(sensor_nis(out)["nis_dvl-beams"], 4 * per_run, rtol=1e-12)
+        np.testing.assert_array_equal(rec.dof(), np.where(rec.used, dof, 0))
         return float(nis[rec.used].sum() / dof[rec.used].sum()), float(np.nanmean(nis) / 4)
 
     full, _ = nis_per_dof(())

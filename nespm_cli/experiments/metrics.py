@@ -147,36 +147,45 @@ def block_statistics(out, v_true: np.ndarray, C_true: np.ndarray, pos_true: np.n
     return res
 
 
+def _nis_and_dof(rec) -> tuple[np.ndarray, np.ndarray, int]:
+    """``(nis, dof, m)``: each measurement's NIS and rows (R, K) (0 NIS where not applied), its size m."""
+    nis = rec.nis()
+    dof = rec.dof() if hasattr(rec, "dof") else np.where(np.isfinite(nis), rec.nu.shape[-1], 0)
+    return np.where(np.isfinite(nis), nis, 0.0), dof.astype(float), rec.nu.shape[-1]
+
+
 def epoch_nis(out, t_epochs: np.ndarray) -> dict[str, np.ndarray]:
     """``{nis_<sensor>: (R, N)}``: per run, the NIS of the sensor's measurements applied in the GT
-    interval ending at each epoch ``(t_{k-1}, t_k]`` (their mean if several; NaN where none was
-    applied). For a sensor at the GT epochs (the DVL, depth by default) that is its NIS at the epoch."""
+    interval ending at each epoch ``(t_{k-1}, t_k]`` (NaN where none was applied), scaled to the
+    sensor's full size m: ``m Σ NIS / Σ dof`` over them, dof the rows each had (a lost DVL beam is
+    one row fewer: :meth:`nespm_cli.filters.engine.SensorRecord.dof`), so its expectation is m.
+    For a sensor at the GT epochs (the DVL, depth by default) that is its NIS at the epoch."""
     res = {}
     t_epochs = np.asarray(t_epochs, dtype=float)
     for name, rec in getattr(out, "sensors", {}).items():
-        nis = rec.nis()  # (R, K)
+        nis, dof, m = _nis_and_dof(rec)  # (R, K)
         R, N = nis.shape[0], len(t_epochs)
         k = np.clip(np.searchsorted(t_epochs, np.asarray(rec.t, dtype=float) - 1e-9, side="left"), 0, N - 1)
-        ok = np.isfinite(nis)
-        rows, cols = np.broadcast_to(np.arange(R)[:, None], nis.shape), np.broadcast_to(k, nis.shape)
+        cols = np.broadcast_to(k, nis.shape)
+        rows = np.broadcast_to(np.arange(R)[:, None], nis.shape)
         total, count = np.zeros((R, N)), np.zeros((R, N))
-        np.add.at(total, (rows[ok], cols[ok]), nis[ok])  # scatter-add over runs and measurements at once
-        np.add.at(count, (rows[ok], cols[ok]), 1.0)
+        np.add.at(total, (rows, cols), nis)  # scatter-add over runs and measurements at once
+        np.add.at(count, (rows, cols), dof)
         with np.errstate(invalid="ignore", divide="ignore"):
-            res[f"nis_{name}"] = np.where(count > 0, total / count, np.nan)
+            res[f"nis_{name}"] = np.where(count > 0, m * total / count, np.nan)
     return res
 
 
 def sensor_nis(out) -> dict[str, np.ndarray]:
-    """``{nis_<sensor>: (R,) mean NIS over the measurements applied in each run}`` (NaN where none
-    was applied or the filter reports no innovation); its χ² expectation is the sensor's dimension."""
+    """``{nis_<sensor>: (R,)}``: per run, the NIS of the measurements applied, ``m Σ NIS / Σ dof`` (the
+    mean NIS when every measurement had its m rows; see :func:`epoch_nis`); NaN where none was
+    applied or the filter reports no innovation. Its χ² expectation is the sensor's dimension m."""
     res = {}
     for name, rec in getattr(out, "sensors", {}).items():
-        nis = rec.nis()
-        ok = np.isfinite(nis)
-        count = ok.sum(axis=1)
+        nis, dof, m = _nis_and_dof(rec)
+        total, count = nis.sum(axis=1), dof.sum(axis=1)
         with np.errstate(all="ignore"):
-            res[f"nis_{name}"] = np.where(count > 0, np.where(ok, nis, 0.0).sum(axis=1) / np.maximum(count, 1), np.nan)
+            res[f"nis_{name}"] = np.where(count > 0, m * total / np.maximum(count, 1), np.nan)
     return res
 
 

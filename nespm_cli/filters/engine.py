@@ -66,6 +66,15 @@ class SensorRecord:
     nu: np.ndarray
     S: np.ndarray
 
+    def dof(self) -> np.ndarray:
+        """(R, K) the rows each applied measurement had: m less its masked rows (a sensor's missing
+        component, e.g. a lost DVL beam, enters as a row with zero innovation and a unit, uncoupled
+        S: it adds 0 to the NIS); 0 where not applied."""
+        m = self.nu.shape[-1]
+        eye = np.eye(m, dtype=bool)
+        masked = (self.nu == 0.0) & np.all(np.where(eye, self.S == 1.0, self.S == 0.0), axis=-1)
+        return np.where(np.isfinite(self.nis()), m - masked.sum(axis=-1), 0)
+
     def nis(self) -> np.ndarray:
         """(R, K) normalised innovation squared ``νᵀ S⁻¹ ν`` (NaN where not applied)."""
         with np.errstate(all="ignore"):
