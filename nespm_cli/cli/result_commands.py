@@ -24,6 +24,22 @@ def report(
     typer.echo(f"wrote {path}")
 
 
+def compare(
+    folders: List[Path] = typer.Argument(..., help="Two or more 'nespm mc' folders on the same realizations (same seed, tracks, runs, corruption, data): the cases."),
+    out: Path = typer.Option(Path("results/compare"), "--out", help="Folder for compare.md and figures/compare.png."),
+    labels: Optional[str] = typer.Option(None, "--labels", help="Comma list of case names, one per folder (default: the folder names)."),
+    reference: Optional[str] = typer.Option(None, "--reference", help="The case the others are compared with (default: the first)."),
+    n_boot: int = typer.Option(2000, "--n-boot", help="Paired bootstrap resamples for the 95 % intervals."),
+) -> None:
+    """Compare cases (sensor suites, tunings) run on the same realizations: one table per case and filter, paired improvements over the reference case."""
+    from nespm_cli.reports.cases_report import write_compare_report
+
+    names = [x.strip() for x in labels.split(",")] if labels else None
+    path = write_compare_report(folders, out, names, reference, n_boot=n_boot)
+    typer.echo(path.read_text(encoding="utf-8"))
+    typer.echo(f"wrote {path}")
+
+
 def export(
     folder: Path = typer.Argument(..., help="A finished 'nespm mc' or 'nespm sweep' folder."),
     fmt: str = typer.Option("csv", "--format", help="csv (one file per table) or mat (one MATLAB .mat, a struct per table)."),
