@@ -1,4 +1,5 @@
-"""Tests of nespm_cli.reports.mc: eq 50-51 tables, improvement, paired bootstrap, report.md, figures."""
+"""Tests of the Monte Carlo report (nespm_cli.reports.mc and the modules it re-exports): eq 50-51 tables,
+improvement, paired bootstrap, the verdict-first report.md, figures."""
 from __future__ import annotations
 
 import json
@@ -281,10 +282,12 @@ def test_write_report(tmp_path: Path) -> None:
         assert f"| {f}" in text
     assert "0.1172" in text and "0.0922" in text  # anukf.md Table I beside ours
     assert "ukf-nespm.md Table I" in text and "0.08" in text  # anukf in the NESPM paper too
-    assert "anukf Imprv." in text and "95 % CI" in text and "eq 50" in text
+    assert "anukf Imprv." in text and "95 % CI" in text and "eq 51" in text
     assert "/data/snapir" in text and "12.5 s" in text and "runs per track 20" in text
+    assert text.index("## Verdict") < text.index("## Caveats") < text.index("## Track-averaged")
+    assert "[docs/report.md](" in text and "## Definitions" not in text  # the definitions live in docs/report.md
     pngs = sorted((tmp_path / "figures").glob("*.png"))
-    assert len(pngs) == 3 * len(TRACKS)
+    assert len(pngs) == 3 * len(TRACKS)  # vel, att, path: the epochs have neither HPE nor ANEES nor axes
     for p in pngs:
         assert p.stat().st_size > 5_000
         assert f"(figures/{p.name})" in text
@@ -416,15 +419,22 @@ def add_hpe(m: pd.DataFrame, factor: float = 10.0) -> pd.DataFrame:
     return m
 
 
-def summary_of(text: str) -> str:
-    return text.split("## Summary")[1].split("## Definitions")[0]
+def section(text: str, name: str) -> str:
+    """The body of the report section ``## name`` (up to the next section)."""
+    return text.split(f"## {name}\n")[1].split("\n## ")[0].strip()
+
+
+def verdict_row(text: str, metric: str) -> list[str]:
+    """The cells of the verdict table's row of ``metric`` (e.g. ``velocity RMSE``)."""
+    line = next(ln for ln in section(text, "Verdict").splitlines() if ln.startswith(f"| {metric} "))
+    return [c.strip() for c in line.strip().strip("|").split("|")]
 
 
 def test_summary_clear_winner_beyond_threshold(tmp_path: Path) -> None:
     m = add_hpe(noisy_metrics(20, {"ukf": 0.12, "anekf": 0.11, "anukf": 0.09}, noise=0.002))
     comps = compare_filters(m, n_boot=400)
-    assert set(comps["metric"]) == {"vrmse", "mrmse", "hpe"}
-    for key in ("vrmse", "mrmse", "hpe"):
+    assert set(comps["metric"]) == {"vrmse", "mrmse", "hpe_final", "hpe"}
+    for key in ("vrmse", "mrmse", "hpe_final", "hpe"):
         c = comps[comps["metric"] == key].set_index("other")
         assert (c["best"] == "anukf").all() and set(c.index) == {"ukf", "anekf"}
         assert (c["verdict"] == "better").all() and c["significant"].all() and c["practical"].all()
@@ -433,16 +443,20 @@ def test_summary_clear_winner_beyond_threshold(tmp_path: Path) -> None:
             assert c.loc[other, "ci_lo"] < c.loc[other, "imprv"] < c.loc[other, "ci_hi"]
     m.to_parquet(tmp_path / "metrics.parquet")
     text = write_report(tmp_path, n_boot=400).read_text()
-    assert text.index("## Summary") < text.index("## Definitions") < text.index("## Track-averaged")
-    summ = summary_of(text)
-    vr = next(ln for ln in summ.splitlines() if ln.startswith("- **VRMSE**"))
-    assert "`anukf` is best (meaningfully better than every other filter)" in vr
-    assert "`anukf` vs `ukf`:" in vr and "`anukf` vs `anekf`:" in vr
-    assert "statistically (interval excludes 0) and practically (≥ 1 %) meaningful" in vr
-    assert "no practical difference" not in vr
-    assert "- **Horizontal position error (RMS over the epochs)**" in summ
-    assert "% of distance" in summ
-    assert "Warning" not in summ
+    assert text.index("## Verdict") < text.index("## Caveats") < text.index("## Track-averaged")
+    vr = verdict_row(text, "velocity RMSE")
+    # the reference (anukf, the last filter) is the best: compared with its closest competitor, anekf
+    assert vr[1].startswith("`anukf` ") and vr[2] == "`anekf` (runner-up; the best is the reference)"
+    r = comps[(comps["metric"] == "vrmse") & (comps["other"] == "anekf")].iloc[0]
+    assert vr[3] == fmt_imprv(r["imprv"], r["ci_lo"], r["ci_hi"], "*")  # compare_filters' numbers
+    assert vr[4:7] == ["yes", "yes", "40 (≥ 20 per track)"]
+    assert vr[7] == "`anukf` is best (meaningfully better than every other filter)"
+    pw = section(text, "Pairwise comparisons")
+    row = next(ln for ln in pw.splitlines() if ln.startswith("| VRMSE |"))
+    assert "vs `ukf`" in row and "vs `anekf`" in row and "meaningful" in row and "no practical difference" not in row
+    assert verdict_row(text, "horizontal position error, RMS")[1].startswith("`anukf` ")
+    assert verdict_row(text, "horizontal position error, final")[1].startswith("`anukf` ")
+    assert section(text, "Caveats").startswith("None")  # no loss, enough runs: nothing to warn about
 
 
 def test_summary_significant_but_below_practical_threshold(tmp_path: Path) -> None:
@@ -461,16 +475,15 @@ def test_summary_significant_but_below_practical_threshold(tmp_path: Path) -> No
     assert r["imprv"] == pytest.approx(0.2, abs=0.02)
     assert r["significant"] and not r["practical"] and r["verdict"] == "no practical difference"
     m.to_parquet(tmp_path / "metrics.parquet")
-    summ = summary_of(write_report(tmp_path, n_boot=400).read_text())
-    vr = next(ln for ln in summ.splitlines() if ln.startswith("- **VRMSE**"))
-    assert "no practical difference between the filters" in vr
-    assert "statistically significant, but below the 1 % practical threshold: **no practical difference**" in vr
-    assert "] *" in vr  # the interval itself is starred: statistically significant
-    assert f"`practical_pct` = {PRACTICAL_PCT:g}" in summ
+    text = write_report(tmp_path, n_boot=400).read_text()
+    vr = verdict_row(text, "velocity RMSE")
+    assert vr[7] == "no practical difference between the filters"
+    assert vr[3].endswith("] *") and vr[4] == "yes" and vr[5] == "no"  # significant, below the threshold
+    assert f"practical threshold {PRACTICAL_PCT:g} %" in section(text, "Verdict")
     # the keyword reaches the words: with 0.1 % the same 0.2 % is practically meaningful too
-    summ2 = summary_of(write_report(tmp_path, n_boot=400, practical_pct=0.1).read_text())
-    vr2 = next(ln for ln in summ2.splitlines() if ln.startswith("- **VRMSE**"))
-    assert "`ukf` is best" in vr2 and "practically (≥ 0.1 %) meaningful" in vr2
+    text2 = write_report(tmp_path, n_boot=400, practical_pct=0.1).read_text()
+    vr2 = verdict_row(text2, "velocity RMSE")
+    assert "`ukf` is best" in vr2[7] and vr2[5] == "yes" and "practically (≥ 0.1 %)" in section(text2, "Verdict")
     assert compare_filters(m, n_boot=100, practical_pct=0.1).set_index("metric").loc["vrmse", "verdict"] == "better"
     with pytest.raises(NespmError, match="--practical"):
         write_report(tmp_path, n_boot=10, practical_pct=-1)
@@ -494,19 +507,20 @@ def test_summary_small_sample_warning_and_no_star(tmp_path: Path) -> None:
     assert t.loc["ekf", "pairs_min"] == 4
     m.to_parquet(tmp_path / "metrics.parquet")
     text = write_report(tmp_path, n_boot=300).read_text()
-    summ = summary_of(text)
-    assert "**Warning — small sample**" in summ and "(track 5: 4, track 6: 4)" in summ
-    assert f"fewer than {MIN_PAIRED_RUNS} runs kept by both" in summ and "35 distinct resamples" in summ  # C(7, 4)
-    assert "not assessed (too few paired runs)" in summ
+    cav = section(text, "Caveats")
+    assert "(track 5: 4, track 6: 4)" in cav
+    assert f"fewer than {MIN_PAIRED_RUNS} runs kept by both" in cav and "35 distinct resamples" in cav  # C(7, 4)
+    assert text.count("distinct resamples") == 1  # said once, not per comparison
+    vr = verdict_row(text, "velocity RMSE")
+    assert vr[7] == "not assessed (too few paired runs)" and vr[4] == "not assessed †" and vr[3].endswith("†")
     main = text.split("## Track-averaged results")[1].split("## Per-track")[0]
     ekf_row = next(ln for ln in main.splitlines() if ln.startswith("| ekf "))
     assert "†" in ekf_row and "*" not in ekf_row
-    assert f"fewer than {MIN_PAIRED_RUNS} paired runs" in text.split("## Definitions")[1]
-    # 10 runs per track: trusted, starred, no warning
+    # 10 runs per track: trusted, starred, no caveat
     m10 = noisy_metrics(10, {"ekf": 0.15, "ukf": 0.10}, noise=0.002)
     m10.to_parquet(tmp_path / "metrics.parquet")
     text10 = write_report(tmp_path, n_boot=300).read_text()
-    assert "Warning" not in summary_of(text10)
+    assert "distinct resamples" not in text10
     ekf10 = next(ln for ln in text10.split("## Track-averaged results")[1].splitlines() if ln.startswith("| ekf "))
     assert "*" in ekf10 and "†" not in ekf10
 
@@ -534,11 +548,21 @@ def test_summary_best_uses_pairs_when_runs_diverge() -> None:
 
 
 def test_definitions_match_the_code(tmp_path: Path) -> None:
+    """The definitions moved to docs/report.md; the report links to it, relative to the folder."""
+    from nespm_cli.reports.markdown import REPORT_DOCS
+
     noisy_metrics(12, {"ukf": 0.12, "anukf": 0.09}).to_parquet(tmp_path / "metrics.parquet")
-    defs = write_report(tmp_path, n_boot=50).read_text().split("## Definitions")[1].split("## Track-averaged")[0]
-    assert "uses every non-diverged run" not in defs
-    assert "Every improvement, its\n  point and its interval" in defs
-    assert "diverged in neither filter of the pair" in defs
+    text = write_report(tmp_path, n_boot=50).read_text()
+    link = text.split("[docs/report.md](")[1].split(")")[0]
+    assert (tmp_path / link).resolve() == REPORT_DOCS.resolve()
+    defs = REPORT_DOCS.read_text()
+    flat = " ".join(defs.split())
+    assert "Every improvement, its point and its interval, is computed over the runs that neither filter" in flat
+    assert f"than {MIN_PAIRED_RUNS} paired runs on some track" in flat
+    assert "an inconsistent run keeps its errors in every average" in flat
+    for col in ("Best filter", "compared with", "Improvement [95 % CI]", "statistically (excludes 0)",
+                "practically (≥ p %)", "pairs", "verdict", "Common survivors", "RTS smoother floor"):
+        assert f"| {col}" in defs, col
 
 
 # ----------------------------------------------------------------------------- formatting
@@ -585,10 +609,9 @@ def test_nees_band_words(tmp_path: Path) -> None:
     main = text.split("## Track-averaged results")[1].split("## Per-track")[0]
     ukf_row = next(ln for ln in main.splitlines() if ln.startswith("| ukf "))
     assert f"| 12.00 | {band} | overconfident |" in ukf_row
-    summ = summary_of(text)
-    assert f"`ekf` 6.10 vs {band} (40 runs): consistent" in summ
-    assert f"`ukf` 12.00 vs {band} (40 runs): overconfident (NEES above band" in summ
-    assert "`ukf-nespm` 2.00 vs" in summ and "conservative (NEES below band" in summ
+    an = verdict_row(text, "ANEES (6 dof)")  # the filter closest to 6, beside the reference
+    assert an[1] == "`ekf` 6.10" and an[2] == "`ukf-nespm` (reference) 2.00: conservative"
+    assert an[3] == f"band {band}" and an[6] == "40" and an[7] == "closest to 6: consistent"
     per_track = text.split("## Per-track results")[1].split("## Horizontal")[0]
     lo20, hi20 = nees_band(6, 20)
     assert f"[{lo20:.2f}, {hi20:.2f}]" in per_track
@@ -640,7 +663,9 @@ def test_report_horizontal_section_and_figure(tmp_path: Path) -> None:
     for tr in TRACKS:
         png = tmp_path / "figures" / f"hpe_track{tr}.png"
         assert png.stat().st_size > 5_000 and f"(figures/hpe_track{tr}.png)" in text
-    assert len(list((tmp_path / "figures").glob("*.png"))) == 4 * len(TRACKS)
+    for tr in TRACKS:  # the lead figure: horizontal error against the distance travelled
+        assert f"(figures/hpe_distance_track{tr}.png)" in text
+    assert len(list((tmp_path / "figures").glob("*.png"))) == 5 * len(TRACKS)
     # an older folder: no HPE metrics columns, no hpe_mean in epochs -> a note, no HPE figure, no error
     old = tmp_path / "old"
     old.mkdir()
@@ -648,7 +673,7 @@ def test_report_horizontal_section_and_figure(tmp_path: Path) -> None:
     make_epochs(TRACKS, filters).to_parquet(old / "epochs.parquet")
     text_old = write_report(old, n_boot=20).read_text()
     assert "No horizontal-position columns" in text_old
-    assert "Horizontal position error (RMS" not in summary_of(text_old)
+    assert "horizontal position error" not in section(text_old, "Verdict")
     assert not list((old / "figures").glob("hpe_*.png"))
     assert len(list((old / "figures").glob("*.png"))) == 3 * len(TRACKS)
 

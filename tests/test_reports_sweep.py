@@ -174,6 +174,11 @@ def test_paired_interval_uses_the_same_resample() -> None:
         assert r["vrmse_ci_hi"] == pytest.approx(10.0, abs=1e-9)
 
 
+def section(text: str, name: str) -> str:
+    """The body of the report section whose heading starts with ``## name`` (up to the next section)."""
+    return text.split(f"## {name}")[1].split("\n## ")[0]
+
+
 def test_filter_identical_to_baseline_interval_contains_zero_no_star(tmp_path: Path) -> None:
     m = make_sweep(copy_of={"ukf-nespm": "ekf"})
     imp = improvement_table(m, n_boot=300)
@@ -184,8 +189,8 @@ def test_filter_identical_to_baseline_interval_contains_zero_no_star(tmp_path: P
         assert not same[f"{key}_ci_excludes_0"].any()
     write_folder(tmp_path, m)
     text = write_sweep_report(tmp_path, n_boot=300).read_text()
-    section = text.split("## Improvement over")[1]
-    rows = [ln for ln in section.splitlines() if ln.startswith("| ") and not ln.startswith(("| initial", "| ---"))]
+    imp_md = section(text, "Improvement over")
+    rows = [ln for ln in imp_md.splitlines() if ln.startswith("| ") and not ln.startswith(("| initial", "| ---"))]
     assert len(rows) == 2 * len(VALUES)
     for ln in rows:  # columns: value | ukf | ukf-nespm
         cells = [c.strip() for c in ln.strip("|").split("|")]
@@ -291,12 +296,17 @@ def test_write_sweep_report(tmp_path: Path) -> None:
     assert "initial misalignment std per axis [deg]" in text
     assert "| initial misalignment std per axis [deg] | ekf | ukf | ukf-nespm |" in text
     assert "| initial misalignment std per axis [deg] | ukf | ukf-nespm |" in text
-    summary, tables = text.split("## Summary")[1].split("## Definitions")
+    assert text.index("## Verdict") < text.index("## Caveats") < text.index("## Track-averaged VRMSE")
+    assert "## Definitions" not in text and "docs/report.md" in text
+    verdict, pairwise = section(text, "Verdict"), section(text, "Pairwise comparisons")
+    tables = text.split("## Track-averaged VRMSE")[1].split("## Pairwise comparisons")[0]
     for v in ("0.01", "1", "30"):
-        # VRMSE, MRMSE, NEES, divergence, 2 improvement tables; the summary: VRMSE, MRMSE
+        # VRMSE, MRMSE, NEES, divergence, 2 improvement tables; the verdict: velocity and attitude RMSE,
+        # ANEES; the pairwise comparisons: VRMSE, MRMSE
         assert sum(ln.startswith(f"| {v} |") for ln in tables.splitlines()) == 6
+        assert sum(ln.startswith(f"| {v} |") for ln in verdict.splitlines()) == 3
         assert sum(ln.startswith(f"| {v} | VRMSE |") or ln.startswith(f"| {v} | MRMSE |")
-                   for ln in summary.splitlines()) == 2
+                   for ln in pairwise.splitlines()) == 2
     r = row(sweep_table(m, n_boot=0), 1.0, "ukf")
     assert f"{r['vrmse']:.4g} [" in text
     for s in ("seed 7", "data dir /data/snapir", "wall time 123.4 s", "tracks 5, 6",
@@ -361,11 +371,12 @@ def divergent_sweep() -> pd.DataFrame:
 
 def test_improvement_table_and_figure_show_the_same_numbers(tmp_path: Path, monkeypatch) -> None:
     from nespm_cli.reports import sweep as sr
+    from nespm_cli.reports import sweep_figures
 
     m = divergent_sweep()
     imp = improvement_table(m, n_boot=300)
     plotted: dict[str, dict[str, tuple[np.ndarray, np.ndarray]]] = {}
-    original = sr.save_figure
+    original = sweep_figures.save_figure
 
     def capture(fig, path, *a, **k):
         if Path(path).stem == "sweep_improvement":
@@ -375,12 +386,12 @@ def test_improvement_table_and_figure_show_the_same_numbers(tmp_path: Path, monk
                                 for ln in ax.get_lines() if " vs " in str(ln.get_label())}
         return original(fig, path, *a, **k)
 
-    monkeypatch.setattr(sr, "save_figure", capture)
+    monkeypatch.setattr(sweep_figures, "save_figure", capture)  # where the figure is saved
     table = sweep_table(m, n_boot=0)
     sr.plot_sweep_figures(m, {}, table, imp, tmp_path / "figures")
     text = sr.render_sweep_report(m, {}, table, imp, [], tmp_path, 300, 0)
-    section = text.split("## Improvement over")[1]
-    tables = {"vrmse": section.split("**VRMSE**")[1].split("**MRMSE**")[0], "mrmse": section.split("**MRMSE**")[1]}
+    imp_md = section(text, "Improvement over")
+    tables = {"vrmse": imp_md.split("**VRMSE**")[1].split("**MRMSE**")[0], "mrmse": imp_md.split("**MRMSE**")[1]}
     for key in ("vrmse", "mrmse"):
         assert set(plotted[key]) == {"ukf", "ukf-nespm"}
         for col, f in enumerate(("ukf", "ukf-nespm"), start=1):
@@ -405,8 +416,7 @@ def test_sweep_summary_compares_filters_head_to_head(tmp_path: Path) -> None:
     m = divergent_sweep()
     write_folder(tmp_path, m, MANIFEST)
     text = write_sweep_report(tmp_path, n_boot=300).read_text()
-    assert text.index("## Summary") < text.index("## Definitions")
-    summ = text.split("## Summary")[1].split("## Definitions")[0]
+    summ = section(text, "Pairwise comparisons")
     line30 = next(ln for ln in summ.splitlines() if ln.startswith("| 30 | VRMSE |"))
     sub = m[m["value"] == 30.0].drop(columns=["param", "value"])
     c = report.compare_filters(sub, n_boot=300).set_index(["metric", "other"])
@@ -416,7 +426,15 @@ def test_sweep_summary_compares_filters_head_to_head(tmp_path: Path) -> None:
     assert r["imprv"] == pytest.approx(stats.paired_improvement(sub, "ukf", "ukf-nespm")["vrmse"], abs=1e-12)
     assert f"vs `ukf` {markdown.fmt_imprv(r['imprv'], r['ci_lo'], r['ci_hi'], '*' if r['significant'] else '')} meaningful" in line30
     assert "vs `ekf`" in line30 and "`ukf-nespm` is best" in line30
-    defs = text.split("## Definitions")[1]
+    # the verdict of value 30: the best against the baseline ekf, the same numbers as compare_filters
+    v30 = next(ln for ln in section(text, "Verdict").splitlines() if ln.startswith("| 30 | velocity RMSE"))
+    cells = [c.strip() for c in v30.strip().strip("|").split("|")]
+    e = c.loc[("vrmse", "ekf")]
+    assert cells[2].startswith("`ukf-nespm` ") and cells[3] == "`ekf` (baseline)"
+    assert cells[4] == markdown.fmt_imprv(e["imprv"], e["ci_lo"], e["ci_hi"], "*" if e["significant"] else "")
+    from nespm_cli.reports.markdown import REPORT_DOCS
+
+    defs = " ".join(REPORT_DOCS.read_text().split())
     assert "need not rank two filters alike" in defs and "improvement_points" in defs
 
 
@@ -428,10 +446,11 @@ def test_sweep_small_sample_not_starred(tmp_path: Path) -> None:
     assert nespm["vrmse_ci_excludes_0"].all() and not nespm["vrmse_significant"].any()
     write_folder(tmp_path, m)
     text = write_sweep_report(tmp_path, n_boot=200).read_text()
-    section = text.split("## Improvement over")[1]
-    rows = [ln for ln in section.splitlines() if ln.startswith(("| 1 |", "| 30 |"))]
+    rows = [ln for ln in section(text, "Improvement over").splitlines() if ln.startswith(("| 1 |", "| 30 |"))]
     assert rows and all("†" in ln and "*" not in ln for ln in rows)
-    summary = text.split("## Summary")[1].split("## Definitions")[0]
+    summary = section(text, "Pairwise comparisons")
     row30 = next(ln for ln in summary.splitlines() if ln.startswith("| 30 | VRMSE |"))
     assert "not assessed (too few paired runs)" in row30 and "† too few paired runs" in row30
     assert "*" not in row30
+    cav = section(text, "Caveats")  # said once, naming every value and track
+    assert text.count("distinct resamples") == 1 and "value 1, track 5: 5, track 6: 5" in cav

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from nespm_cli.data.atomic import write_text_atomic
-from nespm_cli.reports.figures import save_figure
+from nespm_cli.reports.figures import save_figure, use_agg
 from nespm_cli.reports.markdown import fmt, md_table
 
 DEG_H = 180.0 / math.pi * 3600.0  # rad/s -> deg/h
@@ -87,9 +87,7 @@ def track_section(r: dict, fig_names: list[str]) -> str:
 
 def plot_track(r: dict, out: Path) -> list[str]:
     """Figures of one track: rates over time with the windows marked, residuals, offset curves."""
-    import matplotlib
-
-    matplotlib.use("Agg")
+    use_agg()
     import matplotlib.pyplot as plt
 
     names = []

@@ -68,7 +68,7 @@ def write_report(out_dir: Path, reference: str | None = None, n_boot: int = 2000
 
     ``reference`` is the mc report's reference filter and the sweep report's baseline (it does
     not apply to a GP-UKF folder); ``practical_pct`` [%] (default :data:`PRACTICAL_PCT`) is the
-    smallest |improvement| the Summary calls practically meaningful. The bootstrap seed is 0.
+    smallest |improvement| the verdict calls practically meaningful. The bootstrap seed is 0.
     ``beside``: other Monte Carlo folders set beside an mc folder's numbers.
     """
     check_practical_pct(practical_pct)

@@ -21,7 +21,7 @@ import numpy as np
 import pandas as pd
 
 from nespm_cli.errors import NespmError
-from nespm_cli.reports.figures import save_figure
+from nespm_cli.reports.figures import mean_std_band, save_figure, use_agg
 from nespm_cli.reports.markdown import DASH, md_table
 from nespm_cli.data.atomic import write_text_atomic
 from nespm_cli.reports.results import read_parquet, read_results_folder, require_columns
@@ -262,10 +262,7 @@ def plot_cross_track(epochs: pd.DataFrame, path: Path) -> Path:
             continue
         e = np.hypot(d["err_X"], d["err_Y"])
         g = e.groupby(d["t"]).agg(["mean", "std"]).sort_index()
-        t = g.index.to_numpy(float)
-        a2.plot(t, g["mean"], color=COLORS[f], lw=1.4, label=LABELS[f])
-        a2.fill_between(t, np.clip(g["mean"] - g["std"], 0, None), g["mean"] + g["std"], color=COLORS[f],
-                        alpha=0.2, lw=0)
+        mean_std_band(a2, g.index, g["mean"], g["std"], COLORS[f], LABELS[f])
     a2.set_xlabel("time [s]")
     a2.set_ylabel("horizontal position error [m]")
     a2.set_title("Estimation: |(X̂ − X, Ŷ − Y)| of the posterior, mean ± 1 std across runs")
@@ -298,9 +295,8 @@ def plot_state_errors(epochs: pd.DataFrame, path: Path) -> Path:
 
 
 def plot_figures(epochs: pd.DataFrame, metrics: pd.DataFrame, fig_dir: Path) -> list[Path]:
-    import matplotlib
-
-    matplotlib.use("Agg")
+    """Write ``gp_helix.png``, ``gp_cross_track.png`` and ``gp_state_errors.png`` into ``fig_dir``."""
+    use_agg()
     fig_dir.mkdir(parents=True, exist_ok=True)
     run = _figure_run(epochs, metrics)
     return [plot_helix(epochs, run, fig_dir / "gp_helix.png"),

@@ -1,7 +1,10 @@
-"""Markdown of the reports: tables, number / percent / interval formatting, the run header line."""
+"""Markdown of the reports: tables, number / percent / interval formatting, the run header line,
+the link to the definitions (docs/report.md)."""
 from __future__ import annotations
 
 import math
+import os
+from pathlib import Path
 from typing import Any, Iterable, Sequence
 
 import numpy as np
@@ -129,3 +132,16 @@ def header_line(metrics: pd.DataFrame, manifest: dict) -> str:
         f"wall time {wall_text}",
     ]
     return "**Run:** " + "; ".join(parts) + "."
+
+
+#: the page that defines every column and figure of the reports
+REPORT_DOCS = Path(__file__).resolve().parents[2] / "docs" / "report.md"
+
+
+def docs_line(out_dir: Path) -> str:
+    """The one line linking a report in ``out_dir`` to docs/report.md (a relative link when the
+    nespm sources are on this machine, else the page's name)."""
+    if REPORT_DOCS.is_file():
+        rel = Path(os.path.relpath(REPORT_DOCS, Path(out_dir).resolve())).as_posix()
+        return f"Every column, figure and word of this report is defined in [docs/report.md]({rel})."
+    return "Every column, figure and word of this report is defined in docs/report.md of the nespm sources."

@@ -1,6 +1,6 @@
 """Reading a results folder (``docs/results-schema.md``): ``manifest.json``, ``metrics.parquet``,
-``epochs.parquet``; column checks; facts of the results (filters, scenario, runs per track);
-writing ``report.md`` atomically."""
+``epochs.parquet``; column checks; facts of the results (filters, RTS-smoother floors, scenario,
+runs per track, the sensors' measurement sizes)."""
 from __future__ import annotations
 
 import json
@@ -10,6 +10,7 @@ from typing import Any, Iterable
 import pandas as pd
 
 from nespm_cli.errors import NespmError
+from nespm_cli.filters.smoother import smoothed_of
 
 
 METRICS_COLUMNS: tuple[str, ...] = (
@@ -134,3 +135,44 @@ def scenario_of(metrics: pd.DataFrame, manifest: dict) -> str | None:
     return (manifest.get("options") or {}).get("scenario")
 
 
+def is_smoother(name: Any) -> bool:
+    """Whether ``name`` is an RTS-smoother floor (``<filter>-rts``, :mod:`nespm_cli.filters.smoother`):
+    a hindsight solution, shown beside the filters but never the best of a verdict or the reference."""
+    return smoothed_of(str(name)) is not None
+
+
+def smoother_label(name: str) -> str:
+    """A table's name cell: ``ekf-rts (RTS smoother floor)`` for a smoother floor, else ``name``."""
+    return f"{name} (RTS smoother floor)" if is_smoother(name) else name
+
+
+def causal_only(metrics: pd.DataFrame) -> pd.DataFrame:
+    """The rows of the causal filters (every filter but the RTS-smoother floors)."""
+    return metrics[~metrics["filter"].astype(str).map(is_smoother).to_numpy(bool)]
+
+
+def sensor_dims(manifest: dict, sensors: Iterable[str]) -> dict[str, int | None]:
+    """Measurement size m of each sensor (the dof of its NIS): from the sensor class registered under
+    its name with the options the manifest recorded (``sensors``, per cell; the first cell that holds
+    it), else with its default options; None for a sensor not registered here (a plugin not loaded)
+    or with conflicting sizes across cells."""
+    from nespm_cli.sensors.registry import get_sensor
+    from nespm_cli.sensors.source import options_of
+
+    cells = [c for c in (manifest.get("sensors") or {}).values() if isinstance(c, dict)]
+    out: dict[str, int | None] = {}
+    for name in sensors:
+        try:
+            cls = get_sensor(name)
+        except NespmError:
+            out[name] = None
+            continue
+        sizes = set()
+        for raw in [c[name] for c in cells if isinstance(c.get(name), dict)] or [{}]:
+            known = {k: v for k, v in raw.items() if k in cls.Options.__dataclass_fields__ and v is not None}
+            try:
+                sizes.add(int(cls(options_of(cls, known)).dim))
+            except (NespmError, TypeError, ValueError):
+                sizes.add(None)
+        out[name] = sizes.pop() if len(sizes) == 1 else None
+    return out

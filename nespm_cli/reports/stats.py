@@ -40,6 +40,14 @@ RMS_METRICS: dict[str, tuple[str, str, str]] = {
     "hpe": ("sse_hpe", "RMS horizontal position error", "m"),
 }
 
+# metrics averaged over a track's runs, then over tracks (the tables' final HPE); key -> (column, name, unit)
+MEAN_METRICS: dict[str, tuple[str, str, str]] = {
+    "hpe_final": ("hpe_final", "final horizontal position error", "m"),
+}
+
+#: every metric a paired comparison can use
+PAIRED_METRICS: dict[str, tuple[str, str, str]] = {**RMS_METRICS, **MEAN_METRICS}
+
 
 def rmse(sse: Any, n: Any, counts: np.ndarray | None = None) -> Any:
     """Eq 50 (and eq 52 with ``sse_att``): ``sqrt(sum(sse) / sum(n_samples))`` over a set of runs.
@@ -65,6 +73,31 @@ def track_average(per_track: Any) -> Any:
         return math.nan
     out = np.sqrt(np.mean(x**2, axis=0))
     return float(out) if out.ndim == 0 else out
+
+
+def track_value(runs: pd.DataFrame, key: str, counts: np.ndarray | None = None) -> Any:
+    """One track's value of metric ``key`` over ``runs`` (rows of one filter): eq 50 of its error
+    sums for an RMS metric (:data:`RMS_METRICS`), the mean over the runs for a mean metric
+    (:data:`MEAN_METRICS`). With ``counts`` (n_boot, n_runs): one value per resample."""
+    if key in MEAN_METRICS:
+        x = runs[MEAN_METRICS[key][0]].to_numpy(float)
+        if counts is None:
+            return float(np.mean(x)) if x.size else math.nan
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return (counts @ x) / counts.sum(axis=1)
+    return rmse(runs[RMS_METRICS[key][0]], runs["n_samples"], counts)
+
+
+def over_tracks(per_track: Any, key: str) -> Any:
+    """Metric ``key`` over tracks: eq 51 (:func:`track_average`) for an RMS metric, the plain mean
+    for a mean metric; ``per_track`` as in :func:`track_average`."""
+    if key in MEAN_METRICS:
+        x = np.asarray(per_track, dtype=float)
+        if not x.size:
+            return math.nan
+        out = np.mean(x, axis=0)
+        return float(out) if out.ndim == 0 else out
+    return track_average(per_track)
 
 
 def improvement(value: float | np.ndarray, ref: float | np.ndarray) -> float | np.ndarray:
@@ -111,11 +144,11 @@ def paired_runs(metrics: pd.DataFrame, track: Any, a: str, b: str) -> tuple[pd.D
 
 
 def metric_keys(metrics: pd.DataFrame, keys: Sequence[str] | None) -> list[str]:
-    """The RMS metric keys asked for (default VRMSE, MRMSE), checked against :data:`RMS_METRICS`."""
+    """The metric keys asked for (default VRMSE, MRMSE), checked against :data:`PAIRED_METRICS`."""
     keys = list(METRICS) if keys is None else list(keys)
-    unknown = [k for k in keys if k not in RMS_METRICS]
+    unknown = [k for k in keys if k not in PAIRED_METRICS]
     if unknown:
-        raise ValueError(f"unknown metric key(s) {unknown}; known: {list(RMS_METRICS)}")
+        raise ValueError(f"unknown metric key(s) {unknown}; known: {list(PAIRED_METRICS)}")
     return keys
 
 
@@ -141,7 +174,8 @@ def paired_bootstrap(
     both filters, then the improvement. The resamples of a track depend only on
     ``(seed, track)`` and the number of paired runs (not on ``keys``). Returns ``{"vrmse":
     (n_boot,), "mrmse": (n_boot,)}`` (or the ``keys`` asked for, e.g. ``"hpe"`` for the RMS
-    horizontal position error); all NaN if some shared track has no paired run.
+    horizontal position error, ``"hpe_final"`` for the mean final one, :func:`track_value`); all NaN
+    if some shared track has no paired run.
     """
     keys = metric_keys(metrics, keys)
     tracks = shared_tracks(metrics, row, ref)
@@ -155,10 +189,9 @@ def paired_bootstrap(
             return nan
         counts = resample_counts(len(A), n_boot, track_rng(seed, track))
         for key in keys:
-            sse_col = RMS_METRICS[key][0]
             for side, T in (("row", A), ("ref", B)):
-                ms[key][side].append(rmse(T[sse_col], T["n_samples"], counts))
-    return {key: improvement(track_average(ms[key]["row"]), track_average(ms[key]["ref"])) for key in keys}
+                ms[key][side].append(track_value(T, key, counts))
+    return {key: improvement(over_tracks(ms[key]["row"], key), over_tracks(ms[key]["ref"], key)) for key in keys}
 
 
 def paired_averages(
@@ -171,12 +204,11 @@ def paired_averages(
     pairs = [paired_runs(metrics, track, a, b) for track in tracks]
     out = {}
     for key in keys:
-        sse_col = RMS_METRICS[key][0]
         ms: dict[str, list[float]] = {"a": [], "b": []}
         for A, B in pairs:
             for side, T in (("a", A), ("b", B)):
-                ms[side].append(rmse(T[sse_col], T["n_samples"]))
-        out[key] = (track_average(ms["a"]), track_average(ms["b"])) if tracks else (math.nan, math.nan)
+                ms[side].append(track_value(T, key))
+        out[key] = (over_tracks(ms["a"], key), over_tracks(ms["b"], key)) if tracks else (math.nan, math.nan)
     return out
 
 

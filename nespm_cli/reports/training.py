@@ -5,14 +5,12 @@ from pathlib import Path
 
 import numpy as np
 
-from nespm_cli.reports.figures import save_figure
+from nespm_cli.reports.figures import save_figure, use_agg
 
 
 def plot_history(hists: dict, path, tests: dict | None = None) -> Path:
     """Loss curves (train and validation, log y) of every sensor, one panel each."""
-    import matplotlib
-
-    matplotlib.use("Agg")
+    use_agg()
     import matplotlib.pyplot as plt
 
     path = Path(path)

@@ -1,0 +1,182 @@
+"""The verdict of a comparison of filters: one row per metric (velocity RMSE, attitude RMSE, final and
+RMS horizontal position error when present, ANEES) with the best causal filter, its paired
+improvement over the reference and whether that is statistically and practically meaningful, over
+all the runs each pair kept and over the common survivors (the runs no filter lost).
+
+The error rows are rows of :func:`comparisons.compare_filters`: the best filter and the interval of
+its improvement over the reference (over the runner-up when the best is the reference) are the ones
+it computes. The common-survivor columns redo the same comparison on the runs no causal filter lost
+(:func:`stats.lost_by_any`); without a lost run they are the same numbers. RTS-smoother floors
+(``<filter>-rts``) are never the best or the reference: the lowest floor of a metric stands beside.
+The ANEES row names the filter whose mean NEES is closest to its expected value (6 dof) on a log
+scale; it has no interval. docs/report.md defines every column.
+"""
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from nespm_cli.reports.comparisons import OWN_COLUMN, compare_filters
+from nespm_cli.reports.results import causal_only, check_metrics, filters_in_order, is_smoother
+from nespm_cli.reports.stats import (
+    MIN_PAIRED_RUNS,
+    NEES_DOF,
+    PRACTICAL_PCT,
+    ci_marks,
+    lost_by_any,
+    paired_bootstrap,
+    paired_improvement,
+    paired_run_counts,
+    nees_check,
+    percentile_ci,
+)
+from nespm_cli.reports.tables import default_reference, filter_table
+
+__all__ = ["VERDICT_COLUMNS", "VERDICT_METRICS", "anees_row", "verdict_table"]
+
+#: metric key -> (name, unit) in the verdict's order; "anees" is the consistency row
+VERDICT_METRICS: dict[str, tuple[str, str]] = {
+    "vrmse": ("velocity RMSE", "m/s"),
+    "mrmse": ("attitude RMSE", "rad"),
+    "hpe_final": ("horizontal position error, final", "m"),
+    "hpe": ("horizontal position error, RMS", "m"),
+    "anees": ("ANEES", "6 dof"),
+}
+
+#: the columns of :func:`verdict_table`; ``s_``: the same over the common survivors
+VERDICT_COLUMNS = (
+    "metric", "best", "best_value", "other", "other_value", "other_is_reference", "imprv", "ci_lo", "ci_hi",
+    "excludes_0", "significant", "practical", "pairs_min", "pairs", "verdict", "s_best_value", "s_other_value",
+    "s_imprv", "s_ci_lo", "s_ci_hi", "s_excludes_0", "s_significant", "s_practical", "s_pairs_min", "s_pairs",
+    "floor", "floor_value",
+)
+
+
+def _paired(metrics: pd.DataFrame, other: str, best: str, key: str, n_boot: int, seed: int,
+            practical_pct: float, min_pairs: int) -> dict[str, Any]:
+    """The improvement of ``best`` over ``other`` on ``metrics`` with its paired interval and flags."""
+    imp = paired_improvement(metrics, other, best, [key])[key]
+    lo, hi = percentile_ci(paired_bootstrap(metrics, other, best, n_boot=n_boot, seed=seed, keys=[key])[key])
+    counts = paired_run_counts(metrics, other, best)
+    pairs_min = min(counts.values()) if counts else 0
+    excludes, significant, _ = ci_marks(lo, hi, pairs_min, min_pairs)
+    return {"imprv": imp, "ci_lo": lo, "ci_hi": hi, "excludes_0": excludes, "significant": significant,
+            "practical": bool(np.isfinite(imp) and abs(imp) >= practical_pct), "pairs_min": pairs_min,
+            "pairs": int(sum(counts.values()))}
+
+
+def _floor(own: pd.DataFrame, column: str) -> tuple[str | None, float]:
+    """The RTS-smoother floor with the smallest finite ``column`` of :func:`filter_table` ``own``."""
+    rows = own[own["filter"].map(is_smoother) & np.isfinite(own[column].to_numpy(float))]
+    if rows.empty:
+        return None, math.nan
+    r = rows.loc[rows[column].idxmin()]
+    return str(r["filter"]), float(r[column])
+
+
+def _error_row(key: str, c: pd.DataFrame, causal: pd.DataFrame, survivors: pd.DataFrame | None, ref: str,
+               own: pd.DataFrame, n_boot: int, seed: int, practical_pct: float, min_pairs: int) -> dict[str, Any]:
+    """One error metric's verdict from its :func:`compare_filters` rows ``c``."""
+    row: dict[str, Any] = dict.fromkeys(VERDICT_COLUMNS, math.nan)
+    row.update(metric=key, other=None, other_is_reference=False, excludes_0=False, significant=False,
+               practical=False, pairs_min=0, pairs=0, s_excludes_0=False, s_significant=False,
+               s_practical=False, s_pairs_min=0, s_pairs=0)
+    row["floor"], row["floor_value"] = _floor(own, OWN_COLUMN[key])
+    first = c.iloc[0]
+    row.update(best=first["best"], best_value=first["best_value"], verdict=first["verdict"])
+    row["s_best_value"] = first["best_value"]  # the tables' own values are over the common survivors
+    if first["best"] is None or first["other"] is None:
+        return row
+    best = first["best"]
+    if ref != best and ref in set(c["other"]):
+        other = ref
+    else:  # the best is the reference: its closest competitor
+        finite = c[np.isfinite(c["imprv"].to_numpy(float))]
+        other = finite.loc[finite["imprv"].idxmin(), "other"] if len(finite) else c["other"].iloc[0]
+    r = c[c["other"] == other].iloc[0]
+    own_value = own[~own["filter"].map(is_smoother)].set_index("filter")[OWN_COLUMN[key]]
+    row.update(other=other, other_is_reference=other == ref, other_value=float(own_value[other]),
+               s_other_value=float(own_value[other]), verdict=r["verdict"])
+    pairs = paired_run_counts(causal, other, best)
+    row.update({k: r[k] for k in ("imprv", "ci_lo", "ci_hi", "excludes_0", "significant", "practical",
+                                  "pairs_min")}, pairs=int(sum(pairs.values())))
+    surv = (_paired(survivors, other, best, key, n_boot, seed, practical_pct, min_pairs) if survivors is not None
+            else {k: row[k] for k in ("imprv", "ci_lo", "ci_hi", "excludes_0", "significant", "practical",
+                                      "pairs_min", "pairs")})
+    row.update({f"s_{k}": v for k, v in surv.items()})
+    return row
+
+
+def anees_row(causal: pd.DataFrame, survivors: pd.DataFrame, ref: str) -> dict[str, Any]:
+    """The consistency row: the causal filter whose mean NEES over its own kept runs is closest to
+    :data:`stats.NEES_DOF` on a log scale (``|ln(NEES / 6)|``), the reference beside it (the runner-up
+    when the best is the reference); ``pairs`` / ``s_pairs``: the runs averaged; no interval."""
+    row: dict[str, Any] = dict.fromkeys(VERDICT_COLUMNS, math.nan)
+    row.update(metric="anees", best=None, other=None, other_is_reference=False, excludes_0=False,
+               significant=False, practical=False, pairs_min=0, pairs=0, s_excludes_0=False,
+               s_significant=False, s_practical=False, s_pairs_min=0, s_pairs=0, floor=None, verdict="undefined")
+    kept = causal[~causal["diverged"].astype(bool)]
+    all_runs = kept.groupby("filter", sort=False)["nees"].agg(["mean", "count"])
+    surv = survivors.groupby("filter", sort=False)["nees"].agg(["mean", "count"])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        dist = np.abs(np.log(all_runs["mean"] / NEES_DOF)).replace([np.inf], np.nan).dropna()
+    if dist.empty:
+        return row
+    order = [f for f in filters_in_order(causal) if f in dist.index]
+    ranked = sorted(order, key=lambda f: (dist[f], order.index(f)))
+    best = ranked[0]
+    other = ref if ref != best and ref in all_runs.index else (ranked[1] if len(ranked) > 1 else None)
+
+    def value(table: pd.DataFrame, f: str | None, col: str = "mean") -> float:
+        return float(table.loc[f, col]) if f is not None and f in table.index else math.nan
+
+    row.update(best=best, other=other, other_is_reference=other == ref,
+               verdict=nees_check(value(all_runs, best), int(value(all_runs, best, "count")))[2],
+               best_value=value(all_runs, best), other_value=value(all_runs, other),
+               s_best_value=value(surv, best), s_other_value=value(surv, other),
+               pairs=int(value(all_runs, best, "count")), pairs_min=int(value(all_runs, best, "count")),
+               s_pairs=int(np.nan_to_num(value(surv, best, "count"))),
+               s_pairs_min=int(np.nan_to_num(value(surv, best, "count"))))
+    return row
+
+
+def verdict_table(
+    metrics: pd.DataFrame,
+    reference: str | None = None,
+    n_boot: int = 2000,
+    seed: int = 0,
+    practical_pct: float = PRACTICAL_PCT,
+    min_pairs: int = MIN_PAIRED_RUNS,
+    comps: pd.DataFrame | None = None,
+) -> pd.DataFrame:
+    """One row per metric of :data:`VERDICT_METRICS` present (columns :data:`VERDICT_COLUMNS`).
+
+    ``best`` / ``best_value``: the best causal filter of :func:`compare_filters` (``comps``, computed
+    here with the same arguments when not given) and its own track average; ``other``: the filter its
+    improvement is over (the reference, or the runner-up when the best is the reference;
+    ``other_is_reference``); ``imprv`` [%], ``ci_lo``, ``ci_hi``, ``excludes_0``, ``significant``,
+    ``practical``, ``pairs_min`` (fewest pairs on a track), ``verdict``: that row of ``comps``;
+    ``pairs``: the pairs summed over tracks. ``s_*``: the same comparison over the common survivors.
+    ``floor`` / ``floor_value``: the lowest RTS-smoother floor of the metric (None without one).
+    ``attrs``: ``reference``, ``any_lost``, ``practical_pct``, ``min_pairs``, ``n_boot``, ``seed``.
+    """
+    check_metrics(metrics)
+    ref = default_reference(metrics, reference)
+    if comps is None:
+        comps = compare_filters(metrics, n_boot=n_boot, seed=seed, practical_pct=practical_pct, min_pairs=min_pairs)
+    causal = causal_only(metrics)
+    lost = lost_by_any(causal)
+    survivors = causal[~lost.to_numpy(bool)]
+    any_lost = bool(lost.any())
+    own = filter_table(metrics, ref, n_boot=0, min_pairs=min_pairs)
+    rows = [_error_row(key, comps[comps["metric"] == key], causal, survivors if any_lost else None, ref, own,
+                       n_boot, seed, practical_pct, min_pairs)
+            for key in VERDICT_METRICS if key in set(comps["metric"])]
+    rows.append(anees_row(causal, survivors, ref))
+    out = pd.DataFrame(rows, columns=list(VERDICT_COLUMNS))
+    out.attrs.update(reference=ref, any_lost=any_lost, practical_pct=float(practical_pct),
+                     min_pairs=int(min_pairs), n_boot=int(n_boot), seed=int(seed))
+    return out
