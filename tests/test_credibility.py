@@ -75,3 +75,16 @@ def test_true_biases_are_the_bias_part_of_the_imu_errors(dynamic_bias):
     np.testing.assert_array_equal(b_a, e_f)
     np.testing.assert_array_equal(b_g, e_w)
     assert np.ptp(b_a[0, :, 0]) > 0 if dynamic_bias == "segment" else np.ptp(b_a[0, :, 0]) == 0
+
+
+def test_nci_is_nan_where_the_errors_are_all_zero():
+    """A block known exactly at an epoch (a position error of 0 at the start): no index there, no error."""
+    rng = np.random.default_rng(6)
+    E = _errors(rng, 30, 3, np.eye(3))
+    E[:, 0] = 0.0
+    nees = np.einsum("rni,rni->rn", E, E)
+    c = Credibility(3)
+    c.add_mse(E)
+    c.add_ratio(E, nees)
+    r = c.result()
+    assert np.isnan(r[0]) and np.isfinite(r[1:]).all()

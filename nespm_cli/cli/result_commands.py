@@ -11,12 +11,12 @@ from nespm_cli.reports.stats import PRACTICAL_PCT
 
 def report(
     out_dir: Path = typer.Argument(..., help="Folder written by 'nespm mc', 'nespm sweep' or 'nespm gp-ukf'."),
-    baseline: Optional[str] = typer.Option(None, "--baseline", help="Filter whose improvement over each other row is shown (the papers' 'Imprv.' column)."),
+    baseline: Optional[str] = typer.Option(None, "--baseline", help="Filter whose improvement over each other row is shown (the papers' 'Imprv.' column) and the verdict's reference; not an RTS-smoother floor (<filter>-rts)."),
     n_boot: int = typer.Option(2000, "--n-boot", help="Paired bootstrap resamples for the 95 % intervals."),
-    practical: float = typer.Option(PRACTICAL_PCT, "--practical", help="Smallest improvement [%] the summary calls practically meaningful (a difference must also be statistically significant)."),
+    practical: float = typer.Option(PRACTICAL_PCT, "--practical", help="Smallest improvement [%] the verdict calls practically meaningful (a difference must also be statistically significant)."),
     beside: Optional[List[Path]] = typer.Option(None, "--beside", help="Another mc folder whose numbers are set beside this one's (e.g. the synthetic-IMU run of a recorded-IMU one); repeatable."),
 ) -> None:
-    """Write DIR/report.md (Tables I/II layout, paired 95 % intervals, published values) and figures."""
+    """Write DIR/report.md (verdict first, each caveat once, Tables I/II layout, paired 95 % intervals, published values; docs/report.md) and figures."""
     from nespm_cli.reports.dispatch import write_report
 
     path = write_report(out_dir, baseline, n_boot=n_boot, practical_pct=practical, beside=tuple(beside or ()))

@@ -77,8 +77,12 @@ class Credibility:
         """Merge ``10 log10(ε / ε*)`` (R, N) of one chunk (after every :meth:`add_mse`)."""
         with np.errstate(all="ignore"):
             S = self.mse / self.n[:, None, None]
-            ok = np.isfinite(E).all(axis=-1) & np.isfinite(nees) & (self.n > 0) & np.isfinite(S).all(axis=(-2, -1))
-            S = np.where(np.isfinite(S), S, np.eye(3))
+            # an epoch whose errors do not span 3 dimensions (all zero at a known start) has no index
+            scale = np.einsum("nii->n", S) / 3.0
+            full = np.isfinite(S).all(axis=(-2, -1)) & (scale > 0)
+            full &= np.abs(np.linalg.det(np.where(full[:, None, None], S, np.eye(3)))) > 1e-12 * np.where(full, scale, 1.0) ** 3
+            ok = np.isfinite(E).all(axis=-1) & np.isfinite(nees) & (self.n > 0) & full
+            S = np.where(full[:, None, None], S, np.eye(3))
             sol = np.linalg.solve(np.broadcast_to(S, E.shape[:2] + (3, 3)), np.where(ok[..., None], E, 1.0)[..., None])
             star = (np.where(ok[..., None], E, 1.0) * sol[..., 0]).sum(axis=-1)
             self.ratio.add(np.where(ok, 10.0 * np.log10(nees / star), np.nan))
