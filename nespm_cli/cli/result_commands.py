@@ -14,12 +14,14 @@ def report(
     baseline: Optional[str] = typer.Option(None, "--baseline", help="Filter whose improvement over each other row is shown (the papers' 'Imprv.' column) and the verdict's reference; not an RTS-smoother floor (<filter>-rts)."),
     n_boot: int = typer.Option(2000, "--n-boot", help="Paired bootstrap resamples for the 95 % intervals."),
     practical: float = typer.Option(PRACTICAL_PCT, "--practical", help="Smallest improvement [%] the verdict calls practically meaningful (a difference must also be statistically significant)."),
+    all_runs: str = typer.Option("median", "--all-runs", help="Where runs were lost: 'median' adds the comparison over every run, a lost run ranked the worst (medians, paired median improvements, losses; docs/report.md); 'none' leaves it out."),
     beside: Optional[List[Path]] = typer.Option(None, "--beside", help="Another mc folder whose numbers are set beside this one's (e.g. the synthetic-IMU run of a recorded-IMU one); repeatable."),
 ) -> None:
     """Write DIR/report.md (verdict first, each caveat once, Tables I/II layout, paired 95 % intervals, published values; docs/report.md) and figures."""
     from nespm_cli.reports.dispatch import write_report
 
-    path = write_report(out_dir, baseline, n_boot=n_boot, practical_pct=practical, beside=tuple(beside or ()))
+    path = write_report(out_dir, baseline, n_boot=n_boot, practical_pct=practical, beside=tuple(beside or ()),
+                        all_runs=all_runs)
     typer.echo(path.read_text(encoding="utf-8"))
     typer.echo(f"wrote {path}")
 

@@ -13,6 +13,7 @@ from pathlib import Path
 
 from nespm_cli.errors import NespmError
 from nespm_cli.reports.gp_ukf import write_gp_report
+from nespm_cli.reports.all_runs import ALL_RUNS
 from nespm_cli.reports.mc import write_mc_report
 from nespm_cli.reports.stats import PRACTICAL_PCT, check_practical_pct
 from nespm_cli.reports.sweep import write_sweep_report
@@ -63,14 +64,18 @@ def warn_if_unfinished(out_dir: Path) -> None:
 
 
 def write_report(out_dir: Path, reference: str | None = None, n_boot: int = 2000,
-                 practical_pct: float = PRACTICAL_PCT, beside=()) -> Path:
+                 practical_pct: float = PRACTICAL_PCT, beside=(), all_runs: str = "median") -> Path:
     """Write ``out_dir/report.md`` and its figures; return the report path.
 
     ``reference`` is the mc report's reference filter and the sweep report's baseline (it does
     not apply to a GP-UKF folder); ``practical_pct`` [%] (default :data:`PRACTICAL_PCT`) is the
     smallest |improvement| the verdict calls practically meaningful. The bootstrap seed is 0.
-    ``beside``: other Monte Carlo folders set beside an mc folder's numbers.
+    ``beside``: other Monte Carlo folders set beside an mc folder's numbers. ``all_runs``: with
+    ``median`` (default), where a run was lost, the comparison over every run with lost runs ranked
+    worst (:mod:`nespm_cli.reports.all_runs`); ``none`` leaves it out.
     """
+    if all_runs not in ALL_RUNS:
+        raise NespmError(f"--all-runs: choose {' or '.join(ALL_RUNS)}, got {all_runs!r}")
     check_practical_pct(practical_pct)
     out_dir = Path(out_dir)
     warn_if_unfinished(out_dir)
@@ -78,8 +83,9 @@ def write_report(out_dir: Path, reference: str | None = None, n_boot: int = 2000
     if kind == "gp-ukf":
         return write_gp_report(out_dir, n_boot=n_boot)  # --baseline does not apply
     if kind == "sweep":
-        return write_sweep_report(out_dir, reference, n_boot=n_boot, practical_pct=practical_pct)
+        return write_sweep_report(out_dir, reference, n_boot=n_boot, practical_pct=practical_pct, all_runs=all_runs)
     for b in beside:
         if experiment_of(Path(b)) != "mc":
             raise NespmError(f"--beside {b}: not a folder written by 'nespm mc'")
-    return write_mc_report(out_dir, reference, n_boot=n_boot, practical_pct=practical_pct, beside=beside)
+    return write_mc_report(out_dir, reference, n_boot=n_boot, practical_pct=practical_pct, beside=beside,
+                           all_runs=all_runs)

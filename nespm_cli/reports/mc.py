@@ -49,7 +49,7 @@ __all__ = [
 
 
 def write_mc_report(out_dir: Path, reference: str | None = None, n_boot: int = 2000,
-                    practical_pct: float = PRACTICAL_PCT, beside: Sequence[Path] = ()) -> Path:
+                    practical_pct: float = PRACTICAL_PCT, beside: Sequence[Path] = (), all_runs: str = "median") -> Path:
     """Write ``out_dir/report.md`` and ``out_dir/figures/*.png`` of a Monte Carlo folder; return the
     report path.
 
@@ -75,7 +75,7 @@ def write_mc_report(out_dir: Path, reference: str | None = None, n_boot: int = 2
     if epochs is not None and not epochs.empty:
         figures = plot_track_figures(epochs, metrics, out_dir / "figures", scenario_of(metrics, manifest), manifest)
     text = render_report(metrics, manifest, table, tt, figures, out_dir, n_boot, seed,
-                         practical_pct=practical_pct, beside=beside_text,
+                         practical_pct=practical_pct, beside=beside_text, all_runs=all_runs,
                          notes=figure_notes(epochs, metrics, manifest))
     path = out_dir / "report.md"
     write_text_atomic(path, text)

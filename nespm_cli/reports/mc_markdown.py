@@ -8,6 +8,7 @@ from typing import Sequence
 import numpy as np
 import pandas as pd
 
+from nespm_cli.reports.all_runs import all_runs_section
 from nespm_cli.reports.caveats import caveats, caveats_md
 from nespm_cli.reports.comparisons import compare_filters
 from nespm_cli.reports.markdown import (
@@ -230,6 +231,7 @@ def render_report(
     min_pairs: int = MIN_PAIRED_RUNS,
     beside: str = "",
     notes: Sequence[str] = (),
+    all_runs: str = "median",
 ) -> str:
     """The full markdown text of ``report.md``: header, the link to docs/report.md, the Verdict
     (:func:`verdict.verdict_table` of :func:`compare_filters` with ``practical_pct``), the Caveats
@@ -250,6 +252,7 @@ def render_report(
             docs_line(out_dir),
             "## Verdict\n\n" + verdict_intro(ref, n_boot, seed, practical_pct, vt.attrs["any_lost"]) + "\n\n"
             + verdict_md(vt, comps, tracks),
+            *([all_runs_section(metrics, ref, n_boot, seed)] if all_runs == "median" and vt.attrs["any_lost"] else []),
             "## Caveats\n\n" + caveats_md(caveats(metrics, comps, min_pairs, notes)),
             "## Track-averaged results (eq 51)\n\n" + _main_table(table),
             "## Figures\n\n" + figures_md(figures, out_dir),

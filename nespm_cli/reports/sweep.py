@@ -56,7 +56,7 @@ __all__ = [
 
 
 def write_sweep_report(out_dir: Path, baseline: str | None = None, n_boot: int = 2000,
-                       practical_pct: float = PRACTICAL_PCT) -> Path:
+                       practical_pct: float = PRACTICAL_PCT, all_runs: str = "median") -> Path:
     """Write ``out_dir/report.md`` and ``out_dir/figures/sweep_*.png`` for a sweep folder;
     return the report path. The bootstrap seed is 0; ``practical_pct`` as in
     :func:`dispatch.write_report`."""
@@ -70,7 +70,7 @@ def write_sweep_report(out_dir: Path, baseline: str | None = None, n_boot: int =
     imp = improvement_table(metrics, base, n_boot=n_boot, seed=seed)
     figures = plot_sweep_figures(metrics, manifest, table, imp, out_dir / "figures")
     text = render_sweep_report(metrics, manifest, table, imp, figures, out_dir, n_boot, seed,
-                               practical_pct=practical_pct)
+                               practical_pct=practical_pct, all_runs=all_runs)
     path = out_dir / "report.md"
     write_text_atomic(path, text)
     return path

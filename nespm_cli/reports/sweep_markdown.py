@@ -9,6 +9,7 @@ import numpy as np
 import pandas as pd
 
 from nespm_cli.experiments.metrics import nees_band
+from nespm_cli.reports.all_runs import all_runs_section
 from nespm_cli.reports.caveats import caveats, caveats_md
 from nespm_cli.reports.markdown import DASH, docs_line, fmt, fmt_imprv, header_line, md_table
 from nespm_cli.reports.results import filters_in_order, smoother_label
@@ -72,6 +73,7 @@ def render_sweep_report(
     seed: int,
     practical_pct: float = PRACTICAL_PCT,
     comps: pd.DataFrame | None = None,
+    all_runs: str = "median",
 ) -> str:
     """The full markdown text of a sweep's ``report.md``, verdict first (``comps``: :func:`summary_rows`,
     computed here when not given): the verdict per value (:func:`verdict.verdict_table` of each value),
@@ -121,6 +123,8 @@ def render_sweep_report(
         docs_line(out_dir),
         "## Verdict\n\n" + verdict_intro(base, n_boot, seed, practical_pct, vt.attrs["any_lost"], "baseline")
         + " Per swept value.\n\n" + verdict_md(vt, comps, tracks, value_col=label, role="baseline"),
+        *([all_runs_section(metrics, base, n_boot, seed, value_label=label)]
+          if all_runs == "median" and vt.attrs["any_lost"] else []),
         "## Caveats\n\n" + caveats_md(caveats(metrics, comps, min_pairs)),
         "## Track-averaged VRMSE [m/s] (eqs 50–51)\n\n"
         + _metric_md(table, "vrmse", filters, label) + fig("sweep_vrmse"),
