@@ -5,6 +5,8 @@ A data folder holds ``TrajectoryN/GT_trajectoryN.csv`` and ``TrajectoryN/DVL_tra
 :data:`GT_COLUMNS`, :data:`DVL_COLUMNS` and :data:`IMU_COLUMNS` (surrounding whitespace in a
 header name is ignored, extra columns are ignored; a DVL row of three NaN is a missing epoch), and
 optionally ``DEPTH_``/``FIX_trajectoryN.csv`` (:mod:`nespm_cli.data.sensor_files`, ``Track.channels``).
+A folder holding a track spec (``nespm-data.toml``, :mod:`nespm_cli.data.track_spec`, docs/data.md) is read
+through it instead: the files it names converted (:mod:`nespm_cli.data.spec_reader`), then checked alike.
 Without a data folder (no ``--data-dir`` and no ``NESPM_DATA_DIR``) the deterministic embedded
 tracks of :mod:`nespm_cli.data.embedded` are used.
 
@@ -27,9 +29,10 @@ import numpy as np
 
 from nespm_cli.data import plausibility
 from nespm_cli.data.csvtable import QUOTE_LIMIT, read_table as _read_table, write_table as _write_csv  # noqa: F401
-from nespm_cli.data.sensor_files import (CHANNEL_KINDS, check_dvl_nan, check_stamps, dvl_at_epochs, read_channels,
-                                         write_channels)
+from nespm_cli.data.sensor_files import CHANNEL_KINDS, check_dvl_nan, dvl_at_epochs, read_channels, write_channels
+from nespm_cli.data import spec_reader
 from nespm_cli.data.track import Track
+from nespm_cli.data.track_spec import TrackSpec, find_spec, read_spec, spec_files, spec_tracks
 from nespm_cli.errors import NespmError
 from nespm_cli.nav.dvl import body_rate_from_attitude
 from nespm_cli.nav.rotations import skew
@@ -97,7 +100,8 @@ def _check_dir(path: Path, origin: str = "") -> None:
 
 
 def available_tracks(data_dir: Path | None) -> list[int]:
-    """Sorted track numbers in ``data_dir`` (``TrajectoryN`` sub-folders); None -> embedded [1..6].
+    """Sorted track numbers in ``data_dir`` (``TrajectoryN`` sub-folders, or the GT files its track spec
+    finds); None -> embedded [1..6].
 
     Raises :class:`NespmError` if the folder does not exist, holds no ``TrajectoryN`` folder, or
     holds two folders of one track (``Trajectory7`` and ``Trajectory07``).
@@ -106,6 +110,8 @@ def available_tracks(data_dir: Path | None) -> list[int]:
         from nespm_cli.data.embedded import EMBEDDED_TRACKS
 
         return list(EMBEDDED_TRACKS)
+    if (spec := find_spec(Path(data_dir))) is not None:
+        return spec_tracks(read_spec(spec))
     return sorted(_track_dirs(Path(data_dir)))
 
 
@@ -131,10 +137,13 @@ def track_files(number: int, data_dir: str | Path | None, imu: bool = False) -> 
     (``Trajectory07/GT_trajectory07.csv`` or ``.../GT_trajectory7.csv``; a missing file under the
     folder's spelling). ``data_dir`` None: the embedded tracks, no files (``$NESPM_DATA_DIR`` is not
     consulted: pass a resolved folder). Raises :class:`NespmError` as :func:`load_track` does on an
-    unknown track or an ambiguous folder."""
+    unknown track or an ambiguous folder. A folder with a track spec: the spec file, then the files it names
+    (:func:`nespm_cli.data.track_spec.spec_files`)."""
     if data_dir is None:
         return []
-    gt, dvl, imu_path, *extra = _track_paths(number, Path(data_dir).expanduser())
+    if (spec := find_spec(folder := Path(data_dir).expanduser())) is not None:
+        return spec_files(read_spec(spec), number, imu)
+    gt, dvl, imu_path, *extra = _track_paths(number, folder)
     return [gt, dvl] + ([imu_path] if imu else []) + [p for p in extra if p.exists()]
 
 
@@ -159,18 +168,18 @@ def _track_paths(number: int, folder: Path) -> tuple[Path, ...]:
 def load_track(number: int, data_dir: str | Path | None = None, *, warnings: str | None = None) -> Track:
     """Load and validate track ``number`` from ``data_dir`` (None -> ``$NESPM_DATA_DIR`` -> embedded).
 
-    The files are those of :func:`track_files` (folder and file names may carry leading zeros).
-    Raises :class:`NespmError` (one line, naming the file and first bad data row / column) on an
-    unknown track number, two folders or files of one track, a missing or empty file, a missing
-    column, non-numeric text, NaN/inf,
-    time not strictly increasing, GT/DVL epochs that differ, |lat| > pi/2, |lon| > pi, or a speed
-    >= 20 m/s (a DVL row of three NaN is a missing epoch, NaN in one or two is refused); and,
-    for the IMU file if present (:func:`_check_imu`), on a median time step
-    outside (:data:`IMU_MIN_STEP`, :data:`IMU_MAX_STEP`) s (10 Hz - 2 kHz; e.g. time in ms), a
-    step differing from the median by more than :data:`IMU_STEP_TOL` (a gap or non-constant
-    rate), a time span that does not cover the GT span to within one IMU step at either end,
-    or |ACC| > :data:`IMU_MAX_ACC` m/s^2 or |GYRO| > :data:`IMU_MAX_GYRO` rad/s (a units mistake);
-    and the optional DEPTH / FIX files into ``Track.channels`` (:mod:`nespm_cli.data.sensor_files`).
+    The files are those of :func:`track_files` (folder and file names may carry leading zeros), or those
+    a track spec in the folder names, converted first (docs/data.md; the checks below run on the converted
+    arrays, plus the spec's sign checks of :mod:`nespm_cli.data.spec_reader`). Raises :class:`NespmError`
+    (one line, naming the file and first bad data row / column) on an unknown track number, two folders or
+    files of one track, a missing or empty file, a missing column, non-numeric text, NaN/inf, time not
+    strictly increasing, GT/DVL epochs that differ, |lat| > pi/2, |lon| > pi, or a speed >= 20 m/s (a DVL
+    row of three NaN is a missing epoch, NaN in one or two is refused); and, for the IMU file if present
+    (:func:`_check_imu`), on a median time step outside (:data:`IMU_MIN_STEP`, :data:`IMU_MAX_STEP`) s
+    (10 Hz - 2 kHz; e.g. time in ms), a step differing from the median by more than :data:`IMU_STEP_TOL`
+    (a gap or non-constant rate), a time span that does not cover the GT span to within one IMU step at
+    either end, or |ACC| > :data:`IMU_MAX_ACC` m/s^2 or |GYRO| > :data:`IMU_MAX_GYRO` rad/s (a units
+    mistake); and the optional DEPTH / FIX files into ``Track.channels`` (:mod:`nespm_cli.data.sensor_files`).
 
     Then the physical plausibility checks of :mod:`nespm_cli.data.plausibility` (angle ranges and steps,
     altitude, epoch spacing and gaps, GT velocity against position increments, DVL against GT speed):
@@ -184,42 +193,48 @@ def load_track(number: int, data_dir: str | Path | None = None, *, warnings: str
         from nespm_cli.data.embedded import embedded_track
 
         return embedded_track(number)
+    if (spec := find_spec(folder)) is not None:
+        return _load_spec_track(read_spec(spec), number, warnings)
     gt_path, dvl_path, imu_path, *extra = _track_paths(number, folder)
-    tdir = gt_path.parent
 
     gt = _read_table(gt_path, GT_COLUMNS)
-    _check_time(gt_path, gt[:, 0])
-    _check_range(gt_path, gt[:, 2], GT_COLUMNS[2], np.pi / 2, "pi/2")
-    _check_range(gt_path, gt[:, 1], GT_COLUMNS[1], np.pi, "pi")
-    _check_speed(gt_path, gt[:, 4:7], GT_COLUMNS[4:7])
-
+    _check_gt(gt_path, gt, GT_COLUMNS)
     dvl = _read_table(dvl_path, DVL_COLUMNS, nan_ok=DVL_COLUMNS[1:])
-    check_dvl_nan(dvl_path, dvl[:, 1:4], DVL_COLUMNS[1:4])
-    _check_time(dvl_path, dvl[:, 0])
-    channels = {}
-    if not _on_epochs(dvl[:, 0], gt[:, 0]):  # a DVL at its own stamps: the filters use them as they are
-        if len(dvl) < 2:
-            _check_epochs(dvl_path, dvl[:, 0], gt_path, gt[:, 0])
-        check_stamps(dvl_path, dvl[:, 0], gt[:, 0], gt_path.name)
-        channels["dvl"] = (dvl[:, 0].copy(), dvl[:, 1:4].copy())
-        dvl = np.column_stack([gt[:, 0], dvl_at_epochs(dvl[:, 0], dvl[:, 1:4], gt[:, 0])])
-    _check_speed(dvl_path, dvl[:, 1:4], DVL_COLUMNS[1:4])
-
+    dvl, channels = _check_dvl(dvl_path, dvl, DVL_COLUMNS, gt_path, gt[:, 0])
     imu = None
     if imu_path.exists():
         imu = _read_table(imu_path, IMU_COLUMNS)
-        _check_time(imu_path, imu[:, 0])
         _check_imu(imu_path, imu, gt_path, gt[:, 0])
     channels.update(read_channels(dict(zip(CHANNEL_KINDS, extra)), gt[:, 0], gt_path.name))
+    return _track(number, gt_path, gt, dvl_path, dvl, imu, channels, warnings)
 
-    findings = plausibility.check_track_arrays(gt_path, gt, dvl_path, dvl)
+
+def _load_spec_track(spec: TrackSpec, number: int, warnings: str | None) -> Track:
+    """:func:`load_track` through a track spec: the files converted (:mod:`~nespm_cli.data.spec_reader`), then
+    the A-KIT checks on the arrays (messages naming the user's file and column) and the spec's sign checks."""
+    sp = spec_reader.read_spec_track(spec, number)
+    gt_cols, dvl_cols = spec_reader.labels(sp.gt_names, GT_COLUMNS), spec_reader.labels(sp.dvl_names, DVL_COLUMNS)
+    _check_gt(sp.gt_path, sp.gt, gt_cols)
+    spec_reader.check_vertical_sign(spec.path, sp, gt_cols)
+    t_gt = sp.gt[:, 0]
+    dvl, channels = _check_dvl(sp.dvl_path, sp.dvl, dvl_cols, sp.gt_path, t_gt)
+    if sp.imu is not None:
+        _check_imu(sp.imu_path, sp.imu, sp.gt_path, t_gt, spec_reader.labels(sp.imu_names, IMU_COLUMNS))
+    for name in sp.channels:
+        channels[name] = spec_reader.check_channel(spec.path, sp, name)
+    names = dict(zip(GT_COLUMNS + DVL_COLUMNS, gt_cols + dvl_cols))
+    return _track(number, sp.gt_path, sp.gt, sp.dvl_path, dvl, sp.imu, channels, warnings, names)
+
+
+def _track(number, gt_path: Path, gt, dvl_path: Path, dvl, imu, channels: dict, warnings, names=None) -> Track:
+    """The plausibility checks (their columns renamed by ``names``), then the :class:`Track`."""
+    findings = spec_reader.relabel(plausibility.check_track_arrays(gt_path, gt, dvl_path, dvl), names or {})
     errors = [f for f in findings if f.level == "error"]
     if errors:
         raise NespmError(errors[0].text)
     plausibility.emit(findings, warnings)
-
     return Track(number=number, t=gt[:, 0], pos=gt[:, [2, 1, 3]], v_n=gt[:, 4:7], euler=gt[:, 7:10],
-                 dvl=dvl[:, 1:4], imu=imu, source=str(tdir), channels=channels)
+                 dvl=dvl[:, 1:4], imu=imu, source=str(gt_path.parent), channels=channels)
 
 
 def load_tracks(
@@ -259,12 +274,37 @@ def write_akit(track: Track, folder: str | Path) -> Path:
 # ----------------------------------------------------------------------------- validation
 
 
-def _check_time(path: Path, t: np.ndarray) -> None:
+def _check_gt(path: Path, gt: np.ndarray, cols: tuple[str, ...]) -> None:
+    """Time, latitude and longitude range and speed of a GT table (N, 10); ``cols`` name its columns."""
+    _check_time(path, gt[:, 0], cols[0])
+    _check_range(path, gt[:, 2], cols[2], np.pi / 2, "pi/2")
+    _check_range(path, gt[:, 1], cols[1], np.pi, "pi")
+    _check_speed(path, gt[:, 4:7], cols[4:7])
+
+
+def _check_dvl(path: Path, dvl: np.ndarray, cols: tuple[str, ...], gt_path: Path,
+               t_gt: np.ndarray) -> tuple[np.ndarray, dict]:
+    """Check a DVL table (K, 4); return it on the GT epochs ``t_gt``, and ``{"dvl": (t, v)}`` if its stamps are
+    its own (the filters use them as they are)."""
+    check_dvl_nan(path, dvl[:, 1:4], cols[1:4])
+    _check_time(path, dvl[:, 0], cols[0])
+    channels = {}
+    if not _on_epochs(dvl[:, 0], t_gt):
+        if len(dvl) < 2:
+            _check_epochs(path, dvl[:, 0], gt_path, t_gt)
+        spec_reader.stamps_checked(path, dvl[:, 0], t_gt, gt_path.name, cols[0])
+        channels["dvl"] = (dvl[:, 0].copy(), dvl[:, 1:4].copy())
+        dvl = np.column_stack([t_gt, dvl_at_epochs(dvl[:, 0], dvl[:, 1:4], t_gt)])
+    _check_speed(path, dvl[:, 1:4], cols[1:4])
+    return dvl, channels
+
+
+def _check_time(path: Path, t: np.ndarray, col: str = "Time [s]") -> None:
     bad = np.flatnonzero(np.diff(t) <= 0.0)
     if bad.size:
         r = int(bad[0]) + 1  # 0-based index of the offending row
         raise NespmError(
-            f"{path}: data row {r + 1}, column 'Time [s]': time {float(t[r])!r} is not after the previous "
+            f"{path}: data row {r + 1}, column '{col}': time {float(t[r])!r} is not after the previous "
             f"row's {float(t[r - 1])!r} (must be strictly increasing)"
         )
 
@@ -308,16 +348,18 @@ def _check_speed(path: Path, v: np.ndarray, cols: tuple[str, ...]) -> None:
         )
 
 
-def _check_imu(path: Path, imu: np.ndarray, gt_path: Path, t_gt: np.ndarray) -> None:
-    """Checks of a recorded IMU table (M, 7) already read by :func:`_read_table` with time increasing.
+def _check_imu(path: Path, imu: np.ndarray, gt_path: Path, t_gt: np.ndarray, cols: tuple = IMU_COLUMNS) -> None:
+    """Checks of a recorded IMU table (M, 7) already read by :func:`_read_table`.
 
-    In order: the median step is a navigation-IMU rate; every step is the median step to within
-    :data:`IMU_STEP_TOL`; the IMU covers the GT span ``t_gt`` (to one step, plus :data:`IMU_STEP_TOL` of it, at each end; a time
-    offset applied later, e.g. by the recorded-IMU path, is checked there); |ACC| and |GYRO| are
-    below :data:`IMU_MAX_ACC` and :data:`IMU_MAX_GYRO`.
+    In order: time strictly increasing; the median step is a navigation-IMU rate; every step is the
+    median step to within :data:`IMU_STEP_TOL`; the IMU covers the GT span ``t_gt`` (to one step, plus
+    :data:`IMU_STEP_TOL` of it, at each end; a time offset applied later, e.g. by the recorded-IMU path, is
+    checked there); |ACC| and |GYRO| are below :data:`IMU_MAX_ACC` and :data:`IMU_MAX_GYRO`. ``cols``
+    name the columns in the messages.
     """
-    time_col = IMU_COLUMNS[0]
+    time_col = cols[0]
     t = imu[:, 0]
+    _check_time(path, t, time_col)
     dt = np.diff(t)
     step = float(np.median(dt))
     if not IMU_MIN_STEP < step < IMU_MAX_STEP:
@@ -355,7 +397,7 @@ def _check_imu(path: Path, imu: np.ndarray, gt_path: Path, t_gt: np.ndarray) -> 
         unit, cause = (("m/s^2", "specific force; mm/s^2, cm/s^2 or mg? m/s^2 expected") if j < 3
                        else ("rad/s", "angular rate; degrees per second? rad/s expected"))
         raise NespmError(
-            f"{path}: data row {r + 1}, column '{IMU_COLUMNS[j + 1]}': |{float(imu[r, j + 1])!r}| > "
+            f"{path}: data row {r + 1}, column '{cols[j + 1]}': |{float(imu[r, j + 1])!r}| > "
             f"{limits[j]:g} {unit} (implausible {cause})"
         )
 

@@ -1,0 +1,286 @@
+"""One track read through a track spec (:mod:`nespm_cli.data.track_spec`, docs/data.md): the files read,
+converted with NumPy (whole columns at once) into the A-KIT arrays, and the checks only a spec needs.
+
+:func:`read_spec_track` gives the arrays :func:`nespm_cli.data.tracks.load_track` checks as it checks an
+A-KIT folder's: the GT (N, 10) ``[t s, lon rad, lat rad, alt m (up), v_N, v_E, v_D m/s, roll, pitch, yaw rad]``,
+the DVL (K, 4) ``[t s, x, y, z m/s]`` in the body frame, the IMU (M, 7) ``[t s, f m/s², w rad/s]`` in the body
+frame, the depth (K, 1) [m, down] and fix (K, 2|3) ``[lat, lon rad(, alt m up)]`` channels. Every time is on
+the GT clock already: ``(stamp - time_zero) / ticks per second - time_offset``
+(:func:`~nespm_cli.data.track_spec.to_seconds`), so the checks see the shifted stamps. Messages name the
+file's own column with the bench's quantity it became: ``column 'pitch_deg as Pitch [rad]'`` (the value
+shown is the converted one; a leading ``-`` marks a column whose sign was changed, as ``v_up`` becoming
+``V Down``).
+
+The spec-only checks: :func:`check_vertical_sign` (the GT's vertical position against its vertical
+velocity) and :func:`check_channel` (a depth or fix file's stamps, NaN rows, ranges as
+:mod:`nespm_cli.data.sensor_files` checks them, and its vertical's sign against the GT's).
+"""
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from nespm_cli.data.corrections import axes_matrix
+from nespm_cli.data.csvtable import check_nan_rows, header_text, read_frame, to_array
+from nespm_cli.data.plausibility import printable
+from nespm_cli.data.sensor_files import (DEPTH_COLUMNS, DEPTH_MAX, DEPTH_MIN, FIX_ALT_COLUMN, FIX_COLUMNS,
+                                         MAX_ABS_FIX_ALT, TIME, check_stamps)
+from nespm_cli.data.track_spec import (DEPTH_SIGN_MIN, FRAME_KEYS, UP_KEYS, VELOCITY_KEYS, VERTICAL_SIGN_MIN,
+                                       TrackSpec, column_keys, scaled, spec_file, to_seconds)
+from nespm_cli.errors import NespmError
+from nespm_cli.nav.state import position_plus
+
+
+@dataclass(frozen=True)
+class SpecTrack:
+    """One track's files read and converted to the A-KIT arrays (not yet checked). ``gt`` (N, 10), ``dvl``
+    (K, 4), ``imu`` (M, 7) or None, column for column as in the A-KIT files; ``*_keys`` the spec key of each
+    column (``gt.lat``), ``*_names`` the file's column it came from (``-`` in front: sign changed);
+    ``channels`` ``{name: (path, t (K,), z (K, m), keys, names)}`` for ``"depth"`` and ``"fix"``."""
+
+    gt_path: Path
+    gt: np.ndarray
+    gt_keys: tuple
+    gt_names: tuple
+    dvl_path: Path
+    dvl: np.ndarray
+    dvl_keys: tuple
+    dvl_names: tuple
+    imu_path: Path | None = None
+    imu: np.ndarray | None = None
+    imu_keys: tuple = ()
+    imu_names: tuple = ()
+    channels: dict = field(default_factory=dict)
+
+
+def labels(names: tuple, bench: tuple) -> tuple:
+    """``"<file column> as <bench column>"`` for each pair, the column names of a converted file's messages."""
+    return tuple(f"{n} as {b}" for n, b in zip(names, bench))
+
+
+def read_spec_track(spec: TrackSpec, number: int) -> SpecTrack:
+    """Track ``number``'s files (:func:`~nespm_cli.data.track_spec.spec_file`) read and converted. Refused in
+    one line naming the file: a missing or unreadable file, every missing column at once, fewer than 2 data
+    rows in the GT, DVL or IMU file, text that is not a number, infinity, NaN where it is not "no measurement"
+    (the DVL, depth and fix values may be NaN; times, the GT and the IMU may not)."""
+    gt_path = spec_file(spec, "gt", number)
+    c, _, names = _read(spec, "gt", gt_path, min_rows=2)
+    tab = spec.tables["gt"]
+    t = to_seconds(c["time"], tab["time_unit"], tab["time_zero"])
+    lat, lon, alt, pk = _position(spec, "gt", c)
+    vk = VELOCITY_KEYS[tab["velocity"]]
+    v = np.column_stack([scaled(c[k], "speed", tab["speed_unit"]) for k in vk])
+    sign_v = 1.0 if tab["velocity"] == "ned" else -1.0
+    v[:, 2] *= sign_v
+    euler = np.column_stack([scaled(c[k], "angle", tab["angle_unit"]) for k in ("roll", "pitch", "yaw")])
+    gt = np.column_stack([t, lon, lat, alt, v, euler])
+    order = ("time", pk[1], pk[0], pk[2]) + vk + ("roll", "pitch", "yaw")
+    signs = (1, 1, 1, 1 if pk[2] in UP_KEYS else -1, 1, 1, sign_v, 1, 1, 1)
+    out = {"gt_path": gt_path, "gt": gt, "gt_keys": tuple(f"gt.{k}" for k in order),
+           "gt_names": _signed(names, order, signs)}
+
+    dvl_path = spec_file(spec, "dvl", number)
+    c, _, names = _read(spec, "dvl", dvl_path, nan_ok=("x", "y", "z"), min_rows=2)
+    tab = spec.tables["dvl"]
+    vel, src, sign = _axes(np.column_stack([scaled(c[k], "speed", tab["speed_unit"]) for k in "xyz"]), tab["axes"])
+    order = ("time",) + tuple("xyz"[j] for j in src)
+    out.update(dvl_path=dvl_path, dvl=np.column_stack([_time(tab, c), vel]), dvl_keys=tuple(f"dvl.{k}" for k in order),
+               dvl_names=_signed(names, order, (1,) + tuple(sign)))
+
+    if "imu" in spec.tables and (imu_path := spec_file(spec, "imu", number)) is not None:
+        c, _, names = _read(spec, "imu", imu_path, min_rows=2)
+        tab = spec.tables["imu"]
+        f, fsrc, fsign = _axes(np.column_stack([scaled(c[f"acc_{a}"], "acceleration", tab["acceleration_unit"])
+                                                for a in "xyz"]), tab["axes"])
+        w, wsrc, wsign = _axes(np.column_stack([scaled(c[f"gyro_{a}"], "rate", tab["rate_unit"]) for a in "xyz"]),
+                               tab["axes"])
+        order = ("time",) + tuple(f"acc_{'xyz'[j]}" for j in fsrc) + tuple(f"gyro_{'xyz'[j]}" for j in wsrc)
+        out.update(imu_path=imu_path, imu=np.column_stack([_time(tab, c), f, w]),
+                   imu_keys=tuple(f"imu.{k}" for k in order),
+                   imu_names=_signed(names, order, (1,) + tuple(fsign) + tuple(wsign)))
+
+    channels = {}
+    for name in ("depth", "fix"):
+        if name in spec.tables and (path := spec_file(spec, name, number)) is not None:
+            channels[name] = _channel(spec, name, path)
+    return SpecTrack(**out, channels=channels)
+
+
+def _read(spec: TrackSpec, name: str, path: Path, nan_ok: tuple = (), min_rows: int = 0):
+    """``({key: column (R,)}, keys, {key: file column})`` of table ``name``'s column keys in ``path``."""
+    tab = spec.tables[name]
+    keys = column_keys(name, tab)
+    cols = tuple(tab[k] for k in keys)
+    df = read_frame(path)
+    missing = [k for k in keys if tab[k] not in df.columns]
+    if missing:
+        s = "s" if len(missing) > 1 else ""
+        raise NespmError(f"{path}: missing column{s} {', '.join(repr(printable(tab[k], 40)) for k in missing)} (key{s} "
+                         f"{', '.join(f'{name}.{k}' for k in missing)} of {spec.path.name}; header has: "
+                         f"{header_text(df)})")
+    for col in cols:
+        if list(df.columns).count(col) > 1:
+            raise NespmError(f"{path}: column '{printable(col, 40)}' appears more than once in the header")
+    if len(df) < min_rows:
+        raise NespmError(f"{path}: no data rows after the header" if len(df) == 0 else
+                         f"{path}: needs at least {min_rows} data rows, has {len(df)}")
+    table = to_array(path, df, cols, tuple(tab[k] for k in nan_ok))
+    return {k: table[:, j] for j, k in enumerate(keys)}, keys, {k: tab[k] for k in keys}
+
+
+def _time(tab: dict, c: dict) -> np.ndarray:
+    """The ``time`` column of a sensor table on the GT clock [s] (its unit, zero and offset applied)."""
+    return to_seconds(c["time"], tab["time_unit"], tab["time_zero"], tab["time_offset"])
+
+
+def _signed(names: dict, order: tuple, signs: tuple) -> tuple:
+    """The file column of each key of ``order``, ``-`` in front where the sign was changed."""
+    return tuple(("-" if s < 0 else "") + names[k] for k, s in zip(order, signs))
+
+
+def _axes(values: np.ndarray, text: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``values`` (R, 3) in the file's axes -> the body axes per ``axes`` (``"x,-y,-z"``: body axis i is the
+    signed file axis at position i), by indexing (exact, a NaN stays in its own column); also the file axis
+    (3,) and sign (3,) of each body axis."""
+    A = axes_matrix(text)
+    src = np.argmax(np.abs(A), axis=1)
+    sign = A[np.arange(3), src]
+    return values[:, src] * sign, src, sign
+
+
+def _position(spec: TrackSpec, name: str, c: dict):
+    """``(lat rad, lon rad, alt m up or None, (lat key, lon key, vertical key or ""))`` of table ``name``'s
+    position columns: geodetic (angles, and ``alt`` up or ``depth`` down), or ``ned``/``enu`` metres about the
+    spec's origin by :func:`nespm_cli.nav.state.position_plus` (the inverse of ``nav.earth.ned_offset``)."""
+    tab = spec.tables[name]
+    horizontal, vertical = FRAME_KEYS[tab["position"]]
+    vkey = next((k for k in vertical if k in tab), "")
+    sign = 1.0 if vkey in UP_KEYS else -1.0
+    up = None if not vkey else sign * scaled(c[vkey], "length", tab["length_unit"])
+    if tab["position"] == "geodetic":
+        lat, lon = (scaled(c[k], "angle", tab["angle_unit"]) for k in horizontal)
+        return lat, lon, up, ("lat", "lon", vkey)
+    ne = np.column_stack([scaled(c[k], "length", tab["length_unit"]) for k in horizontal])
+    down = np.zeros(len(ne)) if up is None else -up
+    pos = position_plus(np.broadcast_to(spec.origin, (len(ne), 3)), np.column_stack([ne, down]))
+    return pos[:, 0], pos[:, 1], (None if up is None else pos[:, 2]), ("north", "east", vkey)
+
+
+def _channel(spec: TrackSpec, name: str, path: Path) -> tuple:
+    """``(path, t, z, keys, names)`` of a depth or fix file, converted (depth [m] down; fix ``[lat, lon(, alt)]``)."""
+    tab = spec.tables[name]
+    value_keys = column_keys(name, tab)[1:]
+    c, _, names = _read(spec, name, path, nan_ok=value_keys)
+    if name == "depth":
+        key = value_keys[0]
+        z = scaled(c[key], "length", tab["length_unit"]) * (-1.0 if key in UP_KEYS else 1.0)
+        return path, _time(tab, c), z[:, None], ("depth.time", f"depth.{key}"), \
+            _signed(names, ("time", key), (1, -1 if key in UP_KEYS else 1))
+    lat, lon, alt, pk = _position(spec, name, c)
+    keys = ("time", pk[0], pk[1]) + ((pk[2],) if pk[2] else ())
+    z = np.column_stack([lat, lon] + ([] if alt is None else [alt]))
+    return path, _time(tab, c), z, tuple(f"fix.{k}" for k in keys), \
+        _signed(names, keys, (1, 1, 1, 1 if pk[2] in UP_KEYS else -1))
+
+
+# ----------------------------------------------------------------------------- checks of a spec's data
+
+
+def stamps_checked(path: Path, t: np.ndarray, t_gt: np.ndarray, gt_name: str, label: str = TIME) -> None:
+    """:func:`nespm_cli.data.sensor_files.check_stamps`, its message naming the time column ``label``."""
+    try:
+        check_stamps(path, t, t_gt, gt_name)
+    except NespmError as exc:
+        if label == TIME:
+            raise
+        raise NespmError(str(exc).replace(f"column '{TIME}'", f"column '{label}'", 1)) from None
+
+
+def check_vertical_sign(spec_path: Path, track: SpecTrack, gt_labels: tuple) -> None:
+    """Refuse a GT whose vertical position moves against its vertical velocity: the RMS over the epochs of
+    ``|down increment - trapezoid integral of v_D| / dt`` [m/s] above :data:`VERTICAL_SIGN_MIN` and more than
+    twice that with the position's sign flipped (a depth mapped as an altitude, ``down`` for ``up``, or the
+    velocity's vertical sign wrong). Needs strictly increasing times (checked before)."""
+    t, alt, vd = track.gt[:, 0], track.gt[:, 3], track.gt[:, 6]
+    dt = np.diff(t)
+    inc, integ = -np.diff(alt), 0.5 * (vd[1:] + vd[:-1]) * dt
+    same, flip = (float(np.sqrt(np.mean(((inc + s * integ) / dt) ** 2))) for s in (-1.0, 1.0))
+    if same > VERTICAL_SIGN_MIN and flip < 0.5 * same:
+        key = track.gt_keys[3]
+        raise NespmError(
+            f"{track.gt_path}: columns '{gt_labels[3]}', '{gt_labels[6]}': the vertical position moves against the "
+            f"vertical velocity (RMS mismatch {same:.3g} m/s, {flip:.3g} m/s with the position's sign flipped): "
+            f"{spec_path.name} key '{key}' says positive {_direction(key)}; "
+            "map an altitude as alt (or up), a depth as depth (or down), or check the velocity's vertical")
+
+
+def check_channel(spec_path: Path, track: SpecTrack, name: str) -> tuple[np.ndarray, np.ndarray]:
+    """``(t, z)`` of the converted depth or fix file ``track.channels[name]``, checked against the GT (its
+    time [s] and altitude [m, up]): stamps (strictly increasing, in the GT span), NaN in all values of a row
+    or none, the vertical's sign (:func:`_vertical_fit`), then the ranges of
+    :mod:`nespm_cli.data.sensor_files` (depth within [DEPTH_MIN, DEPTH_MAX] m, |lat| <= pi/2, |lon| <= pi,
+    |alt| <= MAX_ABS_FIX_ALT m)."""
+    path, t, z, keys, names = track.channels[name]
+    t_gt, alt_gt = track.gt[:, 0], track.gt[:, 3]
+    bench = DEPTH_COLUMNS if name == "depth" else FIX_COLUMNS + ((FIX_ALT_COLUMN,) if z.shape[1] == 3 else ())
+    lab = labels(names, bench)
+    stamps_checked(path, t, t_gt, track.gt_path.name, lab[0])
+    check_nan_rows(path, z, lab[1:], "no measurement at this stamp")
+    if name == "depth" or z.shape[1] == 3:
+        j, sign = (0, -1.0) if name == "depth" else (2, 1.0)
+        _vertical_fit(spec_path, path, z[:, j], sign * np.interp(t, t_gt, alt_gt), lab[j + 1], keys[j + 1],
+                      track.gt_keys[3], name == "depth")
+    if name == "depth":
+        _bounds(path, z[:, 0], lab[1], DEPTH_MIN, DEPTH_MAX,
+                lambda v: f"{v!r} is outside {DEPTH_MIN:g} .. {DEPTH_MAX:g} m (metres, positive down, expected)")
+    else:
+        _bounds(path, z[:, 0], lab[1], -np.pi / 2, np.pi / 2, lambda v: f"|{v!r}| > pi/2 (radians expected)")
+        _bounds(path, z[:, 1], lab[2], -np.pi, np.pi, lambda v: f"|{v!r}| > pi (radians expected)")
+        if z.shape[1] == 3:
+            _bounds(path, z[:, 2], lab[3], -MAX_ABS_FIX_ALT, MAX_ABS_FIX_ALT,
+                    lambda v: f"|{v!r}| > {MAX_ABS_FIX_ALT:g} m (metres, positive up, expected)")
+    return t, z
+
+
+def _vertical_fit(spec_path: Path, path: Path, value: np.ndarray, gt: np.ndarray, label: str, key: str, gt_key: str,
+                  down: bool) -> None:
+    """Refuse vertical values (K,) [m] that fit the negated GT vertical ``gt`` (K,) [m, the same sign
+    convention: depth if ``down``, else altitude]: the median |value - gt| above :data:`DEPTH_SIGN_MIN` and
+    more than twice the median |value + gt| (NaN rows, no measurement, left out). The file or the GT has the
+    wrong sign: the message names both keys."""
+    ok = np.isfinite(value)
+    if not ok.any():
+        return
+    same, flip = float(np.median(np.abs(value[ok] - gt[ok]))), float(np.median(np.abs(value[ok] + gt[ok])))
+    if same > DEPTH_SIGN_MIN and flip < 0.5 * same:
+        is_, other = ("depth", "altitude") if down else ("altitude", "depth")
+        raise NespmError(
+            f"{path}: column '{label}': the values fit the GT's {other}, not its {is_}: median |value - GT {is_}| "
+            f"{same:.3g} m, |value + GT {is_}| {flip:.3g} m; {spec_path.name} key '{key}' says positive "
+            f"{'down' if down else 'up'} and '{gt_key}' says positive {_direction(gt_key)}: one of the two columns "
+            "has the other sign (map it with the other key: alt/up/altitude positive up, depth/down positive down)")
+
+
+def _direction(key: str) -> str:
+    """``"up"`` or ``"down"``: the sign of the vertical named by the spec key ``key`` (``gt.depth``)."""
+    return "up" if key.split(".")[-1] in UP_KEYS else "down"
+
+
+def _bounds(path: Path, x: np.ndarray, col: str, lo: float, hi: float, say) -> None:
+    """Refuse the first value of ``x`` outside [lo, hi] (NaN, no measurement, passes) with ``say(value)``."""
+    bad = np.flatnonzero((x < lo) | (x > hi))
+    if bad.size:
+        r = int(bad[0])
+        raise NespmError(f"{path}: data row {r + 1}, column '{col}': {say(float(x[r]))}")
+
+
+def relabel(findings: list, mapping: dict) -> list:
+    """Plausibility findings with their bench column names replaced by ``mapping`` (``{bench: label}``)."""
+    out = []
+    for f in findings:
+        cols = f.column and ", ".join(mapping.get(c.strip(), c.strip()) for c in f.column.split(","))
+        out.append(dataclasses.replace(f, column=cols))
+    return out

@@ -1,0 +1,395 @@
+"""The track spec: a TOML file beside the data that maps a user's own files onto the bench's channels.
+
+A data folder (``--data-dir DIR``) that holds :data:`SPEC_NAME` (``DIR/nespm-data.toml``) is read through
+it instead of the A-KIT layout (docs/data.md has the format and a complete example). The spec names, per
+channel (``[gt]``, ``[dvl]``, ``[imu]``, ``[depth]``, ``[fix]``), the file of each track (``file =
+"run{N}/nav.csv"``: ``{N}`` is the track number, leading zeros allowed, no other pattern), its columns, their
+units (:data:`UNITS`), the time base (``time_unit``, ``time_zero``) and offset (``time_offset`` [s], stamp
+minus GT time), the position frame (``geodetic``, or ``ned`` / ``enu`` metres about ``[origin]``), the
+vertical's sign (by the key that names it: ``alt``/``up``/``altitude`` positive up, ``depth``/``down``
+positive down) and the IMU's and DVL's axes (``axes = "x,-y,-z"``, the ``--imu-axes`` syntax).
+
+This module reads and checks the spec (:func:`read_spec`) and finds each track's files
+(:func:`spec_tracks`, :func:`spec_file`, :func:`spec_files`); :mod:`nespm_cli.data.spec_reader` reads and
+converts them, and :func:`nespm_cli.data.tracks.load_track` checks the result as it checks an A-KIT folder.
+Every refusal is a :class:`~nespm_cli.errors.NespmError` with one line naming the spec file and its key
+(``.../nespm-data.toml: key 'gt.angle_unit': 'degree' is not a unit of angle (rad, deg)``).
+"""
+from __future__ import annotations
+
+import glob
+import math
+import re
+from dataclasses import dataclass
+from pathlib import Path, PurePosixPath
+
+import numpy as np
+
+from nespm_cli.data.corrections import axes_matrix
+from nespm_cli.data.plausibility import printable
+from nespm_cli.errors import NespmError
+
+# ----------------------------------------------------------------------------- units
+# Every unit is a factor to the bench's unit (docs/conventions.md: s, rad, m, m/s, m/s², rad/s): value_SI =
+# value x factor, except time, *divided* by its ticks per second (one correctly rounded division of a count of
+# ms or us, :func:`to_seconds`). Length and speed factors are exact by definition (1 ft = 0.3048 m, 1 kn =
+# 1852 m / 3600 s); 1 g is standard gravity.
+
+STANDARD_GRAVITY = 9.80665  # [m/s^2] 1 g (the value of the unit g, not the local gravity of nav.earth)
+#: unit kind -> {unit name: factor to the SI unit}; for ``"time"`` the ticks per second
+UNITS: dict[str, dict[str, float]] = {
+    "time": {"s": 1.0, "ms": 1e3, "us": 1e6, "ns": 1e9},
+    "angle": {"rad": 1.0, "deg": math.pi / 180.0},
+    "length": {"m": 1.0, "ft": 0.3048},
+    "speed": {"m/s": 1.0, "cm/s": 0.01, "mm/s": 0.001, "ft/s": 0.3048, "kn": 1852.0 / 3600.0},
+    "acceleration": {"m/s^2": 1.0, "m/s2": 1.0, "m/s²": 1.0, "g": STANDARD_GRAVITY},
+    "rate": {"rad/s": 1.0, "deg/s": math.pi / 180.0},
+}
+#: the SI unit of each kind (what the A-KIT files hold, and the default of a spec)
+SI = {kind: next(iter(table)) for kind, table in UNITS.items()}
+
+
+def unit_kind(key: str) -> str | None:
+    """The unit kind a spec key names (``"angle_unit"`` -> ``"angle"``), or None if it names no unit."""
+    kind = key[: -len("_unit")] if key.endswith("_unit") else None
+    return kind if kind in UNITS else None
+
+
+def factor(kind: str, unit: str) -> float:
+    """The factor of ``unit`` of ``kind`` (:data:`UNITS`); raises KeyError on an unknown one."""
+    return UNITS[kind][unit]
+
+
+def unit_error(kind: str, unit) -> str | None:
+    """Why ``unit`` is not a unit of ``kind`` (one phrase for a message), or None if it is one."""
+    if isinstance(unit, str) and unit in UNITS[kind]:
+        return None
+    return f"{unit!r} is not a unit of {kind} ({', '.join(UNITS[kind])})"
+
+
+def scaled(values: np.ndarray, kind: str, unit: str) -> np.ndarray:
+    """``values`` in ``unit`` (of ``kind``, not time) as SI values (a new float array). The SI unit
+    itself returns the values unchanged bit for bit."""
+    f = factor(kind, unit)
+    values = np.asarray(values, dtype=float)
+    return values.copy() if f == 1.0 else values * f
+
+
+def to_seconds(stamps: np.ndarray, unit: str, zero: float = 0.0, offset: float = 0.0) -> np.ndarray:
+    """Stamps ``stamps`` counted in ``unit`` (``s``, ``ms``, ``us``, ``ns``) as GT time [s]:
+    ``(stamps - zero) / ticks_per_second - offset``.
+
+    ``zero`` is in ``unit`` (subtracted first, exactly for integer counts below 2**53, e.g. the UNIX
+    time of the recording's start); ``offset`` [s] is the file's *stamp minus GT time*
+    (docs/conventions.md), so a DVL stamped 0.07 s after the truth has ``offset = 0.07``. With the
+    defaults and ``unit = "s"`` the stamps are returned unchanged bit for bit."""
+    t = np.asarray(stamps, dtype=float) - float(zero)
+    ticks = factor("time", unit)
+    if ticks != 1.0:
+        t = t / ticks
+    return t - float(offset)
+
+
+# ----------------------------------------------------------------------------- the spec
+
+SPEC_NAME = "nespm-data.toml"  # found automatically in the data folder
+STR, NUM, INT, BOOL, TABLE, UNIT = "a string", "a number", "an integer", "true or false", "a table", "a unit"
+FRAMES = ("geodetic", "ned", "enu")
+CHANNELS = ("gt", "dvl", "imu", "depth", "fix")
+_FILE = {"file": STR, "time": STR, "time_unit": UNIT, "time_zero": NUM}
+_SENSOR = {**_FILE, "time_offset": NUM, "optional": BOOL}
+_POSITION = {"position": FRAMES, "lat": STR, "lon": STR, "alt": STR, "depth": STR, "north": STR, "east": STR,
+             "down": STR, "up": STR, "angle_unit": UNIT, "length_unit": UNIT}
+#: every key of a spec: ``{table: {key: type or tuple of choices}}`` ("" is the top level)
+SCHEMA = {
+    "": {"track": INT, "defaults": TABLE, "origin": TABLE, **{name: TABLE for name in CHANNELS}},
+    "defaults": {"time_unit": UNIT, "time_zero": NUM, "angle_unit": UNIT, "length_unit": UNIT, "speed_unit": UNIT,
+                 "acceleration_unit": UNIT, "rate_unit": UNIT},
+    "origin": {"lat_deg": NUM, "lon_deg": NUM, "alt_m": NUM},
+    "gt": {**_FILE, **_POSITION, "velocity": ("ned", "enu"), "v_north": STR, "v_east": STR, "v_down": STR,
+           "v_up": STR, "roll": STR, "pitch": STR, "yaw": STR, "speed_unit": UNIT},
+    "dvl": {**_FILE, "time_offset": NUM, "x": STR, "y": STR, "z": STR, "axes": STR, "speed_unit": UNIT},
+    "imu": {**_SENSOR, "acc_x": STR, "acc_y": STR, "acc_z": STR, "gyro_x": STR, "gyro_y": STR, "gyro_z": STR,
+            "axes": STR, "acceleration_unit": UNIT, "rate_unit": UNIT},
+    "depth": {**_SENSOR, "depth": STR, "altitude": STR, "length_unit": UNIT},
+    "fix": {**_SENSOR, **_POSITION},
+}
+#: position keys per frame: (horizontal keys, the vertical keys that may name the one vertical column)
+FRAME_KEYS = {"geodetic": (("lat", "lon"), ("alt", "depth")), "ned": (("north", "east"), ("down",)),
+              "enu": (("north", "east"), ("up",))}
+UP_KEYS = ("alt", "up", "altitude")  # a vertical named by one of these is positive up; "depth", "down": down
+VELOCITY_KEYS = {"ned": ("v_north", "v_east", "v_down"), "enu": ("v_north", "v_east", "v_up")}
+VERTICAL_SIGN_MIN = 0.02  # [m/s] RMS mismatch of GT vertical position and velocity below which no sign is judged
+#                           (the 13 real Snapir tracks: 0.002-0.034 m/s as they are, 0.028-1.04 with the sign flipped)
+DEPTH_SIGN_MIN = 1.0  # [m] median |depth - GT depth| below which a depth or fix altitude's sign is not judged
+
+
+@dataclass(frozen=True)
+class TrackSpec:
+    """A read and checked spec: its ``path``, the data ``folder`` (its parent), the channel ``tables``
+    (``{name: {key: value}}`` with every default filled in), the ``origin`` ``[lat rad, lon rad, alt m]``
+    (None without one) and the track number ``track`` of file names without ``{N}``."""
+
+    path: Path
+    folder: Path
+    tables: dict
+    origin: np.ndarray | None = None
+    track: int = 1
+
+
+# ----------------------------------------------------------------------------- reading the spec
+
+
+def find_spec(folder: Path) -> Path | None:
+    """``folder/nespm-data.toml`` if it is there (a folder of that name is refused), else None."""
+    path = Path(folder) / SPEC_NAME
+    if path.is_file():
+        return path
+    if path.exists():
+        raise NespmError(f"{path}: not a file (the track spec {SPEC_NAME} must be a TOML file)")
+    return None
+
+
+def read_spec(path: Path) -> TrackSpec:
+    """The spec ``path``, checked, defaults filled in. Refused in one line naming ``path`` and the key: an
+    unreadable or invalid TOML file, an unknown key, a value of the wrong type, a bad unit or choice, no
+    ``[gt]`` or ``[dvl]``, a missing ``file``/``time``/column key, keys of another position frame or velocity
+    frame, two verticals (``alt`` and ``depth``), two keys naming one column, a bad ``axes``, a local frame
+    without ``[origin]`` (or an origin outside ±90°/±180°), a non-finite number, a file pattern that is
+    absolute, climbs out of the folder (``..``), holds braces other than ``{N}``, or has ``{N}`` in some
+    tables but not others; ``track`` with ``{N}`` patterns or below 1."""
+    try:
+        import tomllib
+    except ModuleNotFoundError:  # Python 3.10
+        import tomli as tomllib
+
+    path = Path(path)
+    try:
+        raw = tomllib.loads(path.read_bytes().decode("utf-8"))
+    except OSError as exc:
+        raise NespmError(f"{path}: cannot read the track spec ({exc.strerror or exc})") from None
+    except UnicodeDecodeError:
+        raise NespmError(f"{path}: the track spec is not UTF-8 text") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise NespmError(f"{path}: not a valid TOML file ({printable(exc, 120)})") from None
+    _keys(path, "", raw)
+    parts = {name: _keys(path, name, raw[name]) for name in SCHEMA if name and name in raw}
+    for name in ("gt", "dvl"):
+        if name not in parts:
+            raise NespmError(f"{path}: no [{name}] table (the ground truth and the DVL are required; docs/data.md)")
+    defaults = {**{f"{k}_unit": u for k, u in SI.items()}, "time_zero": 0.0, **parts.get("defaults", {})}
+    tables = {}
+    for name in CHANNELS:
+        if name in parts:
+            tab = parts[name]
+            for key in SCHEMA[name]:
+                if key not in tab and key in defaults:
+                    tab[key] = defaults[key]
+            tab = {"time_offset": 0.0, "optional": False, "position": "geodetic", "velocity": "ned", "axes": "x,y,z",
+                   **tab}
+            tables[name] = _columns_checked(path, name, tab)
+    origin = _origin(path, parts.get("origin"), tables)
+    track = _patterns(path, raw.get("track"), tables)
+    return TrackSpec(path, path.parent, tables, origin, track)
+
+
+def _keys(path: Path, name: str, table) -> dict:
+    """The keys of one table, each checked against :data:`SCHEMA` (type, choices, unit, finite number)."""
+    if not isinstance(table, dict):
+        raise NespmError(f"{path}: key '{name}' must be a table ([{name}])")
+    known = SCHEMA[name]
+    for key, value in table.items():
+        full = f"{name}.{key}" if name else key
+        if key not in known:
+            where = f" in [{name}]" if name else ""
+            raise NespmError(f"{path}: unknown key '{printable(full, 60)}' (known{where}: {', '.join(known)})")
+        want = known[key]
+        if want == UNIT:
+            why = unit_error(unit_kind(key), value)
+            if why:
+                raise NespmError(f"{path}: key '{full}': {printable(why, 120)}")
+            continue
+        if isinstance(want, tuple):
+            if value not in want:
+                raise NespmError(f"{path}: key '{full}': {printable(repr(value), 40)} is not one of {', '.join(want)}")
+            continue
+        number = isinstance(value, (int, float)) and not isinstance(value, bool)
+        ok = {STR: isinstance(value, str), BOOL: isinstance(value, bool), TABLE: isinstance(value, dict),
+              INT: number and isinstance(value, int), NUM: number}[want]
+        if not ok:
+            raise NespmError(f"{path}: key '{full}' must be {want}, got {printable(repr(value), 40)}")
+        if want == STR and not value.strip():
+            raise NespmError(f"{path}: key '{full}' is empty")
+        if want == NUM and not math.isfinite(value):
+            raise NespmError(f"{path}: key '{full}' must be a finite number, got {value!r}")
+    return dict(table)
+
+
+def column_keys(name: str, tab: dict) -> tuple[str, ...]:
+    """The keys of table ``name`` that name a column, in reading order (``time`` first)."""
+    if name in ("gt", "fix"):
+        horizontal, vertical = FRAME_KEYS[tab["position"]]
+        keys = horizontal + tuple(k for k in vertical if k in tab)
+        if name == "gt":
+            keys += VELOCITY_KEYS[tab["velocity"]] + ("roll", "pitch", "yaw")
+    else:
+        keys = {"dvl": ("x", "y", "z"), "imu": ("acc_x", "acc_y", "acc_z", "gyro_x", "gyro_y", "gyro_z"),
+                "depth": tuple(k for k in ("depth", "altitude") if k in tab)}[name]
+    return ("time",) + keys
+
+
+def _columns_checked(path: Path, name: str, tab: dict) -> dict:
+    """``tab`` with its column keys checked: every needed one given, none of another frame, one vertical."""
+    def bad(key: str, what: str) -> NespmError:
+        return NespmError(f"{path}: key '{name}.{key}' {what}")
+
+    for key in ("file", "time"):
+        if key not in tab:
+            raise bad(key, "is missing (" + ("the file of each track, e.g. \"run{N}/nav.csv\")" if key == "file"
+                                             else "the name of the file's time column)"))
+    column_like = {k for k, v in SCHEMA[name].items() if v == STR and k not in ("file", "axes")}
+    if name in ("gt", "fix"):
+        frame = tab["position"]
+        horizontal, vertical = FRAME_KEYS[frame]
+        allowed = set(horizontal + vertical) | {"time", "roll", "pitch", "yaw"} | set(VELOCITY_KEYS[tab["velocity"]])
+        needed = horizontal + (("roll", "pitch", "yaw") + VELOCITY_KEYS[tab["velocity"]] if name == "gt" else ())
+        for key in sorted(column_like & set(tab) - allowed):
+            frame_of = "velocity" if key.startswith("v_") else "position"
+            own = VELOCITY_KEYS[tab["velocity"]] if key.startswith("v_") else horizontal + vertical
+            raise bad(key, f"does not apply with {frame_of} = {tab[frame_of]!r} (that frame's columns: "
+                      f"{', '.join(own)})")
+        for key in needed:
+            if key not in tab:
+                raise bad(key, f"is missing (position = {frame!r} needs {', '.join(horizontal)} and "
+                          f"{' or '.join(vertical)}" + ("; velocity, roll, pitch and yaw columns too)" if name == "gt"
+                                                        else ")"))
+        given = [k for k in vertical if k in tab]
+        if name == "gt" and not given:
+            raise bad(vertical[0], f"is missing (the vertical column: {' or '.join(vertical)}; "
+                      f"{', '.join(k for k in vertical if k in UP_KEYS) or 'none'} positive up, "
+                      f"{', '.join(k for k in vertical if k not in UP_KEYS) or 'none'} positive down)")
+        if len(given) > 1:
+            raise bad(given[1], f"and '{name}.{given[0]}' are both given: one vertical column, alt (positive up) "
+                      "or depth (positive down)")
+    else:
+        needed = [k for k in column_like if k not in ("depth", "altitude")]
+        for key in [k for k in SCHEMA[name] if k in needed]:
+            if key not in tab:
+                raise bad(key, "is missing")
+        if name == "depth" and ("depth" in tab) == ("altitude" in tab):
+            raise bad("depth", "or 'depth.altitude': give exactly one (depth positive down, altitude positive up)")
+    seen: dict[str, str] = {}
+    for key in column_keys(name, tab):
+        if tab[key] in seen:
+            raise bad(key, f"names column {printable(repr(tab[key]), 40)}, as '{name}.{seen[tab[key]]}' does")
+        seen[tab[key]] = key
+    if name in ("dvl", "imu"):
+        try:
+            axes_matrix(tab["axes"])
+        except NespmError:
+            raise bad("axes", f"{printable(repr(tab['axes']), 40)} is not a signed permutation of x,y,z (name each "
+                      "of x, y, z once, optionally with '-', e.g. \"x,-y,-z\"; body axis i is the file's axis at "
+                      "position i)") from None
+    return tab
+
+
+def _origin(path: Path, origin: dict | None, tables: dict) -> np.ndarray | None:
+    """``[lat rad, lon rad, alt m]`` of ``[origin]``, required when a position is local (ned, enu)."""
+    local = [n for n in ("gt", "fix") if n in tables and tables[n]["position"] != "geodetic"]
+    if origin is None:
+        if local:
+            raise NespmError(f"{path}: no [origin] table ({local[0]}.position = {tables[local[0]]['position']!r} "
+                             "is metres about an origin: give origin.lat_deg, origin.lon_deg, origin.alt_m)")
+        return None
+    for key, limit in (("lat_deg", 90.0), ("lon_deg", 180.0)):
+        if key not in origin:
+            raise NespmError(f"{path}: key 'origin.{key}' is missing (the origin of local positions, degrees)")
+        if abs(origin[key]) > limit:
+            raise NespmError(f"{path}: key 'origin.{key}' is outside ±{limit:g} degrees: {origin[key]!r}")
+    return np.array([math.radians(origin["lat_deg"]), math.radians(origin["lon_deg"]), float(origin.get("alt_m", 0.0))])
+
+
+def _patterns(path: Path, track, tables: dict) -> int:
+    """Check every ``file`` pattern; the track number of patterns without ``{N}`` (``track``, default 1)."""
+    with_n = {}
+    for name, tab in tables.items():
+        pat = tab["file"]
+        p = PurePosixPath(pat)
+        if p.is_absolute() or "\\" in pat or ".." in p.parts or re.match(r"[A-Za-z]:", pat):
+            raise NespmError(f"{path}: key '{name}.file': {printable(repr(pat), 60)} must be a path inside the data "
+                             "folder, relative, with '/' (no '..')")
+        if re.sub(r"\{N\}", "", pat).count("{") or re.sub(r"\{N\}", "", pat).count("}"):
+            raise NespmError(f"{path}: key '{name}.file': {printable(repr(pat), 60)}: only {{N}} (the track number) "
+                             "may stand in braces")
+        with_n[name] = "{N}" in pat
+    if len(set(with_n.values())) > 1:
+        a = next(n for n, v in with_n.items() if v)
+        b = next(n for n, v in with_n.items() if not v)
+        raise NespmError(f"{path}: key '{b}.file' has no {{N}} but '{a}.file' has: the patterns of one folder are all "
+                         "per track ({N}) or all one track's")
+    if track is not None and with_n["gt"]:
+        raise NespmError(f"{path}: key 'track' applies only to file names without {{N}} (theirs is the track number)")
+    track = 1 if track is None else track
+    if track < 1:
+        raise NespmError(f"{path}: key 'track' must be at least 1, got {track}")
+    return track
+
+
+# ----------------------------------------------------------------------------- files of a track
+
+
+def _matches(spec: TrackSpec, name: str) -> dict[int, list[str]]:
+    """``{N: [relative paths]}`` of the files table ``name``'s pattern finds in the data folder."""
+    pat = spec.tables[name]["file"]
+    if "{N}" not in pat:
+        return {spec.track: [pat]} if (spec.folder / pat).is_file() else {}
+    parts = pat.split("{N}")
+    rx = re.compile(r"(\d+)".join(re.escape(p) for p in parts))
+    out: dict[int, list[str]] = {}
+    for p in sorted(spec.folder.glob("*".join(glob.escape(p) for p in parts))):
+        rel = p.relative_to(spec.folder).as_posix()
+        m = rx.fullmatch(rel)
+        if m and p.is_file() and len({int(g) for g in m.groups()}) == 1:
+            out.setdefault(int(m.group(1)), []).append(rel)
+    return out
+
+
+def spec_tracks(spec: TrackSpec) -> list[int]:
+    """The track numbers whose GT file the spec's ``gt.file`` finds (sorted); none is one line."""
+    found = sorted(_matches(spec, "gt"))
+    if not found:
+        raise NespmError(f"{spec.path}: key 'gt.file': no file matches {spec.tables['gt']['file']!r} in {spec.folder}")
+    return found
+
+
+def spec_file(spec: TrackSpec, name: str, number: int) -> Path | None:
+    """The file of table ``name`` for track ``number``; None when it is missing and ``optional``. Refused: no
+    GT file (no such track), a missing file of another table, two files of one track (``run7``, ``run07``)."""
+    pat = spec.tables[name]["file"]
+    found = _matches(spec, name).get(number, [])
+    if len(found) > 1:
+        raise NespmError(f"{spec.path}: key '{name}.file': {found[0]} and {found[1]} are both track {number}; keep one")
+    if found:
+        return spec.folder / found[0]
+    if name == "gt":
+        have = ", ".join(map(str, sorted(_matches(spec, "gt")))) or "none"
+        raise NespmError(f"{spec.path}: no track {number} (key 'gt.file' {pat!r} finds tracks: {have})")
+    if spec.tables[name]["optional"]:
+        return None
+    raise NespmError(f"{spec.path}: key '{name}.file': no file {pat.replace('{N}', str(number))!r} for track {number} "
+                     f"in {spec.folder} (set {name}.optional = true if some tracks have none)")
+
+
+def spec_files(spec: TrackSpec, number: int, imu: bool = False) -> list[Path]:
+    """The files track ``number`` is read from: the spec itself, the GT and DVL file, the IMU file with
+    ``imu`` (required then: no ``[imu]`` table or no file is one line), then the depth and fix files found."""
+    files = [spec.path, spec_file(spec, "gt", number), spec_file(spec, "dvl", number)]
+    if imu:
+        if "imu" not in spec.tables:
+            raise NespmError(f"{spec.path}: no [imu] table (--imu recorded reads the IMU file it names)")
+        p = spec_file(spec, "imu", number)
+        if p is None:
+            raise NespmError(f"{spec.path}: key 'imu.file': no file {spec.tables['imu']['file']!r} for track "
+                             f"{number} (--imu recorded needs it)")
+        files.append(p)
+    return files + [p for n in ("depth", "fix") if n in spec.tables and (p := spec_file(spec, n, number))]
