@@ -267,3 +267,23 @@ def test_report_sets_folders_beside(short_data_dir, tmp_path):
     vb = pd.read_parquet(tmp_path / "b" / "metrics.parquet")["vrmse"]
     row = next(line for line in text.splitlines() if line.startswith("| ekf |") and "dvl" not in line)
     assert f"{float(((vb ** 2).mean()) ** 0.5):.4g}" in row  # eq 51 over one track and two runs
+
+
+def test_check_runs_on_a_dvl_at_its_own_stamps(tmp_path, capsys):
+    """A DVL at its own stamps (not the GT epochs): the check reports what it can, no traceback (the
+    report once formatted a missing DVL residual as a number)."""
+    import dataclasses
+
+    import numpy as np
+
+    from conftest import cli
+    from nespm_cli.data.tracks import load_track, write_akit
+
+    tr = load_track(1, None)
+    t = tr.t[0] + np.arange(0.3, tr.t[-1] - tr.t[0] - 1.0, 0.5)
+    v = np.column_stack([np.interp(t, tr.t, tr.dvl[:, i]) for i in range(3)])
+    write_akit(dataclasses.replace(tr, channels={"dvl": (t, v)}), tmp_path / "data")
+    rc, out, err = cli(capsys, "check", "--data-dir", tmp_path / "data", "--tracks", "1", "--no-figures",
+                       "--no-progress", "--out", tmp_path / "check")
+    assert rc == 0, err
+    assert "DVL against GT" in (tmp_path / "check" / "check.md").read_text()

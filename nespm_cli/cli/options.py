@@ -14,7 +14,7 @@ from nespm_cli.experiments.metrics import DivergenceRule
 from nespm_cli.experiments.spec import Spec
 from nespm_cli.filters import FilterConfig
 
-DATA_DIR = typer.Option(None, "--data-dir", help="Folder in the A-KIT layout (default: $NESPM_DATA_DIR, else the embedded tracks).")
+DATA_DIR = typer.Option(None, "--data-dir", help="Folder in the A-KIT layout, or with a track spec nespm-data.toml (docs/data.md) (default: $NESPM_DATA_DIR, else the embedded tracks).")
 
 
 def default(cls, name: str):
@@ -30,7 +30,7 @@ CORRUPTION = [  # (name, type, default, flag, help): the realizations (mc, sweep
     ("segment_length", float, default(CorruptionConfig, "segment_s"), "--segment-length", "Dynamic schedule segment [s]."),
     ("dynamic_bias", str, default(CorruptionConfig, "dynamic_bias"), "--dynamic-bias", "Dynamic schedule biases: run (x the run's first-segment factor, held) or segment (x every segment's factor: 20 s bias steps)."),
     ("seed", int, default(Spec, "seed"), "--seed", "Master seed; run r of track N draws from SeedSequence(seed, spawn_key=(N, r, stream))."),
-    ("data_dir", Optional[str], default(Spec, "data_dir"), "--data-dir", "Folder in the A-KIT layout (default: $NESPM_DATA_DIR, else the embedded tracks)."),
+    ("data_dir", Optional[str], default(Spec, "data_dir"), "--data-dir", "Folder in the A-KIT layout, or with a track spec nespm-data.toml (docs/data.md) (default: $NESPM_DATA_DIR, else the embedded tracks)."),
     ("dvl_noise", float, default(CorruptionConfig, "dvl_noise"), "--dvl-noise", "Synthetic DVL noise std [m/s]."),
     ("misalignment_deg", float, default(CorruptionConfig, "misalignment_deg"), "--misalignment-deg", "Initial misalignment std per axis [deg]."),
     ("heading_deg", Optional[float], default(CorruptionConfig, "heading_deg"), "--heading-deg", "Initial heading (yaw-axis) misalignment std [deg]; default: --misalignment-deg."),
