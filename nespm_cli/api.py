@@ -55,5 +55,44 @@ def load(folder: str | Path) -> Results:
                    json.loads(mf.read_text()) if mf.is_file() else {})
 
 
-__all__ = ["CorruptionConfig", "DivergenceRule", "Execution", "FilterConfig", "NespmError", "Results", "Spec", "load", "run_mc",
-           "run_sweep", "simulate", "validate", "write_report"]
+def report_tables(folder: str | Path, reference: str | None = None, n_boot: int = 2000, seed: int = 0
+                  ) -> dict[str, pd.DataFrame]:
+    """Every table of a folder's report as a DataFrame (the report's numbers; docs/report.md).
+
+    An ``mc`` folder: ``filters`` (track-averaged, eqs 50-52, improvements over ``reference``),
+    ``tracks`` (per track), ``horizontal`` (horizontal position error, CEP50/R95), ``verdict``,
+    ``comparisons`` (every pair), ``all_runs`` (every run counted, lost ranked worst), ``nees``. A
+    ``sweep`` folder: ``sweep`` (per value and filter) and ``improvements`` (over the baseline)."""
+    from nespm_cli.reports.all_runs import all_runs_table
+    from nespm_cli.reports.comparisons import compare_filters
+    from nespm_cli.reports.sweep_data import default_baseline
+    from nespm_cli.reports.sweep_tables import improvement_table, sweep_table
+    from nespm_cli.reports.tables import (default_reference, filter_table, horizontal_table, nees_consistency,
+                                          track_table)
+    from nespm_cli.reports.verdict import verdict_table
+
+    res = load(folder)
+    m = res.metrics
+    if "value" in m.columns:
+        base = default_baseline(m, reference)
+        return {"sweep": sweep_table(m, n_boot=n_boot, seed=seed),
+                "improvements": improvement_table(m, base, n_boot=n_boot, seed=seed)}
+    ref = default_reference(m, reference)
+    comps = compare_filters(m, n_boot=n_boot, seed=seed)
+    return {"filters": filter_table(m, ref, n_boot=n_boot, seed=seed), "tracks": track_table(m),
+            "horizontal": horizontal_table(m), "verdict": verdict_table(m, ref, n_boot=n_boot, seed=seed, comps=comps),
+            "comparisons": comps, "all_runs": all_runs_table(m, ref, n_boot=n_boot, seed=seed),
+            "nees": nees_consistency(m)}
+
+
+def compare(folders, labels=None, reference: str | None = None, n_boot: int = 2000) -> dict[str, pd.DataFrame]:
+    """``nespm compare``'s tables: ``cases`` (per case and filter) and ``improvements`` (over the
+    reference case), for folders on the same realizations (:mod:`nespm_cli.reports.cases`)."""
+    from nespm_cli.reports.cases import case_improvements, case_table, load_cases
+
+    cases = load_cases(folders, labels)
+    return {"cases": case_table(cases), "improvements": case_improvements(cases, reference, n_boot=n_boot)}
+
+
+__all__ = ["CorruptionConfig", "DivergenceRule", "Execution", "FilterConfig", "NespmError", "Results", "Spec", "compare",
+           "load", "report_tables", "run_mc", "run_sweep", "simulate", "validate", "write_report"]

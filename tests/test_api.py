@@ -40,3 +40,20 @@ def test_api_and_cli_give_identical_metrics(tmp_path, capsys, cli_args, spec_kw)
 def test_load_refuses_a_folder_without_results(tmp_path):
     with pytest.raises(nespm.NespmError, match="metrics.parquet"):
         nespm.load(tmp_path)
+
+
+def test_report_tables_are_the_reports_numbers(tmp_path, capsys):
+    rc, _, err = cli(capsys, "mc", "--tracks", "1", "--runs", "4", "--filters", "ekf,ukf", "--no-progress",
+                     "--out", tmp_path / "f")
+    assert rc == 0, err
+    rc, _, err = cli(capsys, "report", tmp_path / "f", "--n-boot", "200")
+    assert rc == 0, err
+    tables = nespm.report_tables(tmp_path / "f", n_boot=200)
+    assert set(tables) == {"filters", "tracks", "horizontal", "verdict", "comparisons", "all_runs", "nees"}
+    text = (tmp_path / "f" / "report.md").read_text()
+    f = tables["filters"].set_index("filter")
+    from nespm_cli.reports.markdown import fmt
+    for name in ("ekf", "ukf"):  # the track-averaged VRMSE as the report prints it
+        assert f"| {fmt(f.loc[name, 'vrmse'])} |" in text
+    best = tables["verdict"].set_index("metric").loc["vrmse", "best"]
+    assert f"`{best}`" in text.split("## Verdict")[1].split("## ")[0]
