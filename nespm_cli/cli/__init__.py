@@ -12,6 +12,7 @@ from typer.exceptions import Abort, Exit, TyperException
 from nespm_cli.cli.config import expand_config, normalize_argv
 from nespm_cli.cli.data_commands import check, corrupt, simulate, tracks
 from nespm_cli.cli.experiment_commands import gp_ukf_cmd, mc, run, sweep
+from nespm_cli.cli.import_command import import_cmd
 from nespm_cli.cli.messages import INTERRUPTED, MAX_MESSAGE, one_line, os_error_line, show_warning
 from nespm_cli.cli.options import COMMON, CORRUPTION, DATA_DIR, KERNELS, PARALLEL, RECORDED, RUNNER, default
 from nespm_cli.cli.parsing import CORRUPTION_FIELDS, FILTER_FIELDS, build_spec, set_argv
@@ -37,6 +38,7 @@ app = typer.Typer(
 # the commands, in the order of ``nespm --help``
 for command in (tracks, check, corrupt, run, mc, sweep, report, export, train, simulate):
     app.command()(command)
+app.command("import")(import_cmd)
 app.command("gp-ukf")(gp_ukf_cmd)
 del command
 
