@@ -8,7 +8,7 @@ RUNS   ?= 100
 JOBS   ?= 2
 DATA_OPT := $(if $(DATA),--data-dir $(DATA),)
 
-.PHONY: setup run test smoke aided table1 table2 anukf-table1 anukf-table2 nespm-table1 weights sweep-misalignment sweep-heading gp-ukf bench clean check-data recorded-table1 recorded-table2 recorded-anukf-table1 recorded-anukf-table2 recorded-nespm-table1 recorded-weights
+.PHONY: setup run test smoke aided sensors table1 table2 anukf-table1 anukf-table2 nespm-table1 weights sweep-misalignment sweep-heading gp-ukf bench clean check-data recorded-table1 recorded-table2 recorded-anukf-table1 recorded-anukf-table2 recorded-nespm-table1 recorded-weights
 
 setup: $(VENV)/.installed
 
@@ -64,6 +64,20 @@ sweep-misalignment sweep-heading: setup
 aided: setup
 	$(NESPM) mc --config experiments/aided.toml --jobs $(JOBS) --out results/aided
 	$(NESPM) report results/aided
+
+# What each sensor buys (issue 24): six cases on the same realizations (DVL; + depth; + fixes every
+# 60 s; DVL beams with two lost for 60 s against the whole DVL lost; + heading), 15 states, EKF,
+# UKF-NESPM and IEKF, 50 runs on tracks 5 and 6 (DATA=folder for the real tracks), then the
+# comparison (nespm compare) and the fix-interval sweep.
+SENSOR_CASES := a-dvl b-depth c-fix d-beams-lost d-dvl-lost e-heading
+SENSORS_OUT := results/sensors$(if $(DATA),-data,)
+sensors: setup
+	for c in $(SENSOR_CASES); do \
+	  $(NESPM) mc --config experiments/sensors-base.toml --config experiments/sensors-$$c.toml --jobs $(JOBS) $(DATA_OPT) --out $(SENSORS_OUT)/$$c || exit 1; \
+	done
+	$(NESPM) compare $(foreach c,$(SENSOR_CASES),$(SENSORS_OUT)/$(c)) --out $(SENSORS_OUT)/compare
+	$(NESPM) sweep --config experiments/sensors-base.toml --config experiments/sensors-fix-interval.toml --jobs $(JOBS) $(DATA_OPT) --out $(SENSORS_OUT)/fix-interval
+	$(NESPM) report $(SENSORS_OUT)/fix-interval --baseline ekf
 
 gp-ukf: setup
 	$(NESPM) gp-ukf --runs 20 --jobs $(JOBS) --out results/gp-ukf

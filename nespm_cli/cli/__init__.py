@@ -16,7 +16,7 @@ from nespm_cli.cli.import_command import import_cmd
 from nespm_cli.cli.messages import INTERRUPTED, MAX_MESSAGE, one_line, os_error_line, show_warning
 from nespm_cli.cli.options import COMMON, CORRUPTION, DATA_DIR, KERNELS, PARALLEL, RECORDED, RUNNER, default
 from nespm_cli.cli.parsing import CORRUPTION_FIELDS, FILTER_FIELDS, build_spec, set_argv
-from nespm_cli.cli.result_commands import export, report
+from nespm_cli.cli.result_commands import compare, export, report
 from nespm_cli.cli.train_command import train
 from nespm_cli.errors import NespmError
 
@@ -36,7 +36,7 @@ app = typer.Typer(
 )
 
 # the commands, in the order of ``nespm --help``
-for command in (tracks, check, corrupt, run, mc, sweep, report, export, train, simulate):
+for command in (tracks, check, corrupt, run, mc, sweep, report, compare, export, train, simulate):
     app.command()(command)
 app.command("import")(import_cmd)
 app.command("gp-ukf")(gp_ukf_cmd)
