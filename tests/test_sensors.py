@@ -48,7 +48,7 @@ CASES = [("12", ("dvl",)), ("15", ("dvl",)), ("15", ("dvl", "depth", "fix")), ("
 def test_clean_case_stays_on_truth(state, sensors):
     """Exact IMU, initial solution and measurements (fixes off the IMU grid and jittered, depth
     every 0.77 s: both split IMU steps), every built-in filter the layout serves."""
-    filters = ("ekf", "ukf", "ukf-nespm", "ckf", "ckf-nespm", "anukf") + (("iekf",) if state == "12" else ())
+    filters = ("ekf", "ukf", "ukf-nespm", "ckf", "ckf-nespm", "anukf", "iekf")
     opts = tuple(o for o in OFF_GRID if o[0] in sensors)
     spec = validate(Spec(tracks=(5,), runs=2, filters=filters, window="0:60", dvl="synthetic", sensors=sensors,
                          sensor_options=opts, tell_filter=False, filter_config=dataclasses.replace(TINY, state=state)))
@@ -204,7 +204,7 @@ def test_config_sensor_tables_are_the_command_line_options(tmp_path):
     (["--state", "15", "--sensors", "dvl,depth", "--sensor-option", "depth.dropout=1.5"], "probability"),
     (["--state", "15", "--sensors", "dvl,depth", "--sensor-option", "depth.outage=50:20"], "START < END"),
     (["--state", "16"], "unknown block"),
-    (["--state", "15", "--filters", "iekf"], "serves --state 12"),
+    (["--state", "pos,vel,att", "--filters", "iekf"], "serves --state 12 or 15"),
     (["--imu", "recorded", "--imu-rate", "200"], "--imu-rate"),
     (["--imu-rate", "0"], "--imu-rate"),
     (["--state", "15", "--sensors", "dvl,depth", "--sensor-option", "depth.source=recorded"], "no depth file"),
@@ -217,8 +217,8 @@ def test_bad_sensor_input_is_one_line(tmp_path, args, needle):
 
 
 def test_spec_refuses_a_layout_its_filters_do_not_serve():
-    with pytest.raises(NespmError, match="serves --state 12"):
-        validate(Spec(tracks=(5,), filters=("ekf", "iekf"), filter_config=FilterConfig(state="15")))
+    with pytest.raises(NespmError, match="serves --state 12 or 15"):
+        validate(Spec(tracks=(5,), filters=("ekf", "iekf"), filter_config=FilterConfig(state="pos,vel,att")))
 
 
 def test_recorded_depth_and_fix_files_at_their_own_stamps(tmp_path):

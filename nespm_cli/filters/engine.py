@@ -14,7 +14,7 @@ name. Built-in filters:
 * ``anekf``, ``anukf``, ``anukf-nespm`` (:mod:`.adaptive_filters`): the same three with Q
   from the ProcessNet noise std of each GT interval (anukf.md eqs 43-49).
 * ``ckf``, ``ckf-nespm`` (:mod:`.ckf`): cubature Kalman filters (2n points, no tuning).
-* ``iekf`` (:mod:`.iekf`): right-invariant EKF with bias states (docs/iekf.md; 12 states).
+* ``iekf`` (:mod:`.iekf`): right-invariant EKF with bias states (docs/iekf.md; 12 or 15 states).
 
 Time: the event times are the GT epochs (where the solution is recorded) merged with every
 channel's measurement times. A measurement between two IMU samples splits that IMU step there

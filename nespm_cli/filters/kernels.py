@@ -8,7 +8,8 @@ of a batch:
 * :func:`transition` — the navigation cycle plus the accumulation of Φ = Π (I + F dt), F the
   error-state matrix of :func:`nespm_cli.filters.model.system_matrix` on the solution before
   each step (``ekf``, ``ukf``, the adaptive twins and every plugin that calls
-  ``ErrorStateFilter.transition``);
+  ``ErrorStateFilter.transition``), or the right-invariant F_inv of
+  :func:`nespm_cli.filters.model.invariant_system_matrix` (``iekf``, 12 or 15 states);
 * :func:`points_through_cycle` — error-state points (sigma or cubature offsets) added to the
   solution (ukf-nespm.md eqs 35-37) and each carried through the navigation cycle with its
   own bias compensation (eq 38) (``ukf-nespm``, ``anukf-nespm``).
@@ -107,14 +108,21 @@ def strapdown(pos, v_n, C_bn, b_a, b_g, f, w, dt, j0: int, j1: int) -> None:
 
 
 def transition(pos, v_n, C_bn, b_a, b_g, f, w, dt, j0: int, j1: int, invariant: bool = False,
-               layout: StateLayout = LAYOUT_12) -> np.ndarray:
+               layout: StateLayout = LAYOUT_12, origin: np.ndarray | None = None) -> np.ndarray:
     """Steps ``[j0, j1)`` in place as :func:`strapdown`, returning Φ (R, n, n) = Π (I + F dt) of
     ``layout``, F (:func:`nespm_cli.filters.model.system_matrix`, or with ``invariant`` the
-    right-invariant :func:`nespm_cli.filters.model.invariant_system_matrix`, 12 states) on the
-    solution before each step."""
+    right-invariant :func:`nespm_cli.filters.model.invariant_system_matrix`) on the solution before
+    each step. The invariant error with a position block (the iekf's 15 states) needs ``origin``
+    (R, 3) ``[lat, lon, h]``: the group position is the solution's NED offset from it (docs/iekf.md)."""
     from nespm_cli.filters import transition_kernel as tk
 
     Phi = np.empty((pos.shape[0], layout.n, layout.n))
+    if invariant and layout.has("pos"):
+        if origin is None:
+            raise NespmError("kernels.transition: the invariant error with a position block needs the origin")
+        tk.transition_span_invariant_position(pos, v_n, C_bn, b_a, b_g, _f64(f), _f64(w), _f64(dt), j0, j1, Phi,
+                                              layout.offsets(), np.ascontiguousarray(origin, dtype=np.float64))
+        return Phi
     tk.transition_span(pos, v_n, C_bn, b_a, b_g, _f64(f), _f64(w), _f64(dt), j0, j1, Phi, bool(invariant),
                        layout.offsets())
     return Phi
@@ -159,6 +167,7 @@ def warm_up() -> float:
     strapdown(pos.copy(), v.copy(), C.copy(), b, b, f, w, dt, 0, M)
     for invariant in (False, True):
         transition(pos.copy(), v.copy(), C.copy(), b, b, f, w, dt, 0, M, invariant)
+    transition(pos.copy(), v.copy(), C.copy(), b, b, f, w, dt, 0, M, True, LAYOUT_15, pos)
     for layout in (LAYOUT_12, LAYOUT_15):
         points_through_cycle(pos, v, C, b, b, np.zeros((R, 2 * layout.n, layout.n)), f, w, dt, 0, M, layout)
     return time.perf_counter() - t0

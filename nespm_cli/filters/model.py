@@ -13,7 +13,7 @@ first, ``[dp (0:3), dv, dpsi, b_a, b_g]``:
 
 So ``x`` is the correction: ``nav ⊕ x = truth``. After each update the estimate is fed
 back (``feedback``) and reset to zero (closed loop). ``N_STATES``, ``DV``, ``DPSI``, ``BA`` and
-``BG`` are the slices of the 12-state layout, the only one the ``iekf`` serves so far.
+``BG`` are the slices of the 12-state layout, the papers' (the ``iekf``'s 15-state slots are in :mod:`nespm_cli.filters.iekf`).
 """
 from __future__ import annotations
 
@@ -25,7 +25,7 @@ from nespm_cli.data.corruption import NOMINAL_ACC_NOISE, NOMINAL_GYRO_NOISE
 from nespm_cli.learn.processnet import VALIDITY_CLIP
 from nespm_cli.nav.earth import d_w_en_d_v, gravity_down_gradient, gravity_n, radii, transport_rates
 from nespm_cli.nav.rotations import exp_so3, skew
-from nespm_cli.nav.state import LAYOUT_12, NavState, StateLayout, parse_layout, plus, position_plus
+from nespm_cli.nav.state import LAYOUT_12, LAYOUT_15, NavState, StateLayout, parse_layout, plus, position_plus
 
 N_STATES = 12
 DV, DPSI, BA, BG = slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12)
@@ -160,35 +160,72 @@ def system_matrix(pos: np.ndarray, v_n: np.ndarray, C_bn: np.ndarray, f_b: np.nd
     return F
 
 
-def invariant_system_matrix(pos: np.ndarray, v_n: np.ndarray, C_bn: np.ndarray) -> np.ndarray:
-    """Continuous right-invariant error matrix ``F_inv`` (B, 12, 12), ``ξ̇ = F_inv ξ`` (docs/iekf.md; the error of ``iekf``).
+def invariant_system_matrix(pos: np.ndarray, v_n: np.ndarray, C_bn: np.ndarray, layout: StateLayout = LAYOUT_12,
+                            p: np.ndarray | None = None) -> np.ndarray:
+    """Continuous right-invariant error matrix ``F_inv`` (B, n, n), ``ξ̇ = F_inv ξ`` (docs/iekf.md; the error of ``iekf``).
 
     ``F_inv = T⁻¹ F T + T⁻¹ Ṫ`` with the common F (:func:`nespm_cli.filters.model.system_matrix`),
-    worked out in closed form; the specific force cancels (the group-affine part)::
+    worked out in closed form; the specific force cancels (the group-affine part). The papers' 12
+    states (``layout`` 12, ξ = [ρ, φ, b_a, b_g])::
 
         ρ̇ = −[(2ω_ie + ω_en)×] ρ + ([g×] + [v×][ω_ie×]) φ − C b_a − [v×] C b_g
         φ̇ = −J ρ + (J [v×] − [ω_in×]) φ − C b_g            (J = ∂ω_en/∂v, ω_in = ω_ie + ω_en)
 
     The earth-rate, transport-rate and Coriolis terms are not group-affine; they are kept as
-    first-order terms. Gravity's position dependence and the position couplings of the earth
-    and transport rates are dropped (position is not a state), as in the common F.
+    first-order terms. With 12 states gravity's position dependence and the position couplings of
+    the earth and transport rates are dropped (position is not a state), as in the common F.
+
+    With the position block (``layout`` 15, ξ = [ρ_p, ρ_v, φ, b_a, b_g], the group position ``p``
+    (B, 3) [m] the solution's NED offset from the run's fixed origin, iekf.py)::
+
+        ρ̇_p = (I − [p×]J) ρ_v + [p×](J [v×] − [ω_in×]) φ − [p×] C b_g
+        ρ̇_v = Γ ρ_p − [(2ω_ie + ω_en)×] ρ_v + ([g×] + [v×][ω_ie×] − Γ [p×]) φ − C b_a − [v×] C b_g
+        φ̇  = −J ρ_v + (J [v×] − [ω_in×]) φ − C b_g          (Γ = γ e_D e_Dᵀ, γ = ∂g_D/∂D)
+
+    i.e. the common 15-state F (its vertical gravity gradient γ; the O(v/R) position couplings it
+    drops stay dropped) in these coordinates, with ``ṗ = v`` (flat earth about the origin).
 
     Args:
-        pos: (B, 3) [lat, lon, h]; v_n: (B, 3) [m/s]; C_bn: (B, 3, 3), the solution before the step.
+        pos: (B, 3) [lat, lon, h]; v_n: (B, 3) [m/s]; C_bn: (B, 3, 3), the solution before the step;
+        layout: 12 or 15 (``pos, vel, att, ba, bg``); p: (B, 3) the group position [m], required
+            with a position block.
     """
     lat, h = pos[..., 0], pos[..., 2]
     R_N, R_E = radii(lat)
     w_ie, w_en = transport_rates(lat, h, v_n, R_N, R_E)
     J = d_w_en_d_v(pos)
     V = skew(v_n)
-    F = np.zeros(v_n.shape[:-1] + (N_STATES, N_STATES))
-    F[..., DV, DV] = -skew(2.0 * w_ie + w_en)
-    F[..., DV, DPSI] = skew(gravity_n(pos)) + V @ skew(w_ie)
-    F[..., DV, BA] = -C_bn
-    F[..., DV, BG] = -V @ C_bn
-    F[..., DPSI, DV] = -J
-    F[..., DPSI, DPSI] = J @ V - skew(w_ie + w_en)
-    F[..., DPSI, BG] = -C_bn
+    if not layout.has("pos"):
+        F = np.zeros(v_n.shape[:-1] + (N_STATES, N_STATES))
+        F[..., DV, DV] = -skew(2.0 * w_ie + w_en)
+        F[..., DV, DPSI] = skew(gravity_n(pos)) + V @ skew(w_ie)
+        F[..., DV, BA] = -C_bn
+        F[..., DV, BG] = -V @ C_bn
+        F[..., DPSI, DV] = -J
+        F[..., DPSI, DPSI] = J @ V - skew(w_ie + w_en)
+        F[..., DPSI, BG] = -C_bn
+        return F
+    if p is None:
+        raise ValueError("invariant_system_matrix: a layout with a position block needs the group position p")
+    if layout.blocks != LAYOUT_15.blocks:
+        raise ValueError(f"invariant_system_matrix: layout {layout.name} (the invariant error serves 12 or 15)")
+    Pp = skew(np.broadcast_to(p, v_n.shape))
+    Pv, Va, A, Ba, Bg = (layout.slice(b) for b in ("pos", "vel", "att", "ba", "bg"))
+    gamma = gravity_down_gradient(pos)
+    W_phi = J @ V - skew(w_ie + w_en)  # the φ row's φ block, which ρ_p sees through [p×]
+    F = np.zeros(v_n.shape[:-1] + (layout.n, layout.n))
+    F[..., Pv, Va] = np.eye(3) - Pp @ J
+    F[..., Pv, A] = Pp @ W_phi
+    F[..., Pv, Bg] = -Pp @ C_bn
+    F[..., Va.start + 2, Pv.start + 2] = gamma
+    F[..., Va, Va] = -skew(2.0 * w_ie + w_en)
+    F[..., Va, A] = skew(gravity_n(pos)) + V @ skew(w_ie)
+    F[..., Va.start + 2, A] -= gamma[..., None] * Pp[..., 2, :]
+    F[..., Va, Ba] = -C_bn
+    F[..., Va, Bg] = -V @ C_bn
+    F[..., A, Va] = -J
+    F[..., A, A] = W_phi
+    F[..., A, Bg] = -C_bn
     return F
 
 

@@ -9,7 +9,10 @@ the first index of the ``[pos, vel, att, ba, bg]`` blocks (-1 for an absent one,
 
 Φ = Π (I + F dt): F has non-zero rows only for the position, velocity and attitude blocks, so Φ
 keeps its bias rows [0 I]; only the rows that change are formed (``transition_span``): for the
-papers' 12 states the same sums, in the same order, as the dense product's top six rows.
+papers' 12 states the same sums, in the same order, as the dense product's top six rows. The
+iekf's right-invariant error with position (15 states, docs/iekf.md) has its own loop,
+``transition_span_invariant_position``: F_inv's ρ_p row is dense in ρ_v, φ and b_g, and it needs
+each run's origin (the group position is the solution's NED offset from it).
 """
 from __future__ import annotations
 
@@ -18,7 +21,7 @@ import math
 import numpy as np
 
 from nespm_cli.nav.earth import A, E2, F, GAMMA_E, K_SOMIGLIANA
-from nespm_cli.nav.kernels import GRAV_M, cycle_t, exp_t, gravity_t, load_t, matrix_t, mul_t, njit, state_t, store_t
+from nespm_cli.nav.kernels import GRAV_M, cycle_t, earth_t, exp_t, gravity_t, load_t, matrix_t, mul_t, njit, state_t, store_t
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -109,7 +112,7 @@ def gravity_gradient_t(lat, h, sl):
 @njit(cache=True, error_model="numpy", inline="always")
 def invariant_top_s(x, M, dt, S):
     """Rows 0-5 of ``I + F_inv dt`` into ``M`` (12, 12): F_inv of model.invariant_system_matrix
-    (the 12-state layout only).
+    for the 12-state layout (with position: :func:`invariant_position_blocks_s`).
 
     ρ̇ = −[(2ω_ie + ω_en)×] ρ + ([g×] + [v×][ω_ie×]) φ − C b_a − [v×] C b_g
     φ̇ = −J ρ + (J [v×] − [ω_in×]) φ − C b_g.      ``S`` (5, 3, 3) scratch.
@@ -153,6 +156,77 @@ def invariant_top_s(x, M, dt, S):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
+def mat3_s(A, B, out):
+    """``out ← A @ B`` for (3, 3) arrays."""
+    for i in range(3):
+        for k in range(3):
+            out[i, k] = A[i, 0] * B[0, k] + A[i, 1] * B[1, k] + A[i, 2] * B[2, k]
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def invariant_position_blocks_s(x, S, q0, q1, q2):
+    """The non-zero 3x3 blocks of F_inv (model.invariant_system_matrix with the position block) at
+    the group position ``q`` [m] (the solution's NED offset from the run's origin), into ``S``
+    (16, 3, 3); returns γ = ∂g_D/∂D, the only entry of the ρ_v–ρ_p block (at D, D)::
+
+        ρ̇_p = (I − [q×]J) ρ_v + [q×](J[v×] − [ω_in×]) φ − [q×] C b_g
+        ρ̇_v = Γ ρ_p − [(2ω_ie + ω_en)×] ρ_v + ([g×] + [v×][ω_ie×] − Γ[q×]) φ − C b_a − [v×] C b_g
+        φ̇  = −J ρ_v + (J[v×] − [ω_in×]) φ − C b_g
+
+    Blocks: ``S[0]`` ρ_p–ρ_v, ``S[1]`` ρ_p–φ, ``S[2]`` ρ_p–b_g, ``S[3]`` ρ_v–ρ_v, ``S[4]`` ρ_v–φ,
+    ``S[5]`` ρ_v–b_a, ``S[6]`` ρ_v–b_g, ``S[7]`` φ–ρ_v, ``S[8]`` φ–φ, ``S[9]`` φ–b_g; ``S[10:16]`` scratch.
+    """
+    lat, h = x[0], x[2]
+    R_N, R_E = x[17], x[18]
+    gN, gD = gravity_t(lat, h, x[15])
+    gamma = gravity_gradient_t(lat, h, x[15])
+    V, W, J, T, C, Q = S[10], S[11], S[12], S[13], S[14], S[15]
+    skew_s(x[3], x[4], x[5], V)
+    skew_s(x[19], x[20], x[21], W)
+    skew_s(q0, q1, q2, Q)
+    for i in range(3):
+        for k in range(3):
+            C[i, k] = x[6 + 3 * i + k]
+            J[i, k] = 0.0
+    J[0, 1] = 1.0 / (R_E + h)
+    J[1, 0] = -1.0 / (R_N + h)
+    J[2, 1] = -math.tan(lat) / (R_E + h)
+    # φ–φ: J[v×] − [ω_in×]; φ–ρ_v: −J; φ–b_g: −C
+    Wphi = S[8]
+    skew_s(x[19] + x[22], x[20] + x[23], x[21] + x[24], T)
+    mat3_s(J, V, Wphi)
+    for i in range(3):
+        for k in range(3):
+            Wphi[i, k] -= T[i, k]
+            S[7][i, k] = -J[i, k]
+            S[9][i, k] = -C[i, k]
+            S[5][i, k] = -C[i, k]
+    # ρ_p row
+    mat3_s(Q, J, S[0])
+    mat3_s(Q, Wphi, S[1])
+    mat3_s(Q, C, S[2])
+    for i in range(3):
+        for k in range(3):
+            S[0][i, k] = (1.0 if i == k else 0.0) - S[0][i, k]
+            S[2][i, k] = -S[2][i, k]
+    # ρ_v row
+    skew_s(2.0 * x[19] + x[22], 2.0 * x[20] + x[23], 2.0 * x[21] + x[24], T)
+    mat3_s(V, W, S[4])
+    mat3_s(V, C, S[6])
+    for i in range(3):
+        for k in range(3):
+            S[3][i, k] = -T[i, k]
+            S[6][i, k] = -S[6][i, k]
+    skew_s(gN, 0.0, gD, T)
+    for i in range(3):
+        for k in range(3):
+            S[4][i, k] += T[i, k]
+    for k in range(3):
+        S[4][2, k] -= gamma * Q[2, k]
+    return gamma
+
+
+@njit(cache=True, error_model="numpy", inline="always")
 def skew_s(a0, a1, a2, out):
     """``[a x]`` into ``out`` (3, 3)."""
     out[0, 0], out[0, 1], out[0, 2] = 0.0, -a2, a1
@@ -163,7 +237,8 @@ def skew_s(a0, a1, a2, out):
 @njit(cache=True, error_model="numpy")
 def transition_span(pos, v, C, b_a, b_g, f, w, dt, j0, j1, Phi, invariant, off):
     """Steps ``[j0, j1)`` in place on the solution; Φ (R, n, n) = Π (I + F dt) into ``Phi`` for the
-    layout ``off`` (``invariant``: F_inv of the right-invariant error, iekf.py, 12 states only).
+    layout ``off`` (``invariant``: F_inv of the right-invariant error, iekf.py, 12 states; with the
+    position block: :func:`transition_span_invariant_position`).
 
     Only the rows of Φ that change are formed. The velocity and attitude rows ``va = v .. v+5``
     (adjacent in every layout): ``Φ_va ← M_va,va Φ_va + M_va,bias`` (the bias rows of Φ are
@@ -208,6 +283,64 @@ def transition_span(pos, v, C, b_a, b_g, f, w, dt, j0, j1, Phi, invariant, off):
             for i in range(vo, e):
                 for k in range(n):
                     P[i, k] = top[i, k]
+            x = cycle_t(x, f0, f1, f2, w[r, j, 0] - bg0, w[r, j, 1] - bg1, w[r, j, 2] - bg2, dt[j])
+        store_t(x, pos[r], v[r], C[r])
+
+
+@njit(cache=True, error_model="numpy")
+def transition_span_invariant_position(pos, v, C, b_a, b_g, f, w, dt, j0, j1, Phi, off, origin):
+    """:func:`transition_span` for the right-invariant error with the position block (iekf.py,
+    15 states): Φ_inv (R, n, n) = Π (I + F_inv dt) into ``Phi``, F_inv on the solution before each
+    step (:func:`invariant_position_blocks_s`) at the group position, the solution's NED offset
+    from the run's ``origin`` (R, 3) ``[lat, lon, h]`` (nav.earth.ned_offset about it).
+
+    Only the rows of ρ_p, ρ_v, φ change (the bias rows of Φ stay identity rows), column by
+    column: ``Φ_top[:, k] ← Φ_top[:, k] + dt (F_top,top Φ_top[:, k] + F_top,k)``, the last term for
+    the bias columns only, with the zero blocks of F_inv skipped (the dense product's numbers, to
+    round-off: tests/test_kernels.py).
+    """
+    n = Phi.shape[1]
+    p, vo, a, ba, bg = off[0], off[1], off[2], off[3], off[4]
+    S = np.empty((16, 3, 3))
+    for r in range(pos.shape[0]):
+        P = Phi[r]
+        for i in range(n):
+            for k in range(n):
+                P[i, k] = 1.0 if i == k else 0.0
+        x = load_t(pos[r], v[r], C[r])
+        lat0, lon0, h0 = origin[r, 0], origin[r, 1], origin[r, 2]
+        e0 = earth_t(lat0, h0, 0.0, 0.0)
+        kN = e0[2] + h0
+        kE = (e0[3] + h0) * math.cos(lat0)
+        ba0, ba1, ba2, bg0, bg1, bg2 = b_a[r, 0], b_a[r, 1], b_a[r, 2], b_g[r, 0], b_g[r, 1], b_g[r, 2]
+        for j in range(j0, j1):
+            f0, f1, f2 = f[r, j, 0] - ba0, f[r, j, 1] - ba1, f[r, j, 2] - ba2
+            h = dt[j]
+            gamma = invariant_position_blocks_s(x, S, (x[0] - lat0) * kN, (x[1] - lon0) * kE, -(x[2] - h0))
+            Fpv, Fpa, Fpg, Fvv, Fva = S[0], S[1], S[2], S[3], S[4]
+            Fvb, Fvg, Fav, Faa, Fag = S[5], S[6], S[7], S[8], S[9]
+            for k in range(n):
+                p2 = P[p + 2, k]  # the gravity gradient reads δp_D only
+                v0, v1, v2 = P[vo, k], P[vo + 1, k], P[vo + 2, k]
+                a0, a1, a2 = P[a, k], P[a + 1, k], P[a + 2, k]
+                for i in range(3):
+                    dp = ((Fpv[i, 0] * v0 + Fpv[i, 1] * v1 + Fpv[i, 2] * v2)
+                          + (Fpa[i, 0] * a0 + Fpa[i, 1] * a1 + Fpa[i, 2] * a2))
+                    dv = ((Fvv[i, 0] * v0 + Fvv[i, 1] * v1 + Fvv[i, 2] * v2)
+                          + (Fva[i, 0] * a0 + Fva[i, 1] * a1 + Fva[i, 2] * a2))
+                    da = ((Fav[i, 0] * v0 + Fav[i, 1] * v1 + Fav[i, 2] * v2)
+                          + (Faa[i, 0] * a0 + Faa[i, 1] * a1 + Faa[i, 2] * a2))
+                    if i == 2:
+                        dv += gamma * p2
+                    if ba >= 0 and ba <= k < ba + 3:
+                        dv += Fvb[i, k - ba]
+                    if bg >= 0 and bg <= k < bg + 3:
+                        dp += Fpg[i, k - bg]
+                        dv += Fvg[i, k - bg]
+                        da += Fag[i, k - bg]
+                    P[p + i, k] += h * dp
+                    P[vo + i, k] += h * dv
+                    P[a + i, k] += h * da
             x = cycle_t(x, f0, f1, f2, w[r, j, 0] - bg0, w[r, j, 1] - bg1, w[r, j, 2] - bg2, dt[j])
         store_t(x, pos[r], v[r], C[r])
 

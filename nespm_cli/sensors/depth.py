@@ -53,6 +53,13 @@ class DepthMeasurement(Measurement):
         H[..., 0, a], H[..., 0, a + 1] = u[..., 1], -u[..., 0]
         return H
 
+    def H_invariant(self, nav: NavState) -> None:
+        """None: the iekf uses ``H T`` (docs/iekf.md). The depth is the down component of the
+        left-invariant observation ``X b`` (the sensor's position ``p + C l``); in the iekf's
+        right-invariant coordinates its Jacobian is ``[e_Dᵀ on ρ_p, e_Dᵀ (−[(p + C l)×]) on φ]``,
+        which depends on the group position ``p`` that a measurement does not know."""
+        return None
+
 
 @dataclass(frozen=True)
 class DepthOptions(SensorOptions):

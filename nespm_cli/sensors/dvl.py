@@ -74,7 +74,9 @@ def invariant_dvl_h(rho: np.ndarray, phi: np.ndarray, bg: np.ndarray, C_bn: np.n
 
 def invariant_dvl_H(C_bn: np.ndarray, lever, layout: StateLayout) -> np.ndarray:
     """Jacobian of :func:`invariant_dvl_h` at ξ = 0 (B, 3, n): ``[Cᵀ, 0, 0, [l×]]`` on ρ (the vel
-    block) and b_g. No attitude column: the attitude error enters only through ρ."""
+    block) and b_g. No attitude column: the attitude error enters only through ρ. With the 15-state
+    position block (ρ_p) the same, with a zero ρ_p column: ``Y = X⁻¹ b`` does not see the position,
+    so H is free of the group position too (docs/iekf.md)."""
     B = C_bn.shape[:-2]
     H = np.zeros(B + (3, layout.n))
     H[..., :, layout.slice("vel")] = np.swapaxes(C_bn, -1, -2)

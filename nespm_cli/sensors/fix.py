@@ -72,6 +72,13 @@ class FixMeasurement(Measurement):
         H[..., :, a] = -skew(lever_down(nav.C_bn, self.lever))[..., :m, :]
         return H
 
+    def H_invariant(self, nav: NavState) -> None:
+        """None: the iekf uses ``H T`` (docs/iekf.md). A fix is the textbook left-invariant
+        observation ``Y = X b``, ``b = (l, 0, 1)`` (the antenna's position ``p + C l``); with the
+        right-invariant error its Jacobian ``[I on ρ_p, −[(p + C l)×] on φ]`` (first m rows) depends
+        on the state, through the group position ``p`` that a measurement does not know."""
+        return None
+
 
 @dataclass(frozen=True)
 class FixOptions(SensorOptions):
