@@ -146,6 +146,19 @@ def smoother_label(name: str) -> str:
     return f"{name} (RTS smoother floor)" if is_smoother(name) else name
 
 
+def checked_filter(metrics: pd.DataFrame, name: str, role: str = "reference") -> str:
+    """``name`` (``--baseline``) if it is a causal filter of ``metrics``; one line otherwise (an unknown
+    filter, or an RTS-smoother floor: hindsight is no ``role`` for a causal filter)."""
+    names = filters_in_order(metrics)
+    if name not in names:
+        raise NespmError(f"--baseline: unknown filter '{name}': the results hold {', '.join(names)}")
+    if is_smoother(name):
+        causal = [n for n in names if not is_smoother(n)]
+        raise NespmError(f"--baseline: '{name}' is an RTS-smoother floor (hindsight), not a {role}; "
+                         f"choose one of {', '.join(causal)}")
+    return name
+
+
 def causal_only(metrics: pd.DataFrame) -> pd.DataFrame:
     """The rows of the causal filters (every filter but the RTS-smoother floors)."""
     return metrics[~metrics["filter"].astype(str).map(is_smoother).to_numpy(bool)]

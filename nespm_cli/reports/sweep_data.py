@@ -15,6 +15,7 @@ from nespm_cli.errors import NespmError
 from nespm_cli.reports.results import (
     METRICS_COLUMNS,
     check_metrics,
+    checked_filter,
     filters_in_order,
     is_smoother,
     read_results_folder,
@@ -63,28 +64,19 @@ def param_of(metrics: pd.DataFrame) -> str:
 
 
 def param_label(param: str) -> str:
-    """Axis label with unit from ``sweep.PARAMS``, else the parameter name."""
-    try:
-        from nespm_cli.experiments.sweep import PARAMS
-    except Exception:  # pragma: no cover - sweep.py imports the experiment machinery
-        return param
-    return PARAMS[param].label if param in PARAMS else param
+    """Axis label with unit of a sweep parameter (a sensor's or filter's option too), else its name."""
+    from nespm_cli.experiments.sweep import param_label as label
+
+    return label(param)
 
 
 def default_baseline(metrics: pd.DataFrame, baseline: str | None = None) -> str:
     """``baseline`` if given (must be a filter of the results, not an RTS-smoother floor), else
     ``ekf`` if present, else the first causal filter."""
+    if baseline:
+        return checked_filter(metrics, baseline, "baseline")
     names = filters_in_order(metrics)
     causal = [n for n in names if not is_smoother(n)] or names
-    if baseline:
-        if baseline not in names:
-            raise NespmError(
-                f"--baseline: unknown filter '{baseline}': the results hold {', '.join(names)}"
-            )
-        if is_smoother(baseline):
-            raise NespmError(f"--baseline: '{baseline}' is an RTS-smoother floor (hindsight), not a baseline; "
-                             f"choose one of {', '.join(causal)}")
-        return baseline
     return DEFAULT_BASELINE if DEFAULT_BASELINE in names else causal[0]
 
 

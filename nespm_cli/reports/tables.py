@@ -17,7 +17,7 @@ import pandas as pd
 
 from nespm_cli.errors import NespmError
 from nespm_cli.experiments.metrics import cep
-from nespm_cli.reports.results import check_metrics, filters_in_order, has_hpe, is_smoother
+from nespm_cli.reports.results import check_metrics, checked_filter, filters_in_order, has_hpe, is_smoother
 from nespm_cli.reports.stats import (
     METRICS,
     MIN_PAIRED_RUNS,
@@ -46,17 +46,10 @@ def default_reference(metrics: pd.DataFrame, reference: str | None = None) -> st
     Raises NespmError if ``reference`` is not one of the filters in ``metrics`` or is a smoother
     floor (hindsight is no reference for a causal filter).
     """
+    if reference:
+        return checked_filter(metrics, reference, "reference")
     names = filters_in_order(metrics)
     causal = [n for n in names if not is_smoother(n)]
-    if reference:
-        if reference not in names:
-            raise NespmError(
-                f"--baseline: unknown filter '{reference}': the results hold {', '.join(names)}"
-            )
-        if is_smoother(reference):
-            raise NespmError(f"--baseline: '{reference}' is an RTS-smoother floor (hindsight), not a reference; "
-                             f"choose one of {', '.join(causal)}")
-        return reference
     if DEFAULT_REFERENCE in names:
         return DEFAULT_REFERENCE
     aided = [n for n in causal if n != "ins"]
