@@ -62,7 +62,9 @@ def plot_cases(table: pd.DataFrame, imp: pd.DataFrame, path: Path) -> Path:
     a.set_xticks(x, cases, rotation=20, ha="right")
     a.set_ylabel("RMS horizontal position error [m]")
     a.set_title("Each case, over the runs no filter lost")
-    a.legend(fontsize=8)
+    top = float(np.nanmax(causal["hpe_rms"].to_numpy(float))) if len(causal) else 1.0
+    a.set_ylim(0.0, 1.25 * top if np.isfinite(top) and top > 0 else 1.0)
+    a.legend(fontsize=8, ncol=max(len(filters), 1), loc="upper center")
     b.axhline(0.0, color="0.5", lw=0.8)
     b.set_xticks(np.arange(1, len(cases)), cases[1:], rotation=20, ha="right")
     b.set_xlim(0.4, len(cases) - 0.4)
