@@ -133,3 +133,13 @@ def test_sensor_parameter_sweep_is_paired_and_recorded(tmp_path, capsys, no_env_
         ch, clean = (build_channel(fix, track, truth, spec.seed, 1, np.arange(2), c) for c in (False, True))
         noise.append(ch.z - clean.z)
     np.testing.assert_allclose(noise[1] / 3.0, noise[0], rtol=1e-9, atol=1e-15)
+
+
+def test_beam_loss_length_sweeps_the_window_of_the_lost_beams():
+    spec = Spec(tracks=(5,), runs=2, filters=("ekf",), sensors=("dvl-beams",), filter_config=FilterConfig(state="15"),
+                sensor_options=(("dvl-beams", "beam_outage", "3,4@100:110"),))
+    cells = sweep_cells(spec, "beam-loss-length", [30.0, 90.0])
+    got = [dict(((o[0], o[1]), o[2]) for o in c.spec.sensor_options)[("dvl-beams", "beam_outage")] for c in cells]
+    assert got == ["3,4@100:130", "3,4@100:190"]
+    with pytest.raises(Exception, match="dvl-beams is not in --sensors"):
+        sweep_cells(Spec(tracks=(5,), runs=2, filters=("ekf",)), "beam-loss-length", [30.0])

@@ -70,7 +70,7 @@ def mc(
 
 @with_options(RUNNER, COMMON)
 def sweep(
-    param: str = typer.Option(..., "--param", help="Parameter to sweep: misalignment-deg, heading-deg, vel-std, acc-bias, gyro-bias, acc-noise, gyro-noise, dvl-noise (with --dvl synthetic), outage-length, alpha; a sensor's: fix-interval, fix-std, depth-std, heading-std, or any numeric sensor option SENSOR.KEY (e.g. fix.vertical_std; the sensor in --sensors)."),
+    param: str = typer.Option(..., "--param", help="Parameter to sweep: misalignment-deg, heading-deg, vel-std, acc-bias, gyro-bias, acc-noise, gyro-noise, dvl-noise (with --dvl synthetic), outage-length, alpha; a sensor's: fix-interval, fix-std, depth-std, heading-std, beam-loss-length, or any numeric sensor option SENSOR.KEY (e.g. fix.vertical_std; the sensor in --sensors)."),
     values: str = typer.Option(..., "--values", help="Comma-separated values, e.g. 0.01,0.1,1,10."),
     out: str = typer.Option("results/sweep", "--out", help="Output folder."),
     **kw,

@@ -57,9 +57,25 @@ def sensor_param(sensor: str, key: str) -> Callable[[Spec, float], Spec]:
     def apply(spec: Spec, v: float) -> Spec:
         if sensor not in spec.sensors:
             raise NespmError(f"--param {sensor}.{key}: {sensor} is not in --sensors ({', '.join(spec.sensors)})")
-        opts = tuple(o for o in spec.sensor_options if (o[0], o[1]) != (sensor, key)) + ((sensor, key, f"{v!r}"),)
+        text = v if isinstance(v, str) else f"{v!r}"
+        opts = tuple(o for o in spec.sensor_options if (o[0], o[1]) != (sensor, key)) + ((sensor, key, text),)
         return dataclasses.replace(spec, sensor_options=opts)
     return apply
+
+
+def beam_loss_length(spec: Spec, v: float) -> Spec:
+    """The length [s] of the DVL-beam loss: the first window of ``dvl-beams.beam_outage`` (its beams
+    and start kept; default beams 1, 2 from 180 s) ends ``v`` s after it starts."""
+    from nespm_cli.sensors.dvl_beams import parse_beam_outage
+
+    if "dvl-beams" not in spec.sensors:
+        raise NespmError(f"--param beam-loss-length: dvl-beams is not in --sensors ({', '.join(spec.sensors)})")
+    given = [o[2] for o in spec.sensor_options if o[:2] == ("dvl-beams", "beam_outage")]
+    entries = parse_beam_outage(given[-1] if given else "1,2@180:240", "--sensor-option dvl-beams.beam_outage")
+    beams, windows = entries[0] if entries else ((1, 2), [(180.0, 240.0)])
+    start = windows[0][0]
+    text = f"{','.join(map(str, beams))}@{start:g}:{start + v:g}"
+    return sensor_param("dvl-beams", "beam_outage")(spec, text)
 
 
 #: named sensor parameters (any ``SENSOR.KEY`` of a numeric option is a parameter too)
@@ -83,6 +99,8 @@ def filter_param(filt: str, key: str) -> Callable[[Spec, float], Spec]:
 def option_param_of(param: str, filters: tuple = ()) -> Param | None:
     """The :class:`Param` of a sensor or filter option: a name of :data:`SENSOR_PARAMS`, or ``NAME.KEY``
     (a filter's option when ``NAME`` is in ``filters``, else a sensor's)."""
+    if param == "beam-loss-length":
+        return Param("length of the DVL-beam loss [s]", beam_loss_length)
     if param in SENSOR_PARAMS:
         sensor, key, label = SENSOR_PARAMS[param]
         return Param(label, sensor_param(sensor, key))
@@ -132,7 +150,7 @@ def sweep_cells(spec: Spec, param: str, values: list[float]) -> list[Cell]:
     """One validated cell per value; chunk files are tagged ``v00-``, ``v01-``, ..."""
     p = PARAMS.get(param) or option_param_of(param, tuple(spec.filters))
     if p is None:
-        raise NespmError(f"--param: unknown parameter {param!r}; choose from {', '.join([*PARAMS, *SENSOR_PARAMS])} "
+        raise NespmError(f"--param: unknown parameter {param!r}; choose from {', '.join([*PARAMS, *SENSOR_PARAMS, 'beam-loss-length'])} "
                          "or an option SENSOR.KEY or FILTER.KEY (e.g. fix.interval, ukf.alpha)")
     if p.positive and min(values) <= 0:
         raise NespmError(f"--values: {param} values must be positive, got {min(values):g}")
