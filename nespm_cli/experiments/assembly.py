@@ -12,6 +12,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import warnings
+
 import numpy as np
 import pandas as pd
 
@@ -120,7 +122,7 @@ def epoch_table(series: list[tuple[tuple, Path]], keys: tuple[str, ...] = ()) ->
                                "ok": np.zeros(N, dtype=np.int64),
                                "moments": {c: Moments(N) for c, _ in MEAN_COLUMNS},
                                "nis": {c: Moments(N) for c in nis_cols},
-                               "axes": {lab: (Moments(N), Moments(N)) for lab in labels},
+                               "axes": {lab: (Moments(N), Moments(N)) for lab in labels}, "hpe_runs": [],
                                "nci": {b: Credibility(N) for b, (_, _, labs) in STATE_BLOCKS.items()
                                        if all(lab in labels for lab in labs)}}
         bad = s["diverged"].to_numpy().reshape(R, N)
@@ -129,6 +131,7 @@ def epoch_table(series: list[tuple[tuple, Path]], keys: tuple[str, ...] = ()) ->
         cols["hpe"] = np.hypot(cols["north_err"], cols["east_err"])  # horizontal position error [m]
         for c, _ in MEAN_COLUMNS:
             g["moments"][c].add(np.where(bad, np.nan, cols[c]))
+        g["hpe_runs"].append(np.where(bad, np.nan, cols["hpe"]).astype(np.float32))  # (R, N): CEP over the runs
         for c in g["nis"]:
             g["nis"][c].add(np.where(bad, np.nan, _read_columns(s, (c,), R, N)[c]))
         for lab, (me, ms) in g["axes"].items():
@@ -162,6 +165,7 @@ def epoch_table(series: list[tuple[tuple, Path]], keys: tuple[str, ...] = ()) ->
         for c, mom in g["nis"].items():
             nis[f"{c}_mean"], nis[f"{c}_n"] = mom.result()[0], mom.n.astype(np.int64)
         row.update(dvl_used=g["dvl_used"], n_runs=g["ok"], **nis)
+        row["hpe_cep50"], row["hpe_r95"] = epoch_cep(np.concatenate(g["hpe_runs"], axis=0))
         for lab, (me, ms) in g["axes"].items():
             row[f"rms_{lab}"], row[f"sig_{lab}"] = np.sqrt(me.result()[0]), np.sqrt(ms.result()[0])
         for b, cred in g["nci"].items():
@@ -169,11 +173,24 @@ def epoch_table(series: list[tuple[tuple, Path]], keys: tuple[str, ...] = ()) ->
         rows.append(pd.DataFrame(row))
     order = [*keys, "track", "filter", "epoch", "t", "vel_err_mean", "vel_err_std", "att_err_mean", "att_err_std",
              "nees_mean", "north_err_mean", "east_err_mean", "hpe_mean", "hpe_std",
-             *(f"nees_{b}_mean" for b in BLOCKS), *(f"{c}_mean" for c in COVERAGE), "dvl_used", "n_runs"]
+             "hpe_cep50", "hpe_r95", *(f"nees_{b}_mean" for b in BLOCKS), *(f"{c}_mean" for c in COVERAGE),
+             "dvl_used", "n_runs"]
     table = pd.concat(rows, ignore_index=True)
     extra = sorted(c for c in table.columns if c.startswith("nis_"))
     extra += [c for c in table.columns if c.startswith(("rms_", "sig_", "nci_"))]
     return table[order + extra]
+
+
+def epoch_cep(hpe: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(CEP50, R95)`` (N,) [m] per epoch: the 50 % and 95 % quantiles (linear interpolation, as
+    :func:`nespm_cli.experiments.metrics.cep`) of the horizontal errors ``hpe`` (R, N) of the runs not
+    lost (NaN: left out; NaN where no run counts). The runs' errors are kept as float32 (4 bytes per
+    run and epoch of one track and filter) until the quantiles are taken."""
+    x = np.asarray(hpe, dtype=float)
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # an epoch without a run: NaN
+        q = np.nanquantile(x, [0.5, 0.95], axis=0) if x.size else np.full((2, x.shape[1]), np.nan)
+    return q[0], q[1]
 
 
 def _block_errors(s: pd.DataFrame, labels, bad: np.ndarray, R: int, N: int) -> np.ndarray:
@@ -182,4 +199,4 @@ def _block_errors(s: pd.DataFrame, labels, bad: np.ndarray, R: int, N: int) -> n
     return np.where(bad[..., None], np.nan, E)
 
 
-__all__ = ["BLOCK_COLUMNS", "COVERAGE", "Credibility", "MEAN_COLUMNS", "Moments", "epoch_table"]
+__all__ = ["BLOCK_COLUMNS", "COVERAGE", "Credibility", "MEAN_COLUMNS", "Moments", "epoch_cep", "epoch_table"]
