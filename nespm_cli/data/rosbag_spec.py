@@ -10,9 +10,9 @@ from __future__ import annotations
 from pathlib import Path
 
 from nespm_cli.data.plausibility import printable
+from nespm_cli.data.toml_keys import BOOL, INT, NUM, STR, TABLE, checked_table
 from nespm_cli.errors import NespmError
 
-STR, INT, NUM, BOOL, TABLE = "a string", "an integer", "a number", "true or false", "a table"
 BODY, STAMP = ("flu", "frd"), STR
 #: every key of the spec: ``{table: {key: type or tuple of choices}}`` ("" is the top level)
 SCHEMA = {
@@ -104,30 +104,9 @@ def read_spec(path: Path) -> dict:
 
 
 def _table(path: Path, name: str, table) -> dict:
-    """The keys of one table, each checked against :data:`SCHEMA`."""
-    if not isinstance(table, dict):
-        raise NespmError(f"{path}: key '{name}' must be a table ([{name}])")
-    known = SCHEMA[name]
-    for key, value in table.items():
-        full = f"{name}.{key}" if name else key
-        if key not in known:
-            raise NespmError(f"{path}: unknown key '{printable(full, 60)}' (known{f' in [{name}]' if name else ''}: "
-                             f"{', '.join(known)})")
-        want = known[key]
-        if want == TABLE and not name:
-            continue  # the sub-tables are checked by read_spec
-        ok = {STR: isinstance(value, str), BOOL: isinstance(value, bool), TABLE: isinstance(value, dict),
-              INT: isinstance(value, int) and not isinstance(value, bool),
-              NUM: isinstance(value, (int, float)) and not isinstance(value, bool)}.get(want)
-        if ok is None:  # choices
-            if value not in want:
-                raise NespmError(f"{path}: key '{full}': {printable(repr(value), 40)} is not one of "
-                                 f"{', '.join(want)}")
-        elif not ok:
-            raise NespmError(f"{path}: key '{full}' must be {want}, got {printable(repr(value), 40)}")
-        elif want == STR and not value.strip():
-            raise NespmError(f"{path}: key '{full}' is empty")
-    return dict(table)
+    """The keys of one table, each checked against :data:`SCHEMA` (the top level's sub-tables are
+    checked by :func:`read_spec`)."""
+    return checked_table(path, name, table, SCHEMA[name], skip=(TABLE,) if not name else ())
 
 
 def _check(path: Path, spec: dict) -> None:

@@ -27,6 +27,7 @@ import numpy as np
 
 from nespm_cli.data.corrections import axes_matrix
 from nespm_cli.data.plausibility import printable
+from nespm_cli.data.toml_keys import BOOL, INT, NUM, STR, TABLE, checked_table
 from nespm_cli.errors import NespmError
 
 # ----------------------------------------------------------------------------- units
@@ -93,7 +94,7 @@ def to_seconds(stamps: np.ndarray, unit: str, zero: float = 0.0, offset: float =
 # ----------------------------------------------------------------------------- the spec
 
 SPEC_NAME = "nespm-data.toml"  # found automatically in the data folder
-STR, NUM, INT, BOOL, TABLE, UNIT = "a string", "a number", "an integer", "true or false", "a table", "a unit"
+UNIT = "a unit"
 FRAMES = ("geodetic", "ned", "enu")
 CHANNELS = ("gt", "dvl", "imu", "depth", "fix")
 _FILE = {"file": STR, "time": STR, "time_unit": UNIT, "time_zero": NUM}
@@ -195,34 +196,15 @@ def read_spec(path: Path) -> TrackSpec:
 
 def _keys(path: Path, name: str, table) -> dict:
     """The keys of one table, each checked against :data:`SCHEMA` (type, choices, unit, finite number)."""
-    if not isinstance(table, dict):
-        raise NespmError(f"{path}: key '{name}' must be a table ([{name}])")
-    known = SCHEMA[name]
-    for key, value in table.items():
-        full = f"{name}.{key}" if name else key
-        if key not in known:
-            where = f" in [{name}]" if name else ""
-            raise NespmError(f"{path}: unknown key '{printable(full, 60)}' (known{where}: {', '.join(known)})")
-        want = known[key]
-        if want == UNIT:
-            why = unit_error(unit_kind(key), value)
-            if why:
-                raise NespmError(f"{path}: key '{full}': {printable(why, 120)}")
-            continue
-        if isinstance(want, tuple):
-            if value not in want:
-                raise NespmError(f"{path}: key '{full}': {printable(repr(value), 40)} is not one of {', '.join(want)}")
-            continue
-        number = isinstance(value, (int, float)) and not isinstance(value, bool)
-        ok = {STR: isinstance(value, str), BOOL: isinstance(value, bool), TABLE: isinstance(value, dict),
-              INT: number and isinstance(value, int), NUM: number}[want]
-        if not ok:
-            raise NespmError(f"{path}: key '{full}' must be {want}, got {printable(repr(value), 40)}")
-        if want == STR and not value.strip():
-            raise NespmError(f"{path}: key '{full}' is empty")
-        if want == NUM and not math.isfinite(value):
-            raise NespmError(f"{path}: key '{full}' must be a finite number, got {value!r}")
-    return dict(table)
+    def unit(key: str, value, full: str) -> bool:
+        if SCHEMA[name][key] != UNIT:
+            return False
+        why = unit_error(unit_kind(key), value)
+        if why:
+            raise NespmError(f"{path}: key '{full}': {printable(why, 120)}")
+        return True
+
+    return checked_table(path, name, table, SCHEMA[name], special=unit)
 
 
 def column_keys(name: str, tab: dict) -> tuple[str, ...]:
