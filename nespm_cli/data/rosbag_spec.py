@@ -10,7 +10,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from nespm_cli.data.plausibility import printable
-from nespm_cli.data.toml_keys import BOOL, INT, NUM, STR, TABLE, checked_table
+from nespm_cli.data.toml_keys import BOOL, INT, NUM, STR, TABLE, checked_table, read_toml
 from nespm_cli.errors import NespmError
 
 BODY, STAMP = ("flu", "frd"), STR
@@ -77,20 +77,7 @@ def read_spec(path: Path) -> dict:
     ``topic`` or ``pose_topic`` + ``twist_topic`` (or both), ``twist_frame`` missing with a separate twist
     topic, a table without ``topic``, ``depth.pressure`` and ``depth.depth`` both given, a track below 1,
     an origin outside ±90°/±180°, a density, gravity or ``every`` not positive."""
-    try:
-        import tomllib
-    except ModuleNotFoundError:  # Python 3.10
-        import tomli as tomllib
-    try:
-        raw = tomllib.loads(path.read_bytes().decode("utf-8"))
-    except FileNotFoundError:
-        raise NespmError(f"{path}: spec file not found") from None
-    except OSError as exc:
-        raise NespmError(f"{path}: cannot read the spec ({exc.strerror})") from None
-    except UnicodeDecodeError:
-        raise NespmError(f"{path}: the spec is not UTF-8 text") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise NespmError(f"{path}: not a valid TOML file ({printable(exc, 120)})") from None
+    raw = read_toml(path, "the spec")
     top = _table(path, "", raw)
     spec = {"": {**DEFAULTS[""], **{k: v for k, v in top.items() if SCHEMA[""][k] != TABLE}}}
     for name in SCHEMA:

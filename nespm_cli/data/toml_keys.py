@@ -13,6 +13,25 @@ from nespm_cli.errors import NespmError
 STR, INT, NUM, BOOL, TABLE = "a string", "an integer", "a number", "true or false", "a table"
 
 
+def read_toml(path: Path, what: str) -> dict:
+    """The TOML file ``path`` as a dict; one line naming it (``what``: "the spec", "the track spec") if it
+    is missing, unreadable, not UTF-8 or not TOML."""
+    try:
+        import tomllib
+    except ModuleNotFoundError:  # Python 3.10
+        import tomli as tomllib
+    try:
+        return tomllib.loads(Path(path).read_bytes().decode("utf-8"))
+    except FileNotFoundError:
+        raise NespmError(f"{path}: {what} file not found") from None
+    except OSError as exc:
+        raise NespmError(f"{path}: cannot read {what} ({exc.strerror or exc})") from None
+    except UnicodeDecodeError:
+        raise NespmError(f"{path}: {what} is not UTF-8 text") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise NespmError(f"{path}: not a valid TOML file ({printable(exc, 120)})") from None
+
+
 def checked_table(path: Path, name: str, table, known: dict, special: Callable | None = None,
                   skip: tuple = ()) -> dict:
     """``table`` (the ``[name]`` table of the file ``path``; ``name`` "" for the top level) with every key
@@ -46,4 +65,4 @@ def checked_table(path: Path, name: str, table, known: dict, special: Callable |
     return dict(table)
 
 
-__all__ = ["BOOL", "INT", "NUM", "STR", "TABLE", "checked_table"]
+__all__ = ["BOOL", "INT", "NUM", "STR", "TABLE", "checked_table", "read_toml"]

@@ -27,7 +27,7 @@ import numpy as np
 
 from nespm_cli.data.corrections import axes_matrix
 from nespm_cli.data.plausibility import printable
-from nespm_cli.data.toml_keys import BOOL, INT, NUM, STR, TABLE, checked_table
+from nespm_cli.data.toml_keys import BOOL, INT, NUM, STR, TABLE, checked_table, read_toml
 from nespm_cli.errors import NespmError
 
 # ----------------------------------------------------------------------------- units
@@ -159,20 +159,8 @@ def read_spec(path: Path) -> TrackSpec:
     without ``[origin]`` (or an origin outside ±90°/±180°), a non-finite number, a file pattern that is
     absolute, climbs out of the folder (``..``), holds braces other than ``{N}``, or has ``{N}`` in some
     tables but not others; ``track`` with ``{N}`` patterns or below 1."""
-    try:
-        import tomllib
-    except ModuleNotFoundError:  # Python 3.10
-        import tomli as tomllib
-
     path = Path(path)
-    try:
-        raw = tomllib.loads(path.read_bytes().decode("utf-8"))
-    except OSError as exc:
-        raise NespmError(f"{path}: cannot read the track spec ({exc.strerror or exc})") from None
-    except UnicodeDecodeError:
-        raise NespmError(f"{path}: the track spec is not UTF-8 text") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise NespmError(f"{path}: not a valid TOML file ({printable(exc, 120)})") from None
+    raw = read_toml(path, "the track spec")
     _keys(path, "", raw)
     parts = {name: _keys(path, name, raw[name]) for name in SCHEMA if name and name in raw}
     for name in ("gt", "dvl"):
