@@ -42,12 +42,12 @@ from nespm_cli.sensors.channels import build_channel
 from nespm_cli.nav.earth import ned_offset
 
 def simulate(spec: Spec, number: int, runs: np.ndarray, filters=None, clean: bool = False,
-             progress: Callable[[int], None] | None = None):
+             progress: Callable[[int], None] | None = None, smooth=None):
     """Run ``filters`` on the realizations ``runs`` of track ``number``.
 
     Returns ``({result: (FilterOutput, EpochErrors, seconds)}, truth, realization)``, a result
     for each filter and, for those in ``spec.smooth``, one for its smoothed solution
-    (``<filter>-rts``). Every filter
+    (``<filter>-rts``; ``smooth``: those filters only, default ``spec.smooth``). Every filter
     sees the same IMU, initial errors and sensor channels (one per sensor of ``spec.sensors``,
     :func:`nespm_cli.sensors.channels.build_channel`). ``clean``: the error-free IMU, initial
     solution and measurements. ``progress(done)``, if given, is called with the filter-epochs
@@ -82,7 +82,7 @@ def simulate(spec: Spec, number: int, runs: np.ndarray, filters=None, clean: boo
         step = None if progress is None else (lambda k, base=i * (len(e) - 1): progress(base + k))
         out = run_filter(name, filter_config_of(spec, name, cfg), f, w, truth.dt, e, nav0=nav0,
                          noise_std=noise_std if name in adaptive else None,
-                         progress=step, channels=channels, smooth=name in spec.smooth)
+                         progress=step, channels=channels, smooth=name in (spec.smooth if smooth is None else smooth))
         if name in adaptive:
             t0 -= net_seconds / len(adaptive)  # the shared network pass, split
         err = epoch_errors(out, v_t, C_t, p_t)
@@ -171,7 +171,8 @@ def run_chunk(cell: Cell, number: int, first: int, out_dir: str, last: int | Non
     verify_read(dict(cell.inputs), input_files(spec, (number,)))
     report = epoch_reporter(chunks, chunk_key(cell, number, first), len(todo) * (n_epochs - 1))
     try:
-        results, truth, real = simulate(spec, number, runs, todo, progress=report)
+        results, truth, real = simulate(spec, number, runs, todo, progress=report,
+                                        smooth={f for r, f in asked if r in needed and r != f})
     except MemoryError:
         raise NespmError(f"chunk {chunk_key(cell, number, first)}: out of memory for {len(runs)} runs "
                          f"(about {chunk_memory(spec, number, len(runs)) / 1e9:.1f} GB); use a smaller "

@@ -150,8 +150,7 @@ def block_statistics(out, v_true: np.ndarray, C_true: np.ndarray, pos_true: np.n
 def _nis_and_dof(rec) -> tuple[np.ndarray, np.ndarray, int]:
     """``(nis, dof, m)``: each measurement's NIS and rows (R, K) (0 NIS where not applied), its size m."""
     nis = rec.nis()
-    dof = rec.dof() if hasattr(rec, "dof") else np.where(np.isfinite(nis), rec.nu.shape[-1], 0)
-    return np.where(np.isfinite(nis), nis, 0.0), dof.astype(float), rec.nu.shape[-1]
+    return np.where(np.isfinite(nis), nis, 0.0), rec.dof().astype(float), rec.nu.shape[-1]
 
 
 def epoch_nis(out, t_epochs: np.ndarray) -> dict[str, np.ndarray]:

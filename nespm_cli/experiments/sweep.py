@@ -79,11 +79,12 @@ def beam_loss_length(spec: Spec, v: float) -> Spec:
 
 
 #: named sensor parameters (any ``SENSOR.KEY`` of a numeric option is a parameter too)
-SENSOR_PARAMS = {
-    "fix-interval": ("fix", "interval", "position fix interval [s]"),
-    "fix-std": ("fix", "std", "position fix std [m]"),
-    "depth-std": ("depth", "std", "depth sensor std [m]"),
-    "heading-std": ("heading", "std", "heading sensor std [deg]"),
+SENSOR_PARAMS: dict[str, Param] = {
+    "fix-interval": Param("position fix interval [s]", sensor_param("fix", "interval")),
+    "fix-std": Param("position fix std [m]", sensor_param("fix", "std")),
+    "depth-std": Param("depth sensor std [m]", sensor_param("depth", "std")),
+    "heading-std": Param("heading sensor std [deg]", sensor_param("heading", "std")),
+    "beam-loss-length": Param("length of the DVL-beam loss [s]", beam_loss_length),
 }
 
 
@@ -99,11 +100,8 @@ def filter_param(filt: str, key: str) -> Callable[[Spec, float], Spec]:
 def option_param_of(param: str, filters: tuple = ()) -> Param | None:
     """The :class:`Param` of a sensor or filter option: a name of :data:`SENSOR_PARAMS`, or ``NAME.KEY``
     (a filter's option when ``NAME`` is in ``filters``, else a sensor's)."""
-    if param == "beam-loss-length":
-        return Param("length of the DVL-beam loss [s]", beam_loss_length)
     if param in SENSOR_PARAMS:
-        sensor, key, label = SENSOR_PARAMS[param]
-        return Param(label, sensor_param(sensor, key))
+        return SENSOR_PARAMS[param]
     if "." in param:
         name, key = param.split(".", 1)
         if name and key.isidentifier():
@@ -150,7 +148,7 @@ def sweep_cells(spec: Spec, param: str, values: list[float]) -> list[Cell]:
     """One validated cell per value; chunk files are tagged ``v00-``, ``v01-``, ..."""
     p = PARAMS.get(param) or option_param_of(param, tuple(spec.filters))
     if p is None:
-        raise NespmError(f"--param: unknown parameter {param!r}; choose from {', '.join([*PARAMS, *SENSOR_PARAMS, 'beam-loss-length'])} "
+        raise NespmError(f"--param: unknown parameter {param!r}; choose from {', '.join([*PARAMS, *SENSOR_PARAMS])} "
                          "or an option SENSOR.KEY or FILTER.KEY (e.g. fix.interval, ukf.alpha)")
     if p.positive and min(values) <= 0:
         raise NespmError(f"--values: {param} values must be positive, got {min(values):g}")

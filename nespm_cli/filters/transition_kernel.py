@@ -234,6 +234,15 @@ def skew_s(a0, a1, a2, out):
     out[2, 0], out[2, 1], out[2, 2] = -a1, a0, 0.0
 
 
+@njit(cache=True)
+def set_identity(P):
+    """``P ← I`` in place (one run's Φ at the start of a span)."""
+    n = P.shape[0]
+    for i in range(n):
+        for k in range(n):
+            P[i, k] = 1.0 if i == k else 0.0
+
+
 @njit(cache=True, error_model="numpy")
 def transition_span(pos, v, C, b_a, b_g, f, w, dt, j0, j1, Phi, invariant, off):
     """Steps ``[j0, j1)`` in place on the solution; Φ (R, n, n) = Π (I + F dt) into ``Phi`` for the
@@ -254,9 +263,7 @@ def transition_span(pos, v, C, b_a, b_g, f, w, dt, j0, j1, Phi, invariant, off):
     top = np.empty((n, n))
     for r in range(pos.shape[0]):
         P = Phi[r]
-        for i in range(n):
-            for k in range(n):
-                P[i, k] = 1.0 if i == k else 0.0
+        set_identity(P)
         x = load_t(pos[r], v[r], C[r])
         ba0, ba1, ba2, bg0, bg1, bg2 = b_a[r, 0], b_a[r, 1], b_a[r, 2], b_g[r, 0], b_g[r, 1], b_g[r, 2]
         for j in range(j0, j1):
@@ -304,9 +311,7 @@ def transition_span_invariant_position(pos, v, C, b_a, b_g, f, w, dt, j0, j1, Ph
     S = np.empty((16, 3, 3))
     for r in range(pos.shape[0]):
         P = Phi[r]
-        for i in range(n):
-            for k in range(n):
-                P[i, k] = 1.0 if i == k else 0.0
+        set_identity(P)
         x = load_t(pos[r], v[r], C[r])
         lat0, lon0, h0 = origin[r, 0], origin[r, 1], origin[r, 2]
         e0 = earth_t(lat0, h0, 0.0, 0.0)

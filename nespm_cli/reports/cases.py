@@ -26,8 +26,8 @@ import pandas as pd
 from nespm_cli.errors import NespmError
 from nespm_cli.experiments.metrics import cep
 from nespm_cli.reports.results import is_smoother
-from nespm_cli.reports.stats import (lost_by_any, paired_bootstrap, paired_improvement, percentile_ci,
-                                     track_average, track_value)
+from nespm_cli.reports.stats import (lost_by_any, paired_bootstrap, paired_improvement, paired_run_counts,
+                                     percentile_ci, track_average, track_value)
 
 #: options that define the realizations: equal in every case
 REALIZATION_KEYS = ("seed", "tracks", "runs", "corruption", "imu", "imu_rate", "data_dir", "window", "corrections",
@@ -168,8 +168,7 @@ def case_improvements(cases: list[Case], reference: str | None = None, n_boot: i
             sub = m[m["filter"].isin([a, b])]
             point = paired_improvement(sub, b, a, keys)  # improvement of a (the case) over b (the reference)
             boot = paired_bootstrap(sub, b, a, n_boot=n_boot, seed=seed, keys=keys)
-            both = sub.pivot_table(index=["track", "run"], columns="filter", values="diverged", aggfunc="first")
-            pairs = int((~both.astype(bool)).all(axis=1).sum()) if both.shape[1] == 2 else 0
+            pairs = int(sum(paired_run_counts(sub, b, a).values()))
             row = {"case": c.label, "reference": ref, "filter": f, "pairs": pairs}
             for k in keys:
                 lo, hi = percentile_ci(boot[k])

@@ -74,15 +74,12 @@ def track_section(r: dict, fig_names: list[str]) -> str:
     d = r["dvl"]
     und = ", ".join(d.get("undetermined") or []) or "none"
 
-    def num(x, spec: str) -> str:  # a value the check could not form (e.g. a DVL at its own stamps) is "—"
-        return "—" if x is None else format(x, spec)
+    def vec(xs, spec: str) -> str:  # a value the check could not form (a DVL at its own stamps): a dash
+        return fmt(None) if xs is None else ", ".join(fmt(x, spec) for x in xs)
 
-    def vec(xs, spec: str) -> str:
-        return "—" if xs is None else ", ".join(num(x, spec) for x in xs)
-
-    lines += [f"DVL against GT: time offset {num(d.get('time_offset_s'), '+.3f')} ± {fmt(d.get('time_offset_std_s'), '.3g')} s, "
+    lines += [f"DVL against GT: time offset {fmt(d.get('time_offset_s'), '+.3f')} ± {fmt(d.get('time_offset_std_s'), '.3g')} s, "
               f"lever arm ({vec(d.get('lever_arm'), '.3f')}) ± ({vec(d.get('lever_arm_std'), '.3g')}) m, "
-              f"scale factor {num(d.get('scale_factor'), '+.4f')} ± {fmt(d.get('scale_factor_std'), '.3g')}, misalignment "
+              f"scale factor {fmt(d.get('scale_factor'), '+.4f')} ± {fmt(d.get('scale_factor_std'), '.3g')}, misalignment "
               f"({vec(d.get('misalignment_deg'), '+.3f')}) ± ({vec(d.get('misalignment_std_deg'), '.3g')}) deg; residual std "
               f"({vec(d.get('resid_std_before'), '.3f')}) m/s after the lever arm alone, "
               f"({vec(d.get('resid_std_after'), '.3f')}) after all four. Undetermined: {und}.", ""]
