@@ -181,7 +181,8 @@ def test_gyro_in_degrees_per_second(tmp_path, base):
     imu = imu.copy()
     imu[:, 4] += 0.5 * np.sin(2 * np.pi * 0.5 * (imu[:, 0] - imu[0, 0]))
     _write(tmp_path / "ok", track, imu)
-    assert load_track(NUMBER, tmp_path / "ok").imu is not None  # valid in rad/s
+    with pytest.raises(NespmError, match="x the GT attitude's rate"):  # in rad/s, but a roll the GT does not have
+        load_track(NUMBER, tmp_path / "ok")
     deg = imu.copy()
     deg[:, 4:7] = np.degrees(deg[:, 4:7])
     path = _write(tmp_path, track, deg)

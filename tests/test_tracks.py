@@ -144,6 +144,8 @@ def test_write_akit_round_trip_with_imu(tmp_path: Path) -> None:
     src = embedded_track(1)
     t_imu = np.arange(0.0, 400.0, 0.01)
     imu = np.column_stack([t_imu, np.sin(t_imu)[:, None] * np.arange(1, 7) / 7.0])
+    imu[:, 3] -= 9.8  # gravity, and rates the GT's turns allow: the load compares both (imu_file.check_imu_units)
+    imu[:, 4:7] *= 0.05
     tr = Track(src.number, src.t, src.pos, src.v_n, src.euler, src.dvl, imu, "test")
     write_akit(tr, tmp_path)
     assert (tmp_path / "Trajectory1/IMU_trajectory1.csv").read_text().splitlines()[0] == ",".join(IMU_COLUMNS)

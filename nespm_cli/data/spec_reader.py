@@ -31,6 +31,7 @@ from nespm_cli.data.sensor_files import (DEPTH_COLUMNS, DEPTH_MAX, DEPTH_MIN, FI
 from nespm_cli.data.track_spec import (DEPTH_SIGN_MIN, FRAME_KEYS, UP_KEYS, VELOCITY_KEYS, VERTICAL_SIGN_MIN,
                                        TrackSpec, column_keys, scaled, spec_file, to_seconds)
 from nespm_cli.errors import NespmError
+from nespm_cli.nav.rotations import wrap_angle
 from nespm_cli.nav.state import position_plus
 
 
@@ -56,6 +57,31 @@ class SpecTrack:
     channels: dict = field(default_factory=dict)
 
 
+WRAP_LIMIT = 2.0 * np.pi + 1e-6  # [rad] roll and yaw of a non-radian column up to one turn (0-360 deg) are wrapped
+
+
+def wrapped(angles: np.ndarray) -> np.ndarray:
+    """Roll or yaw ``angles`` (...) [rad], after the unit conversion, wrapped to (-pi, pi]: values in [-pi, pi]
+    unchanged bit for bit, values within one turn (:data:`WRAP_LIMIT`: a 0-360 deg heading) wrapped by
+    :func:`nespm_cli.nav.rotations.wrap_angle`; beyond one turn left as they are (the range check refuses them:
+    not an angle of that unit)."""
+    a = np.asarray(angles, dtype=float)
+    turn = (np.abs(a) > np.pi) & (np.abs(a) <= WRAP_LIMIT)
+    return np.where(turn, wrap_angle(a), a)
+
+
+def angle_hint(spec: TrackSpec) -> str | None:
+    """The text replacing the "(degrees instead of radians?)" hint of an angle finding when the spec declares
+    ``gt.angle_unit`` (in ``[gt]`` or ``[defaults]``); None when it does not (the hint stays)."""
+    if "gt.angle_unit" not in spec.declared:
+        return None
+    unit = spec.tables["gt"]["angle_unit"]
+    if unit == "rad":
+        return f"(key 'gt.angle_unit' of {spec.path.name} declares 'rad'; a column in degrees needs 'deg')"
+    return (f"(after the declared gt.angle_unit = {unit!r} of {spec.path.name}; roll and yaw within one turn are "
+            "wrapped, so the column holds other values)")
+
+
 def labels(names: tuple, bench: tuple) -> tuple:
     """``"<file column> as <bench column>"`` for each pair, the column names of a converted file's messages."""
     return tuple(f"{n} as {b}" for n, b in zip(names, bench))
@@ -76,6 +102,8 @@ def read_spec_track(spec: TrackSpec, number: int) -> SpecTrack:
     sign_v = 1.0 if tab["velocity"] == "ned" else -1.0
     v[:, 2] *= sign_v
     euler = np.column_stack([scaled(c[k], "angle", tab["angle_unit"]) for k in ("roll", "pitch", "yaw")])
+    if tab["angle_unit"] != "rad":  # radians are the bench's: a radian column is checked as it is
+        euler[:, [0, 2]] = wrapped(euler[:, [0, 2]])
     gt = np.column_stack([t, lon, lat, alt, v, euler])
     order = ("time", pk[1], pk[0], pk[2]) + vk + ("roll", "pitch", "yaw")
     signs = (1, 1, 1, 1 if pk[2] in UP_KEYS else -1, 1, 1, sign_v, 1, 1, 1)
@@ -277,10 +305,15 @@ def _bounds(path: Path, x: np.ndarray, col: str, lo: float, hi: float, say) -> N
         raise NespmError(f"{path}: data row {r + 1}, column '{col}': {say(float(x[r]))}")
 
 
-def relabel(findings: list, mapping: dict) -> list:
-    """Plausibility findings with their bench column names replaced by ``mapping`` (``{bench: label}``)."""
+UNITS_HINT = "(degrees instead of radians?)"
+
+
+def relabel(findings: list, mapping: dict, hint: str | None = None) -> list:
+    """Plausibility findings with their bench column names replaced by ``mapping`` (``{bench: label}``) and,
+    with ``hint``, the units hint :data:`UNITS_HINT` replaced by it (the units were declared)."""
     out = []
     for f in findings:
         cols = f.column and ", ".join(mapping.get(c.strip(), c.strip()) for c in f.column.split(","))
-        out.append(dataclasses.replace(f, column=cols))
+        text = f.message.replace(UNITS_HINT, hint) if hint else f.message
+        out.append(dataclasses.replace(f, column=cols, message=text))
     return out

@@ -129,13 +129,15 @@ DEPTH_SIGN_MIN = 1.0  # [m] median |depth - GT depth| below which a depth or fix
 class TrackSpec:
     """A read and checked spec: its ``path``, the data ``folder`` (its parent), the channel ``tables``
     (``{name: {key: value}}`` with every default filled in), the ``origin`` ``[lat rad, lon rad, alt m]``
-    (None without one) and the track number ``track`` of file names without ``{N}``."""
+    (None without one), the track number ``track`` of file names without ``{N}`` and the keys the file itself
+    sets (``declared``: ``{"gt.angle_unit", ...}``, a ``[defaults]`` key counted in every table it fills)."""
 
     path: Path
     folder: Path
     tables: dict
     origin: np.ndarray | None = None
     track: int = 1
+    declared: frozenset = frozenset()
 
 
 # ----------------------------------------------------------------------------- reading the spec
@@ -167,10 +169,11 @@ def read_spec(path: Path) -> TrackSpec:
         if name not in parts:
             raise NespmError(f"{path}: no [{name}] table (the ground truth and the DVL are required; docs/data.md)")
     defaults = {**{f"{k}_unit": u for k, u in SI.items()}, "time_zero": 0.0, **parts.get("defaults", {})}
-    tables = {}
+    tables, declared = {}, set()
     for name in CHANNELS:
         if name in parts:
             tab = parts[name]
+            declared |= {f"{name}.{k}" for k in SCHEMA[name] if k in tab or k in parts.get("defaults", {})}
             for key in SCHEMA[name]:
                 if key not in tab and key in defaults:
                     tab[key] = defaults[key]
@@ -179,7 +182,7 @@ def read_spec(path: Path) -> TrackSpec:
             tables[name] = _columns_checked(path, name, tab)
     origin = _origin(path, parts.get("origin"), tables)
     track = _patterns(path, raw.get("track"), tables)
-    return TrackSpec(path, path.parent, tables, origin, track)
+    return TrackSpec(path, path.parent, tables, origin, track, frozenset(declared))
 
 
 def _keys(path: Path, name: str, table) -> dict:

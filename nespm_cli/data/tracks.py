@@ -31,6 +31,8 @@ from nespm_cli.data import plausibility
 from nespm_cli.data.csvtable import QUOTE_LIMIT, read_table as _read_table, write_table as _write_csv  # noqa: F401
 from nespm_cli.data.sensor_files import CHANNEL_KINDS, check_dvl_nan, dvl_at_epochs, read_channels, write_channels
 from nespm_cli.data import spec_reader
+from nespm_cli.data.imu_file import (IMU_MAX_ACC, IMU_MAX_GYRO, IMU_MAX_STEP, IMU_MIN_STEP,  # noqa: F401
+                                      IMU_STEP_TOL, check_imu, check_imu_units)
 from nespm_cli.data.track import Track
 from nespm_cli.data.track_spec import TrackSpec, find_spec, read_spec, spec_files, spec_tracks
 from nespm_cli.errors import NespmError
@@ -62,13 +64,6 @@ IMU_COLUMNS = (
 )
 MAX_SPEED = 20.0  # [m/s]; a GT or DVL speed at or above this is rejected as a unit/column error
 EPOCH_TOL = 1e-6  # [s]; GT and DVL time stamps must agree to this
-# Recorded IMU (IMU_trajectoryN.csv) checks, see _check_imu:
-IMU_STEP_TOL = 0.01  # relative; a time step differing from the file's median step by more than 1 % is a gap
-#                      or a non-constant rate (the real Snapir files vary by ~1e-9 relative, 40,000 rows)
-IMU_MIN_STEP = 0.0005  # [s]; the median step must be above this (2 kHz) ...
-IMU_MAX_STEP = 0.1  # [s]; ... and below this (10 Hz): the range of a navigation IMU (the real files: 100 Hz)
-IMU_MAX_ACC = 200.0  # [m/s^2]; |ACC X/Y/Z| above this (~20 g) is a units mistake (mm/s^2, cm/s^2, mg ...)
-IMU_MAX_GYRO = 20.0  # [rad/s]; |GYRO X/Y/Z| above this is a units mistake (deg/s ...); an AUV turns < 1 rad/s
 _TRACK_DIR = re.compile(r"Trajectory(\d+)")
 
 
@@ -175,7 +170,7 @@ def load_track(number: int, data_dir: str | Path | None = None, *, warnings: str
     files of one track, a missing or empty file, a missing column, non-numeric text, NaN/inf, time not
     strictly increasing, GT/DVL epochs that differ, |lat| > pi/2, |lon| > pi, or a speed >= 20 m/s (a DVL
     row of three NaN is a missing epoch, NaN in one or two is refused); and, for the IMU file if present
-    (:func:`_check_imu`), on a median time step outside (:data:`IMU_MIN_STEP`, :data:`IMU_MAX_STEP`) s
+    (:func:`nespm_cli.data.imu_file.check_imu`), on a median time step outside (:data:`IMU_MIN_STEP`, :data:`IMU_MAX_STEP`) s
     (10 Hz - 2 kHz; e.g. time in ms), a step differing from the median by more than :data:`IMU_STEP_TOL`
     (a gap or non-constant rate), a time span that does not cover the GT span to within one IMU step at
     either end, or |ACC| > :data:`IMU_MAX_ACC` m/s^2 or |GYRO| > :data:`IMU_MAX_GYRO` rad/s (a units
@@ -204,9 +199,9 @@ def load_track(number: int, data_dir: str | Path | None = None, *, warnings: str
     imu = None
     if imu_path.exists():
         imu = _read_table(imu_path, IMU_COLUMNS)
-        _check_imu(imu_path, imu, gt_path, gt[:, 0])
+        check_imu(imu_path, imu, gt_path, gt[:, 0], IMU_COLUMNS)
     channels.update(read_channels(dict(zip(CHANNEL_KINDS, extra)), gt[:, 0], gt_path.name))
-    return _track(number, gt_path, gt, dvl_path, dvl, imu, channels, warnings)
+    return _track(number, gt_path, gt, dvl_path, dvl, imu, channels, warnings, imu_path=imu_path)
 
 
 def _load_spec_track(spec: TrackSpec, number: int, warnings: str | None) -> Track:
@@ -219,19 +214,25 @@ def _load_spec_track(spec: TrackSpec, number: int, warnings: str | None) -> Trac
     t_gt = sp.gt[:, 0]
     dvl, channels = _check_dvl(sp.dvl_path, sp.dvl, dvl_cols, sp.gt_path, t_gt)
     if sp.imu is not None:
-        _check_imu(sp.imu_path, sp.imu, sp.gt_path, t_gt, spec_reader.labels(sp.imu_names, IMU_COLUMNS))
+        check_imu(sp.imu_path, sp.imu, sp.gt_path, t_gt, spec_reader.labels(sp.imu_names, IMU_COLUMNS))
     for name in sp.channels:
         channels[name] = spec_reader.check_channel(spec.path, sp, name)
     names = dict(zip(GT_COLUMNS + DVL_COLUMNS, gt_cols + dvl_cols))
-    return _track(number, sp.gt_path, sp.gt, sp.dvl_path, dvl, sp.imu, channels, warnings, names)
+    return _track(number, sp.gt_path, sp.gt, sp.dvl_path, dvl, sp.imu, channels, warnings, names, sp.imu_path,
+                  spec_reader.labels(sp.imu_names, IMU_COLUMNS) if sp.imu is not None else IMU_COLUMNS,
+                  ("imu.acceleration_unit", "imu.rate_unit"), spec_reader.angle_hint(spec))
 
 
-def _track(number, gt_path: Path, gt, dvl_path: Path, dvl, imu, channels: dict, warnings, names=None) -> Track:
-    """The plausibility checks (their columns renamed by ``names``), then the :class:`Track`."""
-    findings = spec_reader.relabel(plausibility.check_track_arrays(gt_path, gt, dvl_path, dvl), names or {})
+def _track(number, gt_path: Path, gt, dvl_path: Path, dvl, imu, channels: dict, warnings, names=None, imu_path=None,
+           imu_cols=IMU_COLUMNS, imu_keys=(), hint=None) -> Track:
+    """The plausibility checks (their columns renamed by ``names``, the units hint replaced by ``hint``), the
+    IMU's units against the GT (:func:`~nespm_cli.data.imu_file.check_imu_units`), then the :class:`Track`."""
+    findings = spec_reader.relabel(plausibility.check_track_arrays(gt_path, gt, dvl_path, dvl), names or {}, hint)
     errors = [f for f in findings if f.level == "error"]
     if errors:
         raise NespmError(errors[0].text)
+    if imu is not None:
+        check_imu_units(imu_path, imu, gt[:, 0], gt[:, 7:10], imu_cols, imu_keys)
     plausibility.emit(findings, warnings)
     return Track(number=number, t=gt[:, 0], pos=gt[:, [2, 1, 3]], v_n=gt[:, 4:7], euler=gt[:, 7:10],
                  dvl=dvl[:, 1:4], imu=imu, source=str(gt_path.parent), channels=channels)
@@ -345,60 +346,6 @@ def _check_speed(path: Path, v: np.ndarray, cols: tuple[str, ...]) -> None:
         raise NespmError(
             f"{path}: data row {r + 1}, columns {', '.join(repr(c) for c in cols)}: "
             f"speed {speed[r]:.4g} m/s >= {MAX_SPEED:g} m/s"
-        )
-
-
-def _check_imu(path: Path, imu: np.ndarray, gt_path: Path, t_gt: np.ndarray, cols: tuple = IMU_COLUMNS) -> None:
-    """Checks of a recorded IMU table (M, 7) already read by :func:`_read_table`.
-
-    In order: time strictly increasing; the median step is a navigation-IMU rate; every step is the
-    median step to within :data:`IMU_STEP_TOL`; the IMU covers the GT span ``t_gt`` (to one step, plus
-    :data:`IMU_STEP_TOL` of it, at each end; a time offset applied later, e.g. by the recorded-IMU path, is
-    checked there); |ACC| and |GYRO| are below :data:`IMU_MAX_ACC` and :data:`IMU_MAX_GYRO`. ``cols``
-    name the columns in the messages.
-    """
-    time_col = cols[0]
-    t = imu[:, 0]
-    _check_time(path, t, time_col)
-    dt = np.diff(t)
-    step = float(np.median(dt))
-    if not IMU_MIN_STEP < step < IMU_MAX_STEP:
-        cause = ("time in milliseconds instead of seconds, or not the raw IMU record?" if step >= IMU_MAX_STEP
-                 else "time in a unit other than seconds?")
-        raise NespmError(
-            f"{path}: column '{time_col}': median step {step:.6g} s ({1.0 / step:.6g} Hz) is outside "
-            f"{IMU_MIN_STEP:g}-{IMU_MAX_STEP:g} s ({1.0 / IMU_MAX_STEP:g} Hz - {1.0 / IMU_MIN_STEP / 1000:g} kHz) "
-            f"of a navigation IMU ({cause})"
-        )
-    bad = np.flatnonzero(np.abs(dt - step) > IMU_STEP_TOL * step)
-    if bad.size:
-        r = int(bad[0]) + 1  # 0-based index of the row that ends the irregular step
-        raise NespmError(
-            f"{path}: data row {r + 1}, column '{time_col}': step {float(dt[r - 1]):.6g} s after the previous row, "
-            f"the file's step is {step:.6g} s (gap or non-constant rate; the IMU must be sampled at a constant rate)"
-        )
-    span = f"{float(t[0]):.6g}-{float(t[-1]):.6g} s"
-    gt_span = f"{float(t_gt[0]):.6g}-{float(t_gt[-1]):.6g} s"
-    for r, late in ((0, float(t[0] - t_gt[0])), (len(t) - 1, float(t_gt[-1] - t[-1]))):
-        if late > step * (1.0 + IMU_STEP_TOL):  # one step (to the step tolerance) short is accepted
-            what = "starts" if r == 0 else "ends"
-            when = "after the first" if r == 0 else "before the last"
-            raise NespmError(
-                f"{path}: data row {r + 1}, column '{time_col}': the IMU covers {span} but {gt_path.name} spans "
-                f"{gt_span}: it {what} {late:.6g} s {when} GT epoch (more than one IMU step, {step:.6g} s); "
-                f"the IMU must cover the GT span"
-            )
-    limits = np.array([IMU_MAX_ACC] * 3 + [IMU_MAX_GYRO] * 3)
-    big = np.abs(imu[:, 1:7]) > limits
-    rows = np.flatnonzero(big.any(axis=1))
-    if rows.size:
-        r = int(rows[0])
-        j = int(np.flatnonzero(big[r])[0])
-        unit, cause = (("m/s^2", "specific force; mm/s^2, cm/s^2 or mg? m/s^2 expected") if j < 3
-                       else ("rad/s", "angular rate; degrees per second? rad/s expected"))
-        raise NespmError(
-            f"{path}: data row {r + 1}, column '{cols[j + 1]}': |{float(imu[r, j + 1])!r}| > "
-            f"{limits[j]:g} {unit} (implausible {cause})"
         )
 
 
