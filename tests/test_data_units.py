@@ -231,3 +231,20 @@ def test_the_real_imu_files_pass_the_units_check():
         tr = load_track(n, folder, warnings="ignore")
         fig = imu_unit_figures(tr.imu, tr.t, tr.euler)
         assert 0.95 < fig["ratio"] < 1.1 and 9.7 < fig["median_f"] < 9.9, (n, fig)
+
+
+def test_real_track_in_a_foreign_layout_gives_the_same_ekf_metrics(tmp_path, real_data_dir):
+    """The must-hold on real data (skipped, naming where it looked, without it): real track 5 (its headings
+    span 0-360 deg in the file) in the foreign layout; EKF metrics equal to the A-KIT folder's to 1e-9."""
+    tr = load_track(5, real_data_dir, warnings="ignore")
+    assert (np.mod(np.degrees(tr.euler[:, 2]), 360.0) > 180.0).any()
+    write_foreign(tr, tmp_path / "foreign")
+    out = {}
+    for name, d in (("akit", real_data_dir), ("foreign", tmp_path / "foreign")):
+        rc, so, err = nespm("mc", "--data-dir", str(d), "--tracks", "5", "--runs", "1", "--filters", "ekf",
+                            "--data-warnings", "ignore", "--no-progress", "--out", str(tmp_path / f"mc-{name}"))
+        assert rc == 0, err
+        out[name] = pd.read_parquet(tmp_path / f"mc-{name}" / "metrics.parquet")
+    a, b = out["akit"], out["foreign"]
+    for c in [c for c in a.columns if pd.api.types.is_float_dtype(a[c]) and c != "seconds"]:
+        np.testing.assert_allclose(b[c].to_numpy(), a[c].to_numpy(), rtol=1e-9, atol=0, err_msg=c)
