@@ -25,6 +25,7 @@ Rules (each written once here; docs/checking-data.md explains them):
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
 
@@ -40,7 +41,10 @@ TRIM_FRACTION = 0.15
 
 
 def significant(value: float, std: float) -> bool:
-    """Whether a time offset [s] is worth correcting (see the module rules)."""
+    """Whether a time offset [s] is worth correcting (see the module rules); an undetermined offset (its std
+    None or not finite, or the value not finite) is not."""
+    if value is None or std is None or not (math.isfinite(value) and math.isfinite(std)):
+        return False
     return abs(value) >= OFFSET_MIN_S and abs(value) > OFFSET_SIGMAS * std
 
 
@@ -140,6 +144,41 @@ def check_track(track: Track) -> dict:
         verdict = "consistent"
     else:
         verdict = "consistent after corrections"
-    return {"track": int(track.number), "source": track.source, "imu": imu, "dvl": dvl,
-            "corrections": {**dataclasses.asdict(corr), "window": None if corr.window is None else list(corr.window)},
-            "options": corr.options(), "verdict": verdict, "findings": findings}
+    out = {"track": int(track.number), "source": track.source, "imu": imu, "dvl": dvl,
+           "corrections": {**dataclasses.asdict(corr), "window": None if corr.window is None else list(corr.window)},
+           "options": corr.options(), "verdict": verdict, "findings": findings}
+    bad = non_finite(out, skip=PLOT_ONLY)
+    if bad:
+        findings.append(f"{len(bad)} figure(s) not finite (not determined by these data), written as null in "
+                        f"check.json: {', '.join(bad[:6])}{' ...' if len(bad) > 6 else ''}")
+    return out
+
+
+#: the keys (dotted paths) of a track's result that only the figures use (not written to check.json)
+PLOT_ONLY = ("imu.series", "imu.attitude_drift.t", "imu.attitude_drift.drift_deg")
+
+
+def non_finite(obj, path: str = "", skip: tuple = ()) -> list[str]:
+    """The dotted paths (``imu.time_offset.local.3.std_s``) of every non-finite float in ``obj`` (nested dicts,
+    lists, tuples, NumPy floats), the paths in ``skip`` and below them left out."""
+    if path in skip:
+        return []
+    if isinstance(obj, dict):
+        return [p for k, v in obj.items() for p in non_finite(v, f"{path}.{k}" if path else str(k), skip)]
+    if isinstance(obj, (list, tuple)):
+        return [p for i, v in enumerate(obj) for p in non_finite(v, f"{path}.{i}", skip)]
+    if isinstance(obj, (float, np.floating)) and not math.isfinite(obj):
+        return [path]
+    return []
+
+
+def json_safe(obj):
+    """``obj`` (nested dicts, lists, tuples) with every non-finite float as None: JSON has no inf or NaN, and a
+    figure the data do not determine is written as ``null`` (:func:`check_track` says which in a finding)."""
+    if isinstance(obj, dict):
+        return {k: json_safe(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [json_safe(v) for v in obj]
+    if isinstance(obj, (float, np.floating)):
+        return float(obj) if math.isfinite(obj) else None
+    return obj

@@ -174,8 +174,11 @@ def write_check_report(result: dict, out: str | Path, figures: bool = True) -> P
     for r in result["tracks"]:
         names = plot_track(r, out) if figures else []
         parts.append(track_section(r, names))
-    write_text_atomic(out / "check.json", json.dumps({**result, "tracks": [strip_series(r) for r in result["tracks"]]},
-                                                     indent=1, allow_nan=False) + "\n")
+    from nespm_cli.checks.verdict import json_safe  # a non-finite figure as null
+
+    tracks = [strip_series(r) for r in result["tracks"]]
+    write_text_atomic(out / "check.json", json.dumps(json_safe({**result, "tracks": tracks}), indent=1,
+                                                     allow_nan=False) + "\n")
     write_text_atomic(out / "corrections.json", result["corrections"])
     path = out / "check.md"
     write_text_atomic(path, "\n".join(parts))
