@@ -276,6 +276,10 @@ topic = "/gps/fix"
 """
 SPEC_SQLITE = f"""track = 4
 {ORIGIN_TOML}
+[frames]
+world = "enu"
+body = "flu"
+
 [gt]
 topic = "/odom"
 

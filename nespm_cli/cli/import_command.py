@@ -1,5 +1,5 @@
 """``nespm import BAG --spec SPEC --out DIR``: a ROS 1 / ROS 2 bag as an A-KIT track folder
-(:mod:`nespm_cli.data.rosbag_import`, docs/rosbags.md)."""
+(:mod:`nespm_cli.data.rosbag_import`, docs/rosbags.md); ``nespm import BAG --list``: its topics."""
 from __future__ import annotations
 
 import warnings
@@ -12,15 +12,37 @@ import typer
 def import_cmd(
     bag: Path = typer.Argument(..., metavar="BAG",
                                help="A ROS 1 .bag file or a ROS 2 bag folder (metadata.yaml; sqlite3 or mcap)."),
-    spec: Path = typer.Option(..., "--spec", help="TOML import spec: topics -> GT, IMU, DVL, depth, fix; frames; "
-                              "origin; track number (docs/rosbags.md)."),
-    out: Path = typer.Option(..., "--out", help="Data folder to write TrajectoryN into (usable as --data-dir)."),
+    spec: Optional[Path] = typer.Option(None, "--spec", help="TOML import spec: topics -> GT, IMU, DVL, depth, fix; "
+                                        "frames; origin; track number (docs/rosbags.md). Required unless --list."),
+    out: Optional[Path] = typer.Option(None, "--out", help="Data folder to write TrajectoryN into (usable as "
+                                       "--data-dir). Required unless --list."),
     track: Optional[int] = typer.Option(None, "--track", help="Track number N to write (default: the spec's track)."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing TrajectoryN folder of that number."),
+    list_: bool = typer.Option(False, "--list", help="List the bag's topics (type, messages, rate, frame_id of the "
+                               "first message) and write nothing."),
 ) -> None:
     """Import a ROS bag (rosbags, no ROS install) as a track: GT from Odometry (or pose + twist), IMU,
     DVL, depth (FluidPressure or a depth field) and fixes (NavSatFix), converted to NED / body FRD, with
-    the spec and IMPORT.md beside the files; the bag is only read."""
+    the spec and IMPORT.md beside the files; the bag is only read. --list shows what the bag holds."""
+    from nespm_cli.errors import NespmError
+
+    if list_:
+        if spec is not None or out is not None or track is not None or overwrite:
+            raise NespmError("--list writes nothing: give the bag alone (without --spec, --out, --track, --overwrite)")
+        from nespm_cli.data.rosbag_inspect import list_bag, list_text
+        from nespm_cli.data.rosbag_messages import bag_kind, open_bag
+
+        path, kind = bag_kind(bag.expanduser())
+        reader = open_bag(path, None, {})
+        try:
+            rows = list_bag(reader)
+        finally:
+            reader.close()
+        typer.echo(list_text(path, kind, rows))
+        return
+    for name, value in (("--spec", spec), ("--out", out)):
+        if value is None:
+            raise NespmError(f"{name} is required (or --list to see the bag's topics)")
     from nespm_cli.data.plausibility import DataWarning
     from nespm_cli.data.rosbag_import import NOTE_MD, import_bag
 

@@ -32,9 +32,11 @@ import numpy as np
 from nespm_cli.data.atomic import write_text_atomic
 from nespm_cli.data.rosbag_messages import (BODY_TO_FRD, WORLD_TO_NED, Request, bag_kind, local_to_geodetic,
                                             open_bag, pressure_to_depth, quat_to_dcm, read_requests)
+from nespm_cli.data.rosbag_inspect import check_frames, first_fix_origin, first_frame_ids
 from nespm_cli.data.rosbag_spec import paths_for, read_spec
 from nespm_cli.data.sensor_files import dvl_at_epochs
 from nespm_cli.data.track import Track
+from nespm_cli.data.track_spec import SPEC_NAME, find_spec
 from nespm_cli.data.tracks import load_track, write_akit
 from nespm_cli.errors import NespmError
 from nespm_cli.nav.rotations import dcm_to_euler
@@ -69,8 +71,11 @@ def import_bag(bag: str | Path, spec_path: str | Path, out: str | Path, *, track
         topics = {key: reader.topics.get(req.topic) for key, req in _topic_keys(spec).items()}
         data = read_requests(reader, _requests(spec, spec_path, topics), bag)
         start_ns = int(reader.start_time)
+        check_frames(spec_path, spec, first_frame_ids(reader, {k: r.topic for k, r in _topic_keys(spec).items()}))
     finally:
         reader.close()
+    if spec["origin"].get("first_fix"):
+        spec["origin"] = first_fix_origin(spec, data, WORLD_TO_NED[spec["frames"]["world"]], local_to_geodetic)
     ctx = {"spec": spec, "data": data}
     gt_t, pos, v_n, euler, rec = _gt(ctx)
     zero = {"gt": int(gt_t[0]), "bag": start_ns, "none": 0}[spec["time"]["zero"]]
@@ -338,6 +343,9 @@ def _check_out(out: Path, number: int, bag: Path, overwrite: bool) -> list[Path]
     that is a file or lies inside the bag, and replacing a folder that holds the bag."""
     if out.exists() and not out.is_dir():
         raise NespmError(f"--out {out}: exists and is not a folder")
+    if out.is_dir() and find_spec(out) is not None:
+        raise NespmError(f"--out {out}: holds a track spec ({SPEC_NAME}), through which the folder is read: an imported "
+                         "TrajectoryN there would be hidden by it; import into another folder")
     bag_r, out_r = bag.resolve(), out.resolve()
     if bag_r.is_dir() and (out_r == bag_r or bag_r in out_r.parents):
         raise NespmError(f"--out {out}: is inside the bag folder {bag}; choose another folder")
@@ -387,12 +395,42 @@ def _install(track: Track, record: dict, spec_path: Path, out: Path, existing: l
             raise
         installed = True
         for _, moved in trash:
-            shutil.rmtree(moved, ignore_errors=True)
+            remove_tree(moved)
     finally:
         shutil.rmtree(stage, ignore_errors=True)
         if created and not installed and not any(out.iterdir()):
             out.rmdir()  # a refused import leaves no trace
     return ImportResult(final, record, found)
+
+
+def remove_tree(path: Path) -> None:
+    """Remove a replaced track ``path``: a symbolic link itself (never what it points to), else the folder with
+    its read-only files and folders made writable first; what cannot be removed is one line (no leftover
+    ``.nespm-replaced-*`` without a word)."""
+    import os
+    import stat
+
+    if path.is_symlink() or not path.is_dir():
+        path.unlink()
+        return
+
+    def writable(func, p, _exc):
+        os.chmod(p, stat.S_IRWXU)
+        parent = os.path.dirname(p)
+        os.chmod(parent, os.stat(parent).st_mode | stat.S_IWUSR | stat.S_IXUSR)
+        func(p)
+
+    for root, dirs, _ in os.walk(path):
+        for d in dirs:
+            q = os.path.join(root, d)
+            if not os.path.islink(q):
+                os.chmod(q, os.stat(q).st_mode | stat.S_IRWXU)
+    os.chmod(path, os.stat(path).st_mode | stat.S_IRWXU)
+    try:
+        shutil.rmtree(path, onerror=writable)
+    except OSError as exc:
+        raise NespmError(f"{path}: the replaced track could not be removed ({exc.strerror}); the new one is installed, "
+                         "remove this folder by hand") from None
 
 
 def note_markdown(record: dict) -> str:
@@ -408,7 +446,7 @@ def note_markdown(record: dict) -> str:
              f"- frames: world {record['frames']['world'].upper()}, body {record['frames']['body'].upper()} "
              "(a channel's own `body` below); written: NED, body FRD (docs/conventions.md)",
              f"- origin: lat {o['lat_deg']!r} deg, lon {o['lon_deg']!r} deg, alt {o['alt_m']!r} m "
-             f"({o['model']} local frame)", "",
+             f"({o['model']} local frame{'; ' + o['from'] if o.get('from') else ''})", "",
              "| channel | file | topic | type | messages | rows written | duplicates | outside GT span | "
              "no measurement | span [s] | conversions |", "| --- " * 11 + "|"]
     for c in record["channels"]:

@@ -36,13 +36,13 @@ DEFAULTS = {
     "": {"track": 1},
     "bag": {"typestore": None, "types": {}},
     "time": {"zero": "gt", "stamp": "header"},
-    "frames": {"world": "enu", "body": "flu"},
     "origin": {"alt_m": 0.0, "model": "flat"},
     "gt": {"every": 1, "sync_tolerance": 0.001},
     "depth": {"positive": "down", "density": 1025.0, "atmospheric": 101325.0, "gravity": 9.80665},
     "fix": {"vertical": False},
 }
 CHANNELS = ("gt", "imu", "dvl", "depth", "fix")
+FIRST_FIX = "first-fix"  # origin = "first-fix": the origin from the first GNSS fix (rosbag_inspect.first_fix_origin)
 
 ODOM, IMU, NAVSAT, PRESSURE = "nav_msgs/msg/Odometry", "sensor_msgs/msg/Imu", "sensor_msgs/msg/NavSatFix", \
     "sensor_msgs/msg/FluidPressure"
@@ -73,18 +73,27 @@ def read_spec(path: Path) -> dict:
     level and ``bag.types`` as ``{type name: .msg text}`` (files relative to the spec's folder).
 
     Refused, in one line naming ``path`` and the key: an unreadable or invalid TOML file, an unknown key,
-    a value of the wrong type or outside its choices, no ``[gt]`` or ``[origin]``, a ``[gt]`` without
+    a value of the wrong type or outside its choices, no ``[gt]``, no ``[origin]`` (or ``origin = "first-fix"``
+    without a ``[fix]``), ``frames.world`` or ``frames.body`` missing (no default), a ``[gt]`` without
     ``topic`` or ``pose_topic`` + ``twist_topic`` (or both), ``twist_frame`` missing with a separate twist
     topic, a table without ``topic``, ``depth.pressure`` and ``depth.depth`` both given, a track below 1,
     an origin outside ±90°/±180°, a density, gravity or ``every`` not positive."""
     raw = read_toml(path, "the spec")
+    first_fix = isinstance(raw.get("origin"), str)
+    if first_fix:
+        if raw["origin"] != FIRST_FIX:
+            raise NespmError(f"{path}: key 'origin': {printable(repr(raw['origin']), 40)}: give an [origin] table "
+                             f"(lat_deg, lon_deg, alt_m) or origin = \"{FIRST_FIX}\"")
+        raw = {k: v for k, v in raw.items() if k != "origin"}
     top = _table(path, "", raw)
     spec = {"": {**DEFAULTS[""], **{k: v for k, v in top.items() if SCHEMA[""][k] != TABLE}}}
     for name in SCHEMA:
         if name in raw:
             spec[name] = {**DEFAULTS.get(name, {}), **_table(path, name, raw[name])}
-        elif name in ("bag", "time", "frames"):
+        elif name in ("bag", "time"):
             spec[name] = dict(DEFAULTS[name])
+    if first_fix:
+        spec["origin"] = {"first_fix": True, "alt_m": 0.0, "model": "flat"}
     _check(path, spec)
     spec["bag"]["types"] = _msg_types(path, spec["bag"]["types"])
     return spec
@@ -105,9 +114,20 @@ def _check(path: Path, spec: dict) -> None:
         raise bad("track", f"must be at least 1, got {spec['']['track']}")
     for name in ("gt", "origin"):
         if name not in spec:
-            raise NespmError(f"{path}: no [{name}] table (the ground truth and its origin are required)")
+            raise NespmError(f"{path}: no [{name}] table (the ground truth and its origin are required; "
+                             f"origin = \"{FIRST_FIX}\" takes it from the first GNSS fix)")
+    frames = spec.get("frames", {})
+    for key, choices in (("world", "enu or ned"), ("body", "flu or frd")):
+        if key not in frames:
+            raise NespmError(f"{path}: key 'frames.{key}' is missing: say the bag's {key} frame ({choices}); it has no "
+                             "default (a NED/FRD bag read as ENU/FLU comes in mirrored; nespm import BAG --list shows "
+                             "the frame_ids)")
     origin = spec["origin"]
+    if origin.get("first_fix") and "fix" not in spec:
+        raise bad("origin", f"= \"{FIRST_FIX}\" needs a [fix] table (the GNSS topic the origin is taken from)")
     for key, limit in (("lat_deg", 90.0), ("lon_deg", 180.0)):
+        if origin.get("first_fix"):
+            break
         if key not in origin:
             raise bad(f"origin.{key}", "is missing (the local pose's origin, degrees)")
         if abs(origin[key]) > limit:
