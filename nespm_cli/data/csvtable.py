@@ -20,11 +20,29 @@ from nespm_cli.errors import NespmError
 QUOTE_LIMIT = 40  # characters of file content quoted in a message (printable only)
 
 
+def link_problem(path: Path) -> str | None:
+    """Why ``path``, a symbolic link, cannot be followed (``"a symbolic link loop"``, ``"a broken symbolic link to
+    X"``), or None when it is no link or can be followed."""
+    if not path.is_symlink():
+        return None
+    try:
+        path.resolve(strict=True)
+    except RuntimeError:
+        return "a symbolic link loop (it never reaches a file)"
+    except OSError as exc:
+        import errno
+
+        if exc.errno == errno.ELOOP:
+            return "a symbolic link loop (it never reaches a file)"
+        return f"a broken symbolic link (to {printable(str(path.readlink()), QUOTE_LIMIT)}, which does not exist)"
+    return None
+
+
 def read_frame(path: Path) -> pd.DataFrame:
     """The CSV ``path`` as a DataFrame (every cell as parsed, header names stripped); refuses a missing,
     unreadable, binary, empty (no header line) or unparsable file. A header-only file gives 0 rows."""
     if not path.is_file():
-        raise NespmError(f"{path}: file not found")
+        raise NespmError(f"{path}: {link_problem(path) or 'file not found'}")
     try:
         raw = path.read_bytes()
     except OSError as exc:

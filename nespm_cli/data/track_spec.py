@@ -26,6 +26,7 @@ from pathlib import Path, PurePosixPath
 import numpy as np
 
 from nespm_cli.data.corrections import axes_matrix
+from nespm_cli.data.csvtable import link_problem
 from nespm_cli.data.plausibility import printable
 from nespm_cli.data.toml_keys import BOOL, INT, NUM, STR, TABLE, checked_table, read_toml
 from nespm_cli.errors import NespmError
@@ -144,12 +145,17 @@ class TrackSpec:
 
 
 def find_spec(folder: Path) -> Path | None:
-    """``folder/nespm-data.toml`` if it is there (a folder of that name is refused), else None."""
+    """``folder/nespm-data.toml`` if it is there, else None. Refused: a folder of that name, and a symbolic link
+    of that name that reaches no file (a loop or a broken link: the folder would otherwise be read without its
+    spec, silently)."""
     path = Path(folder) / SPEC_NAME
     if path.is_file():
         return path
     if path.exists():
         raise NespmError(f"{path}: not a file (the track spec {SPEC_NAME} must be a TOML file)")
+    if path.is_symlink():
+        raise NespmError(f"{path}: {link_problem(path) or 'a symbolic link that reaches no file'}; the track spec "
+                         f"{SPEC_NAME} must be a readable TOML file (remove the link to read the folder without it)")
     return None
 
 
@@ -315,14 +321,15 @@ def _matches(spec: TrackSpec, name: str) -> dict[int, list[str]]:
     """``{N: [relative paths]}`` of the files table ``name``'s pattern finds in the data folder."""
     pat = spec.tables[name]["file"]
     if "{N}" not in pat:
-        return {spec.track: [pat]} if (spec.folder / pat).is_file() else {}
+        p = spec.folder / pat
+        return {spec.track: [pat]} if p.is_file() or p.is_symlink() else {}  # a looped link: named on reading
     parts = pat.split("{N}")
     rx = re.compile(r"(\d+)".join(re.escape(p) for p in parts))
     out: dict[int, list[str]] = {}
     for p in sorted(spec.folder.glob("*".join(glob.escape(p) for p in parts))):
         rel = p.relative_to(spec.folder).as_posix()
         m = rx.fullmatch(rel)
-        if m and p.is_file() and len({int(g) for g in m.groups()}) == 1:
+        if m and (p.is_file() or p.is_symlink()) and len({int(g) for g in m.groups()}) == 1:
             out.setdefault(int(m.group(1)), []).append(rel)
     return out
 
