@@ -15,9 +15,10 @@ so the IMU's own magnitudes are compared with what the GT says they must be:
 * **accelerometer**: the median |f| over the samples within [:data:`GRAVITY_MIN`, :data:`GRAVITY_MAX`] m/s²
   (local gravity ~9.8; 1 g read as m/s² gives ~1, m/s² read as g ~96).
 
-Measured (``RATIO`` = gyro RMS ratio, ``|f|`` = median specific force): the 13 real Snapir IMU files 0.93-1.9
-and 9.79-9.80 m/s²; simulated REMUS 100 runs (``nespm simulate``) ~1.0 and 9.80; synthesized IMUs of the
-embedded tracks with the papers' noise and biases 1.0-1.6 (floor) and 9.80. Every refusal is one line naming
+Measured (gyro RMS ratio; median |f|): the 13 real Snapir IMU files 0.998-1.028 and 9.795-9.799 m/s²
+(biases, noise and vibration included); simulated REMUS 100 runs (``nespm simulate``) 0.999 and 9.796;
+synthesized IMUs of the 6 embedded tracks with the papers' noise and biases 0.9999-1.0001 and 9.78-9.81.
+Every refusal is one line naming
 the file, the columns and the unit key to fix (``imu.rate_unit`` of a track spec, or the A-KIT column's unit).
 """
 from __future__ import annotations
