@@ -169,3 +169,16 @@ def test_overwrite_leaves_no_replaced_folder(bags, tmp_path):
     assert rc == 0, se
     assert sorted(p.name for p in out.iterdir()) == ["Trajectory3"] and not (out / "Trajectory3").is_symlink()
     assert sorted(p.name for p in elsewhere.iterdir()) == before
+
+
+def test_a_bag_imu_in_deg_per_s_is_refused_naming_the_topic(tmp_path, monkeypatch):
+    import test_rosbag_import as src
+
+    imu = src.SRC.imu.copy()
+    imu[:, 3:] = np.degrees(imu[:, 3:])  # a driver publishing deg/s in sensor_msgs/Imu
+    monkeypatch.setattr(src.SRC, "imu", imu)
+    bag = ned_bag(tmp_path / "deg.bag")
+    line = assert_one_error_line(*nespm("import", bag, "--spec", _spec(tmp_path, spec_text("ned", "frd")), "--out",
+                                        tmp_path / "out"), "IMU_trajectory2.csv", "a gyro in deg/s read as rad/s",
+                                 "spec key imu.topic", "nothing written")
+    assert str(tmp_path / "out" / "Trajectory2") in line and not (tmp_path / "out").exists()

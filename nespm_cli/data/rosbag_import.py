@@ -375,8 +375,10 @@ def _install(track: Track, record: dict, spec_path: Path, out: Path, existing: l
             try:
                 load_track(track.number, stage, warnings="warn")
             except NespmError as exc:
-                raise NespmError(f"{str(exc).replace(str(tdir), str(final))} (the imported track is refused; "
-                                 "nothing written)") from None
+                text = str(exc).replace(str(tdir), str(final)).replace(  # the IMU's units: the bag's topic, not a file
+                    "the A-KIT columns are", "sensor_msgs/Imu is rad/s and m/s^2 (REP-103); spec key imu.topic's "
+                    "messages are not, the columns written are")
+                raise NespmError(f"{text} (the imported track is refused; nothing written)") from None
         found = [str(w.message).replace(str(tdir), str(final)) for w in caught]
         record["warnings"] = found
         if not dvl_file:
