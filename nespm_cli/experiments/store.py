@@ -154,8 +154,8 @@ class FolderLock:
             self.handle.seek(0)
             pid = self.handle.read(32).strip() or "?"
             self.handle.close()
-            raise NespmError(f"{out}: busy: another nespm process (pid {pid}) is writing this folder; wait "
-                             "for it to finish, or use another --out") from None
+            raise NespmError(f"{out}: busy: another nespm process is writing or reading this folder (pid {pid} "
+                             "wrote it last); wait for it to finish, or use another --out") from None
         self.handle.seek(0)
         self.handle.truncate()
         self.handle.write(str(os.getpid()))
@@ -337,6 +337,7 @@ class ResultsFolder:
         self.lock: FolderLock | None = None
         self._saved = 0.0
         self._warned: set[str] = set()
+        self._assembling = False
 
     def open(self, inputs: dict[str, str] | None = None, **extra) -> "ResultsFolder":
         """Lock the folder, check it against ``options`` and the ``inputs`` hashes
@@ -410,6 +411,10 @@ class ResultsFolder:
                 raise NespmError(f"{self.path(name)}: {problem} (changed while this command ran?); re-run the "
                                  "same command to compute it again")
             out.append(self.path(name))
+        if not self._assembling:  # the first assembly call of this process replaces the last assembly's record
+            self._assembling = True
+            self.manifest["assembled"] = {"experiment": self.experiment, "chunks": [], "tables": {}}
+        self.manifest["assembled"]["chunks"] += [p.name for p in out]
         return out
 
     def run(self, fn: Callable, tasks: list[Task], execution, label: str, unit: str = "filter-epochs") -> None:
@@ -450,6 +455,10 @@ class ResultsFolder:
 
     def finish(self, chunks: int) -> None:
         old = self.old or {}
+        rec = self.manifest.get("assembled")
+        if self._assembling and isinstance(rec, dict):  # the tables as assembled: export/compare verify them
+            tables = [self.out / n for n in ("metrics.parquet", "epochs.parquet") if (self.out / n).is_file()]
+            rec["tables"] = {p.name: h for p, h in zip(tables, file_hashes(tables).values())}
         self.manifest.update(finished=now(), chunks=chunks,
                              wall_seconds=round(time.perf_counter() - self.t0 + old.get("wall_seconds", 0.0), 3))
         self.save()
