@@ -19,7 +19,9 @@ def report(
 ) -> None:
     """Write DIR/report.md (verdict first, each caveat once, Tables I/II layout, paired 95 % intervals, published values; docs/report.md) and figures."""
     from nespm_cli.reports.dispatch import write_report
+    from nespm_cli.reports.results import check_n_boot
 
+    check_n_boot(n_boot)
     path = write_report(out_dir, baseline, n_boot=n_boot, practical_pct=practical, beside=tuple(beside or ()),
                         all_runs=all_runs)
     typer.echo(path.read_text(encoding="utf-8"))
@@ -35,7 +37,9 @@ def compare(
 ) -> None:
     """Compare cases (sensor suites, tunings) run on the same realizations: one table per case and filter, paired improvements over the reference case."""
     from nespm_cli.reports.cases_report import write_compare_report
+    from nespm_cli.reports.results import check_n_boot
 
+    check_n_boot(n_boot)
     names = [x.strip() for x in labels.split(",")] if labels else None
     path = write_compare_report(folders, out, names, reference, n_boot=n_boot)
     typer.echo(path.read_text(encoding="utf-8"))

@@ -66,6 +66,13 @@ def read_manifest_file(path: Path) -> dict:
     return manifest
 
 
+def check_n_boot(n_boot: int) -> int:
+    """``--n-boot``: a number of bootstrap resamples, at least 1 (0 would give no interval, silently)."""
+    if isinstance(n_boot, bool) or not isinstance(n_boot, (int,)) or n_boot < 1:
+        raise NespmError(f"--n-boot must be a number of bootstrap resamples, at least 1 (2000 by default), got {n_boot}")
+    return n_boot
+
+
 def check_complete(metrics: pd.DataFrame, manifest: dict, where: object) -> None:
     """One line unless ``metrics`` holds every run the manifest's options ask for: ``runs`` runs
     (0 .. runs-1) of every track of ``tracks`` for every filter of ``filters`` (and ``smooth``'s
