@@ -201,6 +201,7 @@ def validate(spec: Spec) -> Spec:
     return dataclasses.replace(spec, filter_config=filter_config(spec))  # what the filters use, recorded as such
 
 
+MAX_TRACK = 2**63 - 1  # the largest track number the tables' int64 column holds
 MAX_LEVER_ARM = 100.0  # [m] a DVL farther than this from the INS is a units or sign mistake
 
 
@@ -222,6 +223,9 @@ def check_domains(spec: Spec) -> None:
         raise NespmError(f"--tracks: track {dup} is given more than once")
     if any(n < 1 for n in spec.tracks):
         raise NespmError(f"--tracks: track numbers are positive, got {min(spec.tracks)}")
+    if any(n > MAX_TRACK for n in spec.tracks):
+        raise NespmError(f"--tracks: track {max(spec.tracks)} is beyond {MAX_TRACK} (2^63-1: the tables store "
+                         "track numbers as int64); rename its folder to a smaller number")
     fc = spec.filter_config
     check_alpha(fc.alpha, "--alpha")
     if spec.dvl_r_std is not None and not (finite(spec.dvl_r_std) and spec.dvl_r_std > 0):

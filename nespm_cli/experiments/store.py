@@ -188,6 +188,22 @@ def writer_pid(out: Path) -> str | None:
         os.close(fd)
 
 
+def check_out_link(out: Path) -> None:
+    """Refuse an ``--out`` that is a symbolic link to a non-empty folder holding no nespm results (a
+    link set to the wrong place must not get a study written into someone's folder); a link to an
+    empty folder or to a results folder is followed."""
+    if not out.is_symlink() or not out.is_dir():
+        return
+    try:
+        entries = [p.name for p in out.iterdir()
+                   if p.name != LOCK_FILE and not (p.name == "chunks" and p.is_dir() and not any(p.iterdir()))]
+    except OSError:
+        return  # the lock reports an unreadable folder
+    if entries and not (out / "manifest.json").is_file() and not has_results(out):
+        raise NespmError(f"--out {out}: is a symbolic link to {os.path.realpath(out)}, a non-empty folder holding no "
+                         f"nespm results ({entries[0]}, ...); give a new or empty folder, or the folder itself")
+
+
 #: what an experiment writes into its folder besides the manifest: never overwritten without one
 OUTPUT_NAMES = ("metrics.parquet", "epochs.parquet", "report.md", "figures", "chunks", "models.npz")
 
@@ -326,6 +342,8 @@ class ResultsFolder:
 
     def __init__(self, out: str | Path, options: dict, argv: list[str] | None = None,
                  extendable: tuple[str, ...] = ()) -> None:
+        if not str(out).strip():
+            raise NespmError("--out: an empty path (it would write into the current folder); name a folder")
         self.out = Path(out)
         self.chunks = self.out / "chunks"
         self.options = options
@@ -344,6 +362,7 @@ class ResultsFolder:
         (:func:`file_hashes`), write the manifest."""
         if self.out.exists() and not self.out.is_dir():
             raise NespmError(f"--out {self.out}: exists and is not a folder")
+        check_out_link(self.out)
         self.lock = FolderLock(self.out)
         mf = self.out / "manifest.json"
         if mf.exists() and has_results(self.out) and read_manifest(mf).get("identity") != IDENTITY:

@@ -4,6 +4,7 @@ runs per track, the sensors' measurement sizes)."""
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 from typing import Any, Iterable
 
@@ -64,6 +65,18 @@ def read_manifest_file(path: Path) -> dict:
     if not isinstance(manifest.get("options", {}), dict):
         raise NespmError(f"{path}: 'options' is not an object (not a nespm manifest)")
     return manifest
+
+
+def check_figures_dir(out_dir: Path) -> Path:
+    """``out_dir/figures``, where a report draws: refused in one line when it is a symbolic link (figures
+    are never written through a link into another folder) or not a folder."""
+    fig = Path(out_dir) / "figures"
+    if fig.is_symlink():
+        raise NespmError(f"{fig}: is a symbolic link (to {os.path.realpath(fig)}); the report does not write its "
+                         "figures through it: remove the link, or report into a copy of the folder")
+    if fig.exists() and not fig.is_dir():
+        raise NespmError(f"{fig}: exists and is not a folder; remove it to let the report draw its figures")
+    return fig
 
 
 def check_n_boot(n_boot: int) -> int:
