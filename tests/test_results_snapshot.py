@@ -157,3 +157,20 @@ def test_export_refuses_an_interrupted_extension_and_a_replaced_table(tmp_path, 
     e.iloc[:3].to_parquet(out / "epochs.parquet", index=False)
     rc, o, err = nespm("export", str(out), "--out", str(tmp_path / "x"))
     assert_one_error_line(rc, o, err, str(out / "epochs.parquet"), "not the table nespm assembled")
+
+
+def test_folder_of_an_older_version_exports_its_tables_but_not_its_chunks(tmp_path, finished, short_data_dir):
+    out = copy_of(finished, tmp_path / "r")
+    mf = json.loads((out / "manifest.json").read_text())
+    mf.pop("assembled")  # what a folder of the previous version holds
+    (out / "manifest.json").write_text(json.dumps(mf), encoding="utf-8")
+    rc, _, err = nespm("export", str(out), "--out", str(tmp_path / "x"))
+    assert rc == 0, err
+    assert len(pd.read_csv(tmp_path / "x" / "metrics.csv")) == 4
+    rc, o, err = nespm("export", str(out), "--series", "--out", str(tmp_path / "y"))
+    assert_one_error_line(rc, o, err, "no record of the assembled chunks", "re-run the same command")
+    rc, _, err = nespm("mc", "--data-dir", str(short_data_dir), *RUN, "--out", str(out))  # records it, computes nothing
+    assert rc == 0, err
+    rc, _, err = nespm("export", str(out), "--series", "--out", str(tmp_path / "y"))
+    assert rc == 0, err
+    assert len(pd.read_csv(tmp_path / "y" / "series.csv")) == 4 * len(pd.read_parquet(out / "epochs.parquet"))

@@ -81,6 +81,17 @@ def assembled_record(out: Path, manifest: dict, what: str) -> dict:
     return rec
 
 
+def finished_state(out: Path, manifest: dict, what: str, need_record: bool = False) -> dict | None:
+    """The :func:`assembled_record` of a finished folder, or None for a finished folder of an older nespm
+    (no record; refused when ``need_record``, e.g. to read its chunks); one line for an unfinished run."""
+    if "assembled" in manifest or need_record:
+        return assembled_record(out, manifest, what)
+    if manifest.get("finished") is None:
+        raise NespmError(f"{out}: its last run did not finish (interrupted, or still running); {what} reads only "
+                         "finished folders: re-run the same command to complete it")
+    return None
+
+
 def recorded_chunks(out: Path, rec: dict, kind: str) -> list[Path]:
     """The ``kind`` (``metrics``, ``series``) chunk files of an :func:`assembled_record`, in assembly order,
     each verified (identity and content hash); one line naming a missing or changed one. Other files in
@@ -97,4 +108,4 @@ def recorded_chunks(out: Path, rec: dict, kind: str) -> list[Path]:
     return paths
 
 
-__all__ = ["ReadLock", "assembled_record", "recorded_chunks"]
+__all__ = ["ReadLock", "assembled_record", "finished_state", "recorded_chunks"]

@@ -67,7 +67,7 @@ def load_case(label: str, f: Path) -> Case:
     """One finished ``mc`` folder as a case, read as one consistent state: not while another process
     writes it (a shared lock while reading), only a finished run, tables as assembled and holding every
     run, track and filter the manifest asks for (one line naming the folder otherwise)."""
-    from nespm_cli.experiments.snapshot import ReadLock, assembled_record
+    from nespm_cli.experiments.snapshot import ReadLock, finished_state
     from nespm_cli.reports.results import check_complete, read_manifest_file, read_parquet
 
     mf, mp = f / "manifest.json", f / "metrics.parquet"
@@ -77,11 +77,7 @@ def load_case(label: str, f: Path) -> Case:
         manifest = read_manifest_file(mf)
         if manifest.get("experiment", "mc") != "mc" or "sweep" in manifest.get("options", {}):
             raise NespmError(f"{f}: compare takes folders of 'nespm mc' (a sweep compares its own values)")
-        if "assembled" in manifest:  # folders of older nespm versions carry no record of their tables
-            assembled_record(f, manifest, "compare")
-        elif manifest.get("finished") is None:
-            raise NespmError(f"{f}: its last run did not finish (interrupted, or still running); re-run the same "
-                             "command to complete it, then compare")
+        finished_state(f, manifest, "compare")  # folders of older versions have no record of their tables
         metrics = read_parquet(mp)
         check_complete(metrics, manifest, mp)
     return Case(label, f, metrics, manifest)

@@ -6,7 +6,8 @@ it is refused while export reads, and export is refused while one writes): ``met
 row per track, filter and run) and ``epochs.parquet`` (per epoch, across runs), each checked against
 the SHA-256 the assembly recorded and against the manifest's runs, and with ``--series`` the per-run
 per-epoch errors of the series chunks the assembly read, in its order, each verified (identity and
-content hash); no other file of ``chunks/`` is read. Beside the tables: every column's unit
+content hash); no other file of ``chunks/`` is read. A finished folder of an older version (no
+record) exports its tables after the run-count check; ``--series`` needs the record. Beside the tables: every column's unit
 (:mod:`nespm_cli.reports.schema`, the one copy of docs/results-schema.md's units) and the study's
 metadata (:func:`study_meta`: command, experiment, versions, seed, tracks, runs, filters, sensors
 with their resolved options, every option). Formats:
@@ -43,7 +44,7 @@ META_KEYS = ("experiment", "command", "seed", "data_dir", "git_commit", "started
 def export_tables(folder: Path, series: bool = False) -> tuple[dict[str, pd.DataFrame], dict]:
     """``({table: DataFrame}, manifest)`` of the folder's exportable tables, read as one consistent state
     (module docstring); one-line errors naming what is missing, changed or being written."""
-    from nespm_cli.experiments.snapshot import ReadLock, assembled_record, recorded_chunks
+    from nespm_cli.experiments.snapshot import ReadLock, finished_state, recorded_chunks
     from nespm_cli.reports.results import check_complete, read_manifest_file, read_parquet
 
     folder = Path(folder)
@@ -51,7 +52,7 @@ def export_tables(folder: Path, series: bool = False) -> tuple[dict[str, pd.Data
         raise NespmError(f"{folder}: no metrics.parquet (not a finished nespm mc/sweep folder)")
     with ReadLock(folder, "export"):
         manifest = read_manifest_file(folder / "manifest.json")
-        rec = assembled_record(folder, manifest, "export")
+        rec = finished_state(folder, manifest, "export", need_record=series)  # --series: the chunks it names
         tables = {}
         for name in ("metrics", "epochs"):
             p = folder / f"{name}.parquet"
