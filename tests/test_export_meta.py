@@ -28,7 +28,7 @@ def doc_units() -> dict[str, dict[str, str]]:
     for line in DOC.read_text(encoding="utf-8").splitlines():
         if line.startswith("## "):
             table = ("metrics" if "metrics.parquet" in line else "epochs" if "epochs.parquet" in line
-                     else "series" if "Series chunks" in line else None)
+                     else "series" if "Series chunks" in line else "sweep" if "Sweep folders" in line else None)
             continue
         if table and line.startswith("| `"):
             cells = [c.strip() for c in line.strip().strip("|").split("|", 3)]
@@ -36,7 +36,7 @@ def doc_units() -> dict[str, dict[str, str]]:
             units = [u.strip() for u in cells[2].split(",")] if "," in cells[2] else [cells[2]] * len(cols)
             assert len(units) == len(cols), line
             for c, u in zip(cols, units):
-                out.setdefault("sweep" if c in ("param", "value") else table, {})[c] = u
+                out.setdefault(table, {})[c] = u
     return out
 
 
