@@ -30,6 +30,19 @@ def test_empty_out_is_refused_and_nothing_is_written(tmp_path, short_data_dir, m
     assert listing(tmp_path) == []
 
 
+def test_empty_out_of_export_and_compare_is_refused(tmp_path, short_data_dir, monkeypatch):
+    a = tmp_path / "a"
+    rc, _, err = nespm("mc", "--data-dir", str(short_data_dir), *RUN, "--out", str(a))
+    assert rc == 0, err
+    work = tmp_path / "cwd"
+    work.mkdir()
+    monkeypatch.chdir(work)
+    assert_one_error_line(*nespm("export", str(a), "--out", ""), "--out", "empty path")
+    assert_one_error_line(*nespm("compare", str(a), str(a), "--labels", "x,y", "--out", " ", "--n-boot", "20"),
+                          "--out", "empty path")
+    assert listing(work) == []
+
+
 def test_out_link_to_a_foreign_folder_is_refused(tmp_path, short_data_dir):
     theirs = tmp_path / "thesis"
     theirs.mkdir()
