@@ -91,6 +91,7 @@ def build_spec(**kw):
     if "smooth_" in kw:  # mc, sweep
         kw["smooth"] = tuple(f.strip().lower() for f in kw.pop("smooth_").split(",") if f.strip())
     kw["given"] = tuple(sorted(GIVEN))
+    GIVEN.clear()  # this command line's: a later build_spec without a new command line has none
     fields = {k: kw.pop(k) for k in FILTER_FIELDS}
     fcfg = FilterConfig(**{**fields, "q_clip": tuple(fields["q_clip"])})
     kw["divergence"] = DivergenceRule(att_deg=kw.pop("diverge_att_deg"), nees=kw.pop("diverge_nees"),

@@ -80,7 +80,9 @@ class Spec:
     smooth: tuple = ()  # filters whose RTS-smoothed solution is reported too, as <filter>-rts (filters.smoother)
     filter_options: tuple = ()  # ((filter, key, value), ...): --filter-option NAME.KEY=VALUE, [filters.NAME]
     save_series: str = "norms"  # per-run series kept in the chunks: norms, or axes (+ every component's error and std)
-    given: tuple = ()  # options given explicitly (command line or config, e.g. "alpha"): checked for an effect, not recorded
+    # options given explicitly (command line or config, e.g. "alpha"): checked for an effect (check_effective);
+    # how an option was given is no part of the experiment: not compared, not recorded
+    given: tuple = field(default=(), compare=False)
 
     @property
     def outputs(self) -> tuple:
