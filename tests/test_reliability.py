@@ -338,6 +338,7 @@ def test_full_disk_names_the_file(tmp_path, finished, monkeypatch):
     out = copy_of(finished, tmp_path / "r")
     (out / "chunks" / "metrics-5-ekf-000002.parquet").unlink()
     monkeypatch.setattr(pq, "write_table", full)
+    monkeypatch.setattr(pq.ParquetWriter, "write_table", full)  # chunks are written through a ParquetWriter
     rc, o, err = mc(out, Path(json.loads((out / "manifest.json").read_text())["data_dir"]))
     assert_one_error_line(rc, o, err, "series-5-ekf-000002.parquet", "no space left on the device")
 

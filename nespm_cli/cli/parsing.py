@@ -11,11 +11,22 @@ from nespm_cli.errors import NespmError
 from nespm_cli.filters import FilterConfig
 
 ARGV: list[str] = []  # the command line main() received, for the manifest
+GIVEN: set[str] = set()  # the options given explicitly, on the command line or in a --config file ("alpha")
 
 
 def set_argv(argv: list[str]) -> None:
-    """Remember the command line (:data:`ARGV`) for the manifests that :func:`execution` feeds."""
+    """Remember the command line (:data:`ARGV`) for the manifests that :func:`execution` feeds, and
+    the options it gives explicitly (:data:`GIVEN`, with those of its ``--config`` files), which the
+    library checks for an effect (``Spec.given``, experiments.spec.check_effective)."""
+    from nespm_cli.cli.config import expand_config
+
     ARGV[:] = list(argv)
+    try:
+        words = expand_config(list(argv))
+    except NespmError:
+        words = list(argv)  # main() reports the config error itself
+    GIVEN.clear()
+    GIVEN.update(w[2:].split("=", 1)[0].replace("-", "_") for w in words if w.startswith("--") and len(w) > 2)
 
 
 def parse_tracks(text: str) -> tuple[int, ...]:
@@ -79,6 +90,8 @@ def build_spec(**kw):
     kw["filter_options"] = tuple(parse_sensor_option(o, "--filter-option") for o in kw.pop("filter_option") or ())
     if "smooth_" in kw:  # mc, sweep
         kw["smooth"] = tuple(f.strip().lower() for f in kw.pop("smooth_").split(",") if f.strip())
+    kw["given"] = tuple(sorted(GIVEN))
+    GIVEN.clear()  # this command line's: a later build_spec without a new command line has none
     fields = {k: kw.pop(k) for k in FILTER_FIELDS}
     fcfg = FilterConfig(**{**fields, "q_clip": tuple(fields["q_clip"])})
     kw["divergence"] = DivergenceRule(att_deg=kw.pop("diverge_att_deg"), nees=kw.pop("diverge_nees"),

@@ -9,6 +9,15 @@ import typer
 from nespm_cli.reports.stats import PRACTICAL_PCT
 
 
+def non_empty_out(out: str) -> Path:
+    """``--out`` as a path; an empty one (which would mean the current folder) is one line."""
+    from nespm_cli.errors import NespmError
+
+    if not out.strip():
+        raise NespmError("--out: an empty path (it would write into the current folder); name a folder")
+    return Path(out)
+
+
 def report(
     out_dir: Path = typer.Argument(..., help="Folder written by 'nespm mc', 'nespm sweep' or 'nespm gp-ukf'."),
     baseline: Optional[str] = typer.Option(None, "--baseline", help="Filter whose improvement over each other row is shown (the papers' 'Imprv.' column) and the verdict's reference; not an RTS-smoother floor (<filter>-rts)."),
@@ -19,7 +28,9 @@ def report(
 ) -> None:
     """Write DIR/report.md (verdict first, each caveat once, Tables I/II layout, paired 95 % intervals, published values; docs/report.md) and figures."""
     from nespm_cli.reports.dispatch import write_report
+    from nespm_cli.reports.results import check_n_boot
 
+    check_n_boot(n_boot)
     path = write_report(out_dir, baseline, n_boot=n_boot, practical_pct=practical, beside=tuple(beside or ()),
                         all_runs=all_runs)
     typer.echo(path.read_text(encoding="utf-8"))
@@ -28,16 +39,18 @@ def report(
 
 def compare(
     folders: List[Path] = typer.Argument(..., help="Two or more 'nespm mc' folders on the same realizations (same seed, tracks, runs, corruption, data): the cases."),
-    out: Path = typer.Option(Path("results/compare"), "--out", help="Folder for compare.md and figures/compare.png."),
+    out: str = typer.Option("results/compare", "--out", help="Folder for compare.md and figures/compare.png."),
     labels: Optional[str] = typer.Option(None, "--labels", help="Comma list of case names, one per folder (default: the folder names)."),
     reference: Optional[str] = typer.Option(None, "--reference", help="The case the others are compared with (default: the first)."),
     n_boot: int = typer.Option(2000, "--n-boot", help="Paired bootstrap resamples for the 95 % intervals."),
 ) -> None:
     """Compare cases (sensor suites, tunings) run on the same realizations: one table per case and filter, paired improvements over the reference case."""
     from nespm_cli.reports.cases_report import write_compare_report
+    from nespm_cli.reports.results import check_n_boot
 
+    check_n_boot(n_boot)
     names = [x.strip() for x in labels.split(",")] if labels else None
-    path = write_compare_report(folders, out, names, reference, n_boot=n_boot)
+    path = write_compare_report(folders, non_empty_out(out), names, reference, n_boot=n_boot)
     typer.echo(path.read_text(encoding="utf-8"))
     typer.echo(f"wrote {path}")
 
@@ -45,12 +58,12 @@ def compare(
 def export(
     folder: Path = typer.Argument(..., help="A finished 'nespm mc' or 'nespm sweep' folder."),
     fmt: str = typer.Option("csv", "--format", help="csv (one file per table) or mat (one MATLAB .mat, a struct per table)."),
-    out: Optional[Path] = typer.Option(None, "--out", help="Output folder (default FOLDER/export)."),
+    out: Optional[str] = typer.Option(None, "--out", help="Output folder (default FOLDER/export)."),
     series: bool = typer.Option(False, "--series", help="Also the per-run per-epoch errors of the chunk series files (large)."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace existing output files."),
 ) -> None:
     """Export metrics, epochs (and --series) as CSV or a MATLAB .mat file (docs/results-schema.md)."""
     from nespm_cli.reports.export import export_folder
 
-    for p in export_folder(folder, fmt, out, series, overwrite):
+    for p in export_folder(folder, fmt, None if out is None else non_empty_out(out), series, overwrite):
         typer.echo(f"wrote {p}")

@@ -3,11 +3,15 @@
 A chunk file (``OUT/chunks/<kind>-<...>.parquet``) is one filter's results for a block of
 runs. Each carries, in its Parquet key-value metadata under :data:`IDENTITY_KEY`, a small JSON
 record: the *experiment digest* (a SHA-256 of the folder's options without the options that may
-grow, :func:`experiment_digest`), the file's own name and its row count. A file counts as a
-finished chunk of an experiment only when it reads as Parquet and that record matches
-(:func:`chunk_problem`); anything else — a zero-byte or truncated file, a file of another
-experiment, a renamed or copied one, a "(conflicted copy)" — is named and never mixed into the
-results. Files are written atomically and synced first (:func:`nespm_cli.data.atomic.write_atomic`),
+grow, :func:`experiment_digest`), the file's own name, its row count and ``sha256``, the SHA-256 of
+the file's bytes before its footer (every data page: the content; the footer that holds the record
+cannot hash itself). A file counts as a finished chunk of an experiment only when it reads as
+Parquet, that record matches and its bytes hash to ``sha256`` (:func:`chunk_problem`); anything
+else — a zero-byte or truncated file, a file of another experiment, a renamed or copied one, a
+"(conflicted copy)", a hand-edited one — is named and never mixed into the results. The bytes are
+hashed once as they are written and once per process when verified (a file unchanged since, by
+size, time and inode, is not hashed again). Chunks of older nespm versions carry no ``sha256`` and
+are verified without it. Files are written atomically and synced first (:func:`nespm_cli.data.atomic.write_atomic`),
 so a crash cannot leave a partial chunk under a final name.
 
 Assembly reads exactly the chunks a folder expects, one at a time
@@ -16,7 +20,10 @@ Assembly reads exactly the chunks a folder expects, one at a time
 from __future__ import annotations
 
 import hashlib
+import io
 import json
+import os
+import struct
 from pathlib import Path
 
 import pandas as pd
@@ -34,21 +41,74 @@ def experiment_digest(options: dict, extendable: tuple[str, ...] = ()) -> str:
     return hashlib.sha256(text.encode("utf-8")).hexdigest()
 
 
+class _HashingSink(io.RawIOBase):
+    """A writable file that hashes (SHA-256) every byte written through it."""
+
+    def __init__(self, f) -> None:
+        super().__init__()
+        self.f, self.sha = f, hashlib.sha256()
+
+    def writable(self) -> bool:
+        return True
+
+    def write(self, b) -> int:
+        self.sha.update(b)
+        return self.f.write(b)
+
+
 def write_chunk(df: pd.DataFrame, path: Path, experiment: str) -> None:
-    """Write ``df`` to ``path`` atomically, with its identity (``experiment`` digest, name, rows)."""
+    """Write ``df`` to ``path`` atomically, with its identity (``experiment`` digest, name, rows and the
+    SHA-256 of the data bytes, taken as they are written)."""
     import pyarrow as pa
     import pyarrow.parquet as pq
 
     path = Path(path)
     table = pa.Table.from_pandas(df, preserve_index=False)
-    ident = json.dumps({"experiment": experiment, "name": path.name, "rows": len(df)}).encode()
-    table = table.replace_schema_metadata({**(table.schema.metadata or {}), IDENTITY_KEY: ident})
-    write_atomic(path, lambda tmp: pq.write_table(table, tmp))
+
+    def write(tmp: Path) -> None:
+        with open(tmp, "wb") as f:
+            sink = _HashingSink(f)
+            writer = pq.ParquetWriter(sink, table.schema)
+            try:
+                writer.write_table(table)  # every data page reaches the sink here; the footer at close
+                ident = {"experiment": experiment, "name": path.name, "rows": len(df), "sha256": sink.sha.hexdigest()}
+                writer.add_key_value_metadata({IDENTITY_KEY: json.dumps(ident).encode()})
+            finally:
+                writer.close()
+
+    write_atomic(path, write)
+
+
+_HASHED: dict[tuple, str] = {}  # (path, size, mtime_ns, inode) -> sha256 of the data bytes: hashed once per process
+
+
+def data_sha256(path: Path) -> str:
+    """SHA-256 (hex) of a Parquet file's bytes before its footer (what :func:`write_chunk` hashes)."""
+    st = os.stat(path)
+    key = (str(path), st.st_size, st.st_mtime_ns, st.st_ino)
+    if key not in _HASHED:
+        with open(path, "rb") as f:
+            f.seek(-8, os.SEEK_END)
+            footer = struct.unpack("<I", f.read(4))[0]
+            end = st.st_size - 8 - footer
+            f.seek(0)
+            sha, left = hashlib.sha256(), end
+            while left > 0:
+                block = f.read(min(left, 1 << 22))
+                if not block:
+                    break
+                sha.update(block)
+                left -= len(block)
+        if len(_HASHED) > 100_000:
+            _HASHED.clear()
+        _HASHED[key] = sha.hexdigest()
+    return _HASHED[key]
 
 
 def chunk_problem(path: Path, experiment: str) -> str | None:
     """None when ``path`` is a complete chunk file of ``experiment``, else what is wrong with it
-    (``missing``, ``unreadable (...)``, ``written by another experiment``, ...)."""
+    (``missing``, ``unreadable (...)``, ``written by another experiment``, ``edited after it was
+    written``, ...)."""
     import pyarrow.parquet as pq
 
     path = Path(path)
@@ -58,7 +118,7 @@ def chunk_problem(path: Path, experiment: str) -> str | None:
         return "not a regular file"
     try:
         pf = pq.ParquetFile(path)
-        meta = pf.schema_arrow.metadata or {}
+        meta = pf.metadata.metadata or {}
         rows = pf.metadata.num_rows
     except Exception as exc:  # zero bytes, truncated, not Parquet
         return f"unreadable ({exc.__class__.__name__}: {' '.join(str(exc).split())[:80]})"
@@ -68,6 +128,7 @@ def chunk_problem(path: Path, experiment: str) -> str | None:
     try:
         ident = json.loads(raw)
         exp, name, n = ident["experiment"], ident["name"], int(ident["rows"])
+        sha = ident.get("sha256")
     except (ValueError, KeyError, TypeError):
         return "has an unreadable chunk identity"
     if exp != experiment:
@@ -76,6 +137,13 @@ def chunk_problem(path: Path, experiment: str) -> str | None:
         return f"is a copy of chunk {name}"
     if n != rows:
         return f"holds {rows} rows where its writer wrote {n}"
+    if sha is not None:
+        try:
+            now = data_sha256(path)
+        except (OSError, struct.error) as exc:
+            return f"unreadable ({exc.__class__.__name__})"
+        if now != sha:
+            return "was edited after it was written (its content hash does not match)"
     return None
 
 
@@ -110,4 +178,4 @@ def concat_parquet(paths: list[Path], out: Path) -> int:
     return total
 
 
-__all__ = ["IDENTITY_KEY", "chunk_problem", "concat_parquet", "experiment_digest", "write_chunk"]
+__all__ = ["IDENTITY_KEY", "chunk_problem", "concat_parquet", "data_sha256", "experiment_digest", "write_chunk"]

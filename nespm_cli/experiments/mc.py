@@ -315,6 +315,7 @@ def run_cells(cells: list[Cell], options: dict, out_dir: str | Path, execution: 
     change the results.
     """
     ex = execution.check()  # before --out is created
+    check_memory(chunk_tasks(cells), ex)  # before anything is written (a first block's chunks are the largest)
     folder = ResultsFolder(out_dir, options, list(ex.argv) if ex.argv is not None else None, extendable=GROWABLE)
     first = cells[0].spec
     inputs = manifest_inputs(cells)

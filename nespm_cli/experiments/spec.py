@@ -80,6 +80,9 @@ class Spec:
     smooth: tuple = ()  # filters whose RTS-smoothed solution is reported too, as <filter>-rts (filters.smoother)
     filter_options: tuple = ()  # ((filter, key, value), ...): --filter-option NAME.KEY=VALUE, [filters.NAME]
     save_series: str = "norms"  # per-run series kept in the chunks: norms, or axes (+ every component's error and std)
+    # options given explicitly (command line or config, e.g. "alpha"): checked for an effect (check_effective);
+    # how an option was given is no part of the experiment: not compared, not recorded
+    given: tuple = field(default=(), compare=False)
 
     @property
     def outputs(self) -> tuple:
@@ -105,6 +108,7 @@ class Spec:
             d.pop("filter_options")
         if not self.filter_config.options:
             d["filter_config"].pop("options")
+        d.pop("given")  # how the options were given is no part of the experiment
         return json.loads(json.dumps(d, default=list))
 
 
@@ -129,6 +133,8 @@ def validate(spec: Spec) -> Spec:
             able = [n for n in spec.filters if getattr(get_filter(n), "smoothable", False)]
             raise NespmError(f"--smooth {f}: this filter has no RTS smoother (of --filters, these have one: "
                              f"{', '.join(able) or 'none'}; docs/filters.md)")
+    check_alpha_options(spec)
+    check_effective(spec)
     if spec.save_series not in SAVE_SERIES:
         raise NespmError(f"--save-series: choose {' or '.join(SAVE_SERIES)}, got {spec.save_series!r}")
     if len(set(spec.smooth)) != len(spec.smooth):
@@ -197,6 +203,7 @@ def validate(spec: Spec) -> Spec:
     return dataclasses.replace(spec, filter_config=filter_config(spec))  # what the filters use, recorded as such
 
 
+MAX_TRACK = 2**63 - 1  # the largest track number the tables' int64 column holds
 MAX_LEVER_ARM = 100.0  # [m] a DVL farther than this from the INS is a units or sign mistake
 
 
@@ -218,9 +225,11 @@ def check_domains(spec: Spec) -> None:
         raise NespmError(f"--tracks: track {dup} is given more than once")
     if any(n < 1 for n in spec.tracks):
         raise NespmError(f"--tracks: track numbers are positive, got {min(spec.tracks)}")
+    if any(n > MAX_TRACK for n in spec.tracks):
+        raise NespmError(f"--tracks: track {max(spec.tracks)} is beyond {MAX_TRACK} (2^63-1: the tables store "
+                         "track numbers as int64); rename its folder to a smaller number")
     fc = spec.filter_config
-    if not (finite(fc.alpha) and 0 < fc.alpha <= 1):
-        raise NespmError(f"--alpha must satisfy 0 < alpha <= 1 (the UKF's sigma-point spread), got {fc.alpha:g}")
+    check_alpha(fc.alpha, "--alpha")
     if spec.dvl_r_std is not None and not (finite(spec.dvl_r_std) and spec.dvl_r_std > 0):
         raise NespmError(f"--dvl-r-std must be a positive std [m/s], got {spec.dvl_r_std:g}")
     for flag, v in (("--acc-bias-rw", fc.acc_bias_rw), ("--gyro-bias-rw", fc.gyro_bias_rw)):
@@ -239,6 +248,66 @@ def check_domains(spec: Spec) -> None:
             raise NespmError(f"{flag} must be a positive number, got {v:g}")
     if not (finite(d.after_s) and d.after_s >= 0):
         raise NespmError(f"--diverge-after must be a number of seconds >= 0, got {d.after_s:g}")
+
+
+def check_alpha(alpha, flag: str) -> None:
+    """The sigma-point spread's domain, 0 < alpha <= 1, for ``--alpha`` and ``--filter-option NAME.alpha``."""
+    if not (alpha is not None and np.isfinite(alpha) and 0 < alpha <= 1):
+        raise NespmError(f"{flag} must satisfy 0 < alpha <= 1 (the UKF's sigma-point spread), got {alpha:g}")
+
+
+def check_alpha_options(spec: Spec) -> None:
+    """``--filter-option NAME.alpha`` (checked, typed triples) within the same domain as ``--alpha``."""
+    for name, key, value in spec.filter_options:
+        if key == "alpha":
+            check_alpha(value, f"--filter-option {name}.alpha")
+
+
+#: options that act on some filters or sensors only: (Spec path, flag, what uses it); one given while no
+#: chosen filter or sensor uses it is refused (:func:`check_effective`)
+SCOPED = (
+    ("filter_config.alpha", "--alpha", "sigma"), ("filter_config.tau", "--tau", "adaptive"),
+    ("filter_config.tau_a", "--tau-a", "adaptive"), ("filter_config.tau_g", "--tau-g", "adaptive"),
+    ("filter_config.adaptive_bias", "--adaptive-bias", "adaptive"), ("filter_config.q_clip", "--q-clip", "adaptive"),
+    ("corruption.dvl_noise", "--dvl-noise", "dvl"), ("dvl_lever_arm", "--dvl-lever-arm", "dvl"),
+    ("dvl_r_std", "--dvl-r-std", "dvl"), ("outage_start", "--outage-start", "outage"),
+    ("outage_length", "--outage-length", "outage"),
+)
+
+
+def _value(obj, path: str):
+    for part in path.split("."):
+        obj = getattr(obj, part)
+    return tuple(obj) if isinstance(obj, (list, tuple)) else obj
+
+
+def check_effective(spec: Spec) -> None:
+    """Refuse, in one line naming it, an option that does nothing for the chosen filters and sensors:
+    ``--alpha`` without a sigma-point filter, ``--tau`` (``--tau-a``, ``--tau-g``, ``--adaptive-bias``,
+    ``--q-clip``) without an adaptive filter, the DVL flags (``--dvl-noise``, ``--dvl-lever-arm``,
+    ``--dvl-r-std``) without the ``dvl`` sensor, ``--outage-start``/``--outage-length`` without
+    ``--scenario outage``. An option counts as given when it is in ``spec.given`` (the command line or a
+    config named it) or differs from its default (the API); one left at its default is never an error."""
+    base = Spec()
+    sigma = [f for f in spec.filters if "alpha" in (getattr(get_filter(f), "tunable", ()) or ())]
+    adaptive = [f for f in spec.filters if needs_noise_std(f)]
+    uses = {"sigma": bool(sigma), "adaptive": bool(adaptive), "dvl": "dvl" in spec.sensors,
+            "outage": spec.scenario == "outage"}
+    given = {g.replace("-", "_") for g in spec.given}
+    for path, flag, scope in SCOPED:
+        if uses[scope] or not (path.split(".")[-1] in given or _value(spec, path) != _value(base, path)):
+            continue
+        chosen = ",".join(spec.filters)
+        takes = {"sigma": [f for f in filter_names() if "alpha" in (getattr(get_filter(f), "tunable", ()) or ())],
+                 "adaptive": [f for f in filter_names() if needs_noise_std(f)]}.get(scope, [])
+        why = {"sigma": f"sets the sigma-point spread of the unscented filters ({', '.join(takes)}), "
+                        f"and none is in --filters ({chosen})",
+               "adaptive": f"tunes the adaptive filters' process noise ({', '.join(takes)}), and none is in "
+                           f"--filters ({chosen})",
+               "dvl": f"is an option of the dvl sensor, which is not in --sensors ({','.join(spec.sensors)}); give the "
+                      "sensor's own --sensor-option NAME.KEY=VALUE instead",
+               "outage": f"applies with --scenario outage only (the scenario is {spec.scenario})"}[scope]
+        raise NespmError(f"{flag}: {why}; the option would change nothing: drop it")
 
 
 def load_filters(spec: Spec) -> Spec:

@@ -154,8 +154,8 @@ class FolderLock:
             self.handle.seek(0)
             pid = self.handle.read(32).strip() or "?"
             self.handle.close()
-            raise NespmError(f"{out}: busy: another nespm process (pid {pid}) is writing this folder; wait "
-                             "for it to finish, or use another --out") from None
+            raise NespmError(f"{out}: busy: another nespm process is writing or reading this folder (pid {pid} "
+                             "wrote it last); wait for it to finish, or use another --out") from None
         self.handle.seek(0)
         self.handle.truncate()
         self.handle.write(str(os.getpid()))
@@ -186,6 +186,22 @@ def writer_pid(out: Path) -> str | None:
         return None
     finally:
         os.close(fd)
+
+
+def check_out_link(out: Path) -> None:
+    """Refuse an ``--out`` that is a symbolic link to a non-empty folder holding no nespm results (a
+    link set to the wrong place must not get a study written into someone's folder); a link to an
+    empty folder or to a results folder is followed."""
+    if not out.is_symlink() or not out.is_dir():
+        return
+    try:
+        entries = [p.name for p in out.iterdir()
+                   if p.name != LOCK_FILE and not (p.name == "chunks" and p.is_dir() and not any(p.iterdir()))]
+    except OSError:
+        return  # the lock reports an unreadable folder
+    if entries and not (out / "manifest.json").is_file() and not has_results(out):
+        raise NespmError(f"--out {out}: is a symbolic link to {os.path.realpath(out)}, a non-empty folder holding no "
+                         f"nespm results ({entries[0]}, ...); give a new or empty folder, or the folder itself")
 
 
 #: what an experiment writes into its folder besides the manifest: never overwritten without one
@@ -326,6 +342,8 @@ class ResultsFolder:
 
     def __init__(self, out: str | Path, options: dict, argv: list[str] | None = None,
                  extendable: tuple[str, ...] = ()) -> None:
+        if not str(out).strip():
+            raise NespmError("--out: an empty path (it would write into the current folder); name a folder")
         self.out = Path(out)
         self.chunks = self.out / "chunks"
         self.options = options
@@ -337,12 +355,14 @@ class ResultsFolder:
         self.lock: FolderLock | None = None
         self._saved = 0.0
         self._warned: set[str] = set()
+        self._assembling = False
 
     def open(self, inputs: dict[str, str] | None = None, **extra) -> "ResultsFolder":
         """Lock the folder, check it against ``options`` and the ``inputs`` hashes
         (:func:`file_hashes`), write the manifest."""
         if self.out.exists() and not self.out.is_dir():
             raise NespmError(f"--out {self.out}: exists and is not a folder")
+        check_out_link(self.out)
         self.lock = FolderLock(self.out)
         mf = self.out / "manifest.json"
         if mf.exists() and has_results(self.out) and read_manifest(mf).get("identity") != IDENTITY:
@@ -410,6 +430,10 @@ class ResultsFolder:
                 raise NespmError(f"{self.path(name)}: {problem} (changed while this command ran?); re-run the "
                                  "same command to compute it again")
             out.append(self.path(name))
+        if not self._assembling:  # the first assembly call of this process replaces the last assembly's record
+            self._assembling = True
+            self.manifest["assembled"] = {"experiment": self.experiment, "chunks": [], "tables": {}}
+        self.manifest["assembled"]["chunks"] += [p.name for p in out]
         return out
 
     def run(self, fn: Callable, tasks: list[Task], execution, label: str, unit: str = "filter-epochs") -> None:
@@ -450,6 +474,10 @@ class ResultsFolder:
 
     def finish(self, chunks: int) -> None:
         old = self.old or {}
+        rec = self.manifest.get("assembled")
+        if self._assembling and isinstance(rec, dict):  # the tables as assembled: export/compare verify them
+            tables = [self.out / n for n in ("metrics.parquet", "epochs.parquet") if (self.out / n).is_file()]
+            rec["tables"] = {p.name: h for p, h in zip(tables, file_hashes(tables).values())}
         self.manifest.update(finished=now(), chunks=chunks,
                              wall_seconds=round(time.perf_counter() - self.t0 + old.get("wall_seconds", 0.0), 3))
         self.save()

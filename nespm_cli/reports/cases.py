@@ -58,17 +58,29 @@ def load_cases(folders, labels=None) -> list[Case]:
         raise NespmError(f"--labels: {len(labels)} labels for {len(folders)} folders")
     if len(set(labels)) != len(labels) or any(SEP in lab or not lab for lab in labels):
         raise NespmError(f"--labels: give each case a different non-empty label without '{SEP}' ({', '.join(labels)})")
-    cases = []
-    for lab, f in zip(labels, folders):
-        mf, mp = f / "manifest.json", f / "metrics.parquet"
-        if not mp.is_file() or not mf.is_file():
-            raise NespmError(f"{f}: not a finished results folder (no metrics.parquet or manifest.json)")
-        manifest = json.loads(mf.read_text(encoding="utf-8"))
-        if manifest.get("experiment", "mc") != "mc" or "sweep" in manifest.get("options", {}):
-            raise NespmError(f"{f}: compare takes folders of 'nespm mc' (a sweep compares its own values)")
-        cases.append(Case(lab, f, pd.read_parquet(mp), manifest))
+    cases = [load_case(lab, f) for lab, f in zip(labels, folders)]
     check_same_realizations(cases)
     return cases
+
+
+def load_case(label: str, f: Path) -> Case:
+    """One finished ``mc`` folder as a case, read as one consistent state: not while another process
+    writes it (a shared lock while reading), only a finished run, tables as assembled and holding every
+    run, track and filter the manifest asks for (one line naming the folder otherwise)."""
+    from nespm_cli.experiments.snapshot import ReadLock, finished_state
+    from nespm_cli.reports.results import check_complete, read_manifest_file, read_parquet
+
+    mf, mp = f / "manifest.json", f / "metrics.parquet"
+    if not mp.is_file() or not mf.is_file():
+        raise NespmError(f"{f}: not a finished results folder (no metrics.parquet or manifest.json)")
+    with ReadLock(f, "compare"):
+        manifest = read_manifest_file(mf)
+        if manifest.get("experiment", "mc") != "mc" or "sweep" in manifest.get("options", {}):
+            raise NespmError(f"{f}: compare takes folders of 'nespm mc' (a sweep compares its own values)")
+        finished_state(f, manifest, "compare")  # folders of older versions have no record of their tables
+        metrics = read_parquet(mp)
+        check_complete(metrics, manifest, mp)
+    return Case(label, f, metrics, manifest)
 
 
 def realization_difference(a: dict, b: dict) -> str | None:
@@ -178,4 +190,4 @@ def case_improvements(cases: list[Case], reference: str | None = None, n_boot: i
 
 
 __all__ = ["CASE_METRICS", "Case", "REALIZATION_KEYS", "case_improvements", "case_table", "check_same_realizations",
-           "combined", "load_cases", "realization_difference"]
+           "combined", "load_case", "load_cases", "realization_difference"]

@@ -80,8 +80,10 @@ def write_compare_report(folders, out: str | Path, labels=None, reference: str |
     cases: list[Case] = load_cases(folders, labels)
     table = case_table(cases)
     imp = case_improvements(cases, reference, n_boot=n_boot, seed=seed)
+    from nespm_cli.reports.results import check_figures_dir
+
     out = Path(out)
-    (out / "figures").mkdir(parents=True, exist_ok=True)
+    check_figures_dir(out).mkdir(parents=True, exist_ok=True)
     fig = plot_cases(table, imp, out / "figures" / "compare.png")
     ref = reference or cases[0].label
     lines = [

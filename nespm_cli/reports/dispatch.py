@@ -78,6 +78,10 @@ def write_report(out_dir: Path, reference: str | None = None, n_boot: int = 2000
         raise NespmError(f"--all-runs: choose {' or '.join(ALL_RUNS)}, got {all_runs!r}")
     check_practical_pct(practical_pct)
     out_dir = Path(out_dir)
+    if out_dir.is_dir():
+        from nespm_cli.reports.results import check_figures_dir
+
+        check_figures_dir(out_dir)  # never drawn through an OUT/figures link
     warn_if_unfinished(out_dir)
     kind = experiment_of(out_dir)
     if kind == "gp-ukf":

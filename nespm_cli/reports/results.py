@@ -4,6 +4,7 @@ runs per track, the sensors' measurement sizes)."""
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 from typing import Any, Iterable
 
@@ -39,14 +40,7 @@ def read_results_folder(out_dir: Path, command: str = "mc",
     if not out_dir.is_dir():
         raise NespmError(f"results folder not found: {out_dir}")
     manifest_path = out_dir / "manifest.json"
-    manifest: dict = {}
-    if manifest_path.is_file():
-        try:
-            manifest = json.loads(manifest_path.read_text(encoding="utf-8"))
-        except (OSError, ValueError) as exc:
-            raise NespmError(f"{manifest_path}: not valid JSON ({one_line(exc)})") from exc
-        if not isinstance(manifest, dict):
-            raise NespmError(f"{manifest_path}: expected a JSON object")
+    manifest: dict = read_manifest_file(manifest_path) if manifest_path.is_file() else {}
     if experiment is not None and manifest.get("experiment") != experiment:
         raise NespmError(f"{manifest_path}: not a {experiment.upper()} experiment folder "
                          f"(experiment = {manifest.get('experiment')!r}); run `nespm {command} --out {out_dir}`")
@@ -54,6 +48,72 @@ def read_results_folder(out_dir: Path, command: str = "mc",
     if not metrics_path.is_file():
         raise NespmError(f"{metrics_path} not found: run `nespm {command} ... --out {out_dir}` first")
     return read_parquet(metrics_path), manifest
+
+
+def read_manifest_file(path: Path) -> dict:
+    """``manifest.json`` at ``path`` as a dict whose ``options`` is an object (one-line NespmError for a
+    missing or unreadable file, text that is not JSON, or JSON that is not such an object)."""
+    path = Path(path)
+    try:
+        manifest = json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise NespmError(f"{path}: not found (not a results folder of nespm)") from None
+    except (OSError, ValueError, RecursionError) as exc:
+        raise NespmError(f"{path}: not valid JSON ({one_line(exc)})") from None
+    if not isinstance(manifest, dict):
+        raise NespmError(f"{path}: expected a JSON object (a nespm manifest), got {type(manifest).__name__}")
+    if not isinstance(manifest.get("options", {}), dict):
+        raise NespmError(f"{path}: 'options' is not an object (not a nespm manifest)")
+    return manifest
+
+
+def check_figures_dir(out_dir: Path) -> Path:
+    """``out_dir/figures``, where a report draws: refused in one line when it is a symbolic link (figures
+    are never written through a link into another folder) or not a folder."""
+    fig = Path(out_dir) / "figures"
+    if fig.is_symlink():
+        raise NespmError(f"{fig}: is a symbolic link (to {os.path.realpath(fig)}); the report does not write its "
+                         "figures through it: remove the link, or report into a copy of the folder")
+    if fig.exists() and not fig.is_dir():
+        raise NespmError(f"{fig}: exists and is not a folder; remove it to let the report draw its figures")
+    return fig
+
+
+def check_n_boot(n_boot: int) -> int:
+    """``--n-boot``: a number of bootstrap resamples, at least 1 (0 would give no interval, silently)."""
+    if isinstance(n_boot, bool) or not isinstance(n_boot, (int,)) or n_boot < 1:
+        raise NespmError(f"--n-boot must be a number of bootstrap resamples, at least 1 (2000 by default), got {n_boot}")
+    return n_boot
+
+
+def check_complete(metrics: pd.DataFrame, manifest: dict, where: object) -> None:
+    """One line unless ``metrics`` holds every run the manifest's options ask for: ``runs`` runs
+    (0 .. runs-1) of every track of ``tracks`` for every filter of ``filters`` (and ``smooth``'s
+    ``<filter>-rts``), per swept value in a sweep. A folder whose manifest does not say is not checked."""
+    from nespm_cli.filters.smoother import smoothed_name
+
+    opts = manifest.get("options") or {}
+    runs, tracks, filters = opts.get("runs"), opts.get("tracks"), opts.get("filters")
+    if not isinstance(runs, int) or isinstance(runs, bool) or not {"track", "filter", "run"} <= set(metrics.columns):
+        return
+    keys = [k for k in ("param", "value") if k in metrics.columns] + ["track", "filter"]
+    per = metrics.groupby(keys, sort=False)["run"].agg(["nunique", "min", "max"])
+    short = per[(per["nunique"] != runs) | (per["min"] != 0) | (per["max"] != runs - 1)]
+    if len(short):
+        key, row = short.index[0], short.iloc[0]
+        raise NespmError(f"{where}: holds {int(row['nunique'])} runs of {key} where its manifest asks for {runs} "
+                         "(an incomplete or replaced table); re-run the same command to assemble it again")
+    if isinstance(tracks, list):
+        gone = [t for t in tracks if t not in set(metrics["track"].tolist())]
+        if gone:
+            raise NespmError(f"{where}: holds no row of track {gone[0]} of its manifest's tracks; re-run the same "
+                             "command to assemble it again")
+    if isinstance(filters, list):
+        want = list(filters) + [smoothed_name(f) for f in (opts.get("smooth") or []) if isinstance(f, str)]
+        gone = [f for f in want if f not in set(metrics["filter"].astype(str))]
+        if gone:
+            raise NespmError(f"{where}: holds no row of filter {gone[0]} of its manifest's filters; re-run the same "
+                             "command to assemble it again")
 
 
 def load_results(out_dir: Path) -> tuple[pd.DataFrame, pd.DataFrame | None, dict]:
