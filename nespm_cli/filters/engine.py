@@ -49,6 +49,7 @@ from nespm_cli.filters.protocol import ImuData
 from nespm_cli.filters.registry import filter_names, filter_source, get_filter
 from nespm_cli.filters.smoother import SmootherRecord, dead_reckoned_position
 from nespm_cli.filters.timeline import Timeline, dvl_channel
+from nespm_cli.sensors.guard import checked_measurement
 from nespm_cli.sensors.source import Channel, Context
 
 #: the built-in filters' names (plugins: :func:`nespm_cli.filters.registry.filter_names`)
@@ -214,8 +215,8 @@ def run_filter(
         if not ok.all():  # rows without it get a valid run's value: finite, and undone after the update
             z = np.where(ok[:, None], z, z[np.argmax(ok)])
         nav = call(filt.state, "state")
-        ctx = Context(f_meas[:, j_last] - nav.b_a, w_meas[:, j_last] - nav.b_g)
-        meas = ch.sensor.measurement(z, nav, ctx, layout)
+        ctx = Context(f_meas[:, j_last] - nav.b_a, w_meas[:, j_last] - nav.b_g, ch.track)
+        meas = checked_measurement(ch.sensor, z, nav, ctx, layout)  # a plugin's: every call checked
         if ok.all():
             res = call(filt.update, "update", meas, j_last)
         elif hasattr(filt, "update_where"):
@@ -226,7 +227,7 @@ def run_filter(
         rec = out.sensors[ch.sensor.name]
         rec.used[:, i] = ok
         if res is not None:
-            nu, S = res
+            nu, S = checked_result(kind, res, R, ch.z.shape[-1], ch.sensor.name)
             rec.nu[:, i] = np.where(ok[:, None], nu, np.nan)
             rec.S[:, i] = np.where(ok[:, None, None], S, np.nan)
         if epoch is not None and ch.sensor.name == "dvl":
@@ -287,6 +288,20 @@ def smoothed_output(out: FilterOutput, rts: SmootherRecord, filt, t_epochs: np.n
     return sm
 
 
+def checked_result(kind: str, res, R: int, m: int, sensor: str) -> tuple[np.ndarray, np.ndarray]:
+    """A filter's ``update`` result ``(nu (R, m), S (R, m, m))``, else one line naming the filter: a
+    wrong shape is never broadcast into the sensor's record (its NIS)."""
+    try:
+        nu, S = (np.asarray(a, dtype=float) for a in res)
+    except (TypeError, ValueError):
+        raise NespmError(f"filter {kind} ({filter_source(kind)}): update returned {type(res).__name__}; return "
+                         "None or (nu, S) (docs/plugins.md)") from None
+    if nu.shape != (R, m) or S.shape != (R, m, m):
+        raise NespmError(f"filter {kind} ({filter_source(kind)}): update for sensor {sensor} returned nu of shape "
+                         f"{nu.shape} and S of shape {S.shape}, expected ({R}, {m}) and ({R}, {m}, {m})")
+    return nu, S
+
+
 def store(out: FilterOutput, k: int, nav: NavState) -> None:
     """Record the solution ``nav`` of the R runs at epoch ``k``."""
     out.pos[:, k], out.v_n[:, k], out.C_bn[:, k] = nav.pos, nav.v_n, nav.C_bn
@@ -303,10 +318,13 @@ def guarded(kind: str, R: int) -> Callable:
             return fn(*args)
         except NespmError:
             raise
-        except Exception as exc:
+        except (Exception, SystemExit) as exc:
             if os.environ.get("NESPM_DEBUG"):
                 raise
             where = f"filter {kind} ({filter_source(kind)})"
+            if isinstance(exc, SystemExit):
+                raise NespmError(f"{where}: {method} called sys.exit({exc.code!r}); a filter raises "
+                                 "nespm_cli.errors.NespmError to stop with a message") from None
             if isinstance(exc, NotImplementedError):
                 raise NespmError(f"{where}: {method} is not implemented (a filter implements __init__, propagate, "
                                  "update, check, state, covariance and diverged: docs/plugins.md)") from None

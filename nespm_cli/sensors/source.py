@@ -67,16 +67,30 @@ class SensorOptions:
 
 
 @dataclass(frozen=True)
+class TrackInfo:
+    """The track a sensor measures on (docs/conventions.md, "A track's origin and start"):
+    ``number``; ``origin`` (3,) the true ``[lat rad, lon rad, h m]`` (WGS-84, h up) of the vehicle
+    (the IMU) at the run's first GT epoch, t = 0; ``start`` [s] that epoch's time on the track
+    files' clock (the ``Time [s]`` column), so a file time is ``start + t``. Both are the same in
+    every run and chunk of the track (they follow ``--window``)."""
+
+    number: int
+    origin: np.ndarray
+    start: float
+
+
+@dataclass(frozen=True)
 class Truth:
     """The truth at K measurement times: ``t`` (K,) [s since the first epoch], ``pos`` (K, 3)
     ``[lat, lon, h]``, ``v_n`` (K, 3) [m/s], ``C_bn`` (K, 3, 3), ``w_nb_b`` (K, 3) body rate
-    relative to NED [rad/s] (the IMU step ending there)."""
+    relative to NED [rad/s] (the IMU step ending there); ``track`` the :class:`TrackInfo`."""
 
     t: np.ndarray
     pos: np.ndarray
     v_n: np.ndarray
     C_bn: np.ndarray
     w_nb_b: np.ndarray
+    track: TrackInfo | None = None
 
 
 @dataclass
@@ -84,7 +98,8 @@ class Channel:
     """One sensor's measurements in R runs, K times in increasing order: ``index`` (K,) the IMU
     sample at or before each time and ``frac`` (K,) how far into the step that follows it lies
     (0: on the sample; the engine splits the step there); ``t`` (K,) [s since the first epoch];
-    ``z`` (R, K, m) the values; ``ok`` (R, K) whether the measurement exists in that run."""
+    ``z`` (R, K, m) the values; ``ok`` (R, K) whether the measurement exists in that run;
+    ``track`` the :class:`TrackInfo` (None for a channel built outside an experiment)."""
 
     sensor: "Sensor"
     index: np.ndarray
@@ -92,6 +107,7 @@ class Channel:
     z: np.ndarray
     ok: np.ndarray
     frac: np.ndarray | None = None
+    track: TrackInfo | None = None
 
     def __post_init__(self) -> None:
         self.index = np.asarray(self.index, dtype=np.int64)
@@ -101,11 +117,14 @@ class Channel:
 
 @dataclass(frozen=True)
 class Context:
-    """What a measurement may need besides the solution: the compensated IMU of the step that
-    ends at its time, ``f_b`` (R, 3) [m/s²], ``w_ib_b`` (R, 3) [rad/s]."""
+    """What a measurement may need besides the solution: the bias-compensated IMU of the step that
+    ends at its time, ``f_b`` (R, 3) specific force [m/s², body FRD] and ``w_ib_b`` (R, 3) angular
+    rate relative to inertial space [rad/s, body FRD]; ``track`` the :class:`TrackInfo` (origin,
+    start; None outside an experiment)."""
 
     f_b: np.ndarray
     w_ib_b: np.ndarray
+    track: TrackInfo | None = None
 
 
 class Sensor:
@@ -306,6 +325,10 @@ def check_options(name: str, opt: SensorOptions) -> None:
     def bad(key: str, what: str) -> NespmError:
         return NespmError(f"--sensor-option {name}.{key}={getattr(opt, key)!r}: {what}")
 
+    for f in dataclasses.fields(opt):  # every option, a sensor's own too: NaN is no value
+        v = getattr(opt, f.name)
+        if any(isinstance(x, float) and math.isnan(x) for x in (v if isinstance(v, tuple) else (v,))):
+            raise bad(f.name, "is NaN; give a number")
     if opt.source not in SOURCES:
         raise bad("source", f"choose {' or '.join(SOURCES)}")
     derived = opt.std is None and type(opt).__dataclass_fields__["std"].default is None  # a sensor's own default
@@ -327,5 +350,5 @@ def check_options(name: str, opt: SensorOptions) -> None:
     parse_windows(opt.outage, f"--sensor-option {name}.outage")
 
 
-__all__ = ["Channel", "Context", "SOURCES", "Sensor", "SensorOptions", "Truth", "availability", "check_options",
+__all__ = ["Channel", "Context", "SOURCES", "Sensor", "SensorOptions", "TrackInfo", "Truth", "availability", "check_options",
            "convert", "jittered", "options_of", "parse_windows"]
