@@ -46,7 +46,7 @@ from nespm_cli.filters import ckf  # noqa: F401
 from nespm_cli.filters import iekf  # noqa: F401
 from nespm_cli.filters.model import FilterConfig, NavState
 from nespm_cli.filters.protocol import ImuData
-from nespm_cli.filters.registry import filter_names, filter_source, get_filter
+from nespm_cli.filters.registry import filter_names, filter_source, get_filter, is_builtin
 from nespm_cli.filters.smoother import SmootherRecord, dead_reckoned_position
 from nespm_cli.filters.timeline import Timeline, dvl_channel
 from nespm_cli.sensors.guard import checked_measurement
@@ -81,7 +81,12 @@ class SensorRecord:
         with np.errstate(all="ignore"):
             ok = np.isfinite(self.S).all(axis=(-2, -1))
             S = np.where(ok[..., None, None], self.S, np.eye(self.S.shape[-1]))
-            sol = np.linalg.solve(S, np.where(ok[..., None], self.nu, 0.0)[..., None])[..., 0]
+            try:
+                sol = np.linalg.solve(S, np.where(ok[..., None], self.nu, 0.0)[..., None])[..., 0]
+            except np.linalg.LinAlgError:  # a singular S (a diverged run's) has no NIS: NaN there
+                ok = ok & (np.linalg.matrix_rank(S) == S.shape[-1])
+                S = np.where(ok[..., None, None], S, np.eye(self.S.shape[-1]))
+                sol = np.linalg.solve(S, np.where(ok[..., None], self.nu, 0.0)[..., None])[..., 0]
             return np.where(ok, (self.nu * sol).sum(axis=-1), np.nan)
 
 
@@ -184,6 +189,7 @@ def run_filter(
                          f"{', '.join(n for n in filter_names() if getattr(get_filter(n), 'smoothable', False))})")
     filt = call(cls, "__init__", cfg, nav0, ImuData(f_meas, w_meas, dt), noise_std)
     cov = cls.has_covariance
+    builtin = is_builtin(kind)
     n = layout.n
     out = FilterOutput(
         pos=np.empty((R, N, 3)), v_n=np.empty((R, N, 3)), C_bn=np.empty((R, N, 3, 3)),
@@ -203,6 +209,8 @@ def run_filter(
             if np.shape(P) != (R, n, n):
                 raise NespmError(f"filter {kind} ({filter_source(kind)}): covariance() returned shape {np.shape(P)}, "
                                  f"expected ({R}, {n}, {n}) for --state {layout.name}")
+            if not builtin:
+                check_covariance(kind, P, np.asarray(filt.diverged, dtype=bool).reshape(R), k)
             out.P[:, k] = P
 
     def apply(c: int, i: int, j_last: int, epoch: int | None):
@@ -286,6 +294,28 @@ def smoothed_output(out: FilterOutput, rts: SmootherRecord, filt, t_epochs: np.n
     if not filt.layout.has("pos"):
         sm.pos = dead_reckoned_position(out.pos, sm.v_n - out.v_n, t_epochs)
     return sm
+
+
+def check_covariance(kind: str, P: np.ndarray, diverged: np.ndarray, k: int) -> None:
+    """A plugin filter's ``covariance()`` at epoch ``k``: symmetric positive definite in every run it
+    has not flagged diverged (the NEES and the report divide by it), else one line naming the filter."""
+    live = np.asarray(P, dtype=float)[~diverged]
+    if live.size == 0:
+        return
+    try:
+        if not np.isfinite(live).all():
+            raise np.linalg.LinAlgError
+        if np.abs(live - np.swapaxes(live, -1, -2)).max() > 1e-9 * np.abs(live).max():
+            raise NespmError(f"filter {kind} ({filter_source(kind)}): covariance() at epoch {k} is not symmetric; "
+                             "symmetrize it (ErrorStateFilter.symmetrize)")
+        np.linalg.cholesky(live)
+    except np.linalg.LinAlgError:
+        with np.errstate(all="ignore"):
+            low = np.linalg.eigvalsh(np.where(np.isfinite(live), live, 0.0)).min(axis=-1)
+        bad = int((~(low > 0) | ~np.isfinite(live).all(axis=(-2, -1))).sum())
+        raise NespmError(f"filter {kind} ({filter_source(kind)}): covariance() at epoch {k} is not positive definite "
+                         f"in {bad} of {len(live)} runs not flagged diverged (smallest eigenvalue "
+                         f"{float(np.nanmin(low)):.3g}); flag such runs in check() or keep P positive definite") from None
 
 
 def checked_result(kind: str, res, R: int, m: int, sensor: str) -> tuple[np.ndarray, np.ndarray]:

@@ -144,7 +144,8 @@ def synthetic_times(sensor: Sensor, truth: ImuTruth, seed: int, number: int) -> 
             raise NespmError(f"--sensor-option {sensor.name}.jitter={o.jitter:g}: moves every stamp of track "
                              f"{number} out of its span (0-{end:g} s), so {sensor.name} would have no measurement; "
                              f"use a jitter well below the interval ({every:g} s)")
-        raise NespmError(f"--sensor-option {sensor.name}.interval={every:g}: longer than track {number} "
+        given = "" if o.interval is not None else " (its default)"
+        raise NespmError(f"--sensor-option {sensor.name}.interval={every:g}{given}: longer than track {number} "
                          f"({end:g} s), so {sensor.name} would have no measurement")
     return t
 

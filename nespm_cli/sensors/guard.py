@@ -118,17 +118,11 @@ def checked_values(sensor: Sensor, method: str, values, shape: tuple, finite: bo
                          f"of numbers ({type(e).__name__})") from None
     if arr.shape != tuple(shape):
         raise NespmError(f"{where(sensor)}: {method} returned shape {arr.shape}, expected {tuple(shape)}"
-                         f" ({describe(shape)}, m = dim = {sensor.dim})")
+                         f" (m = dim = {sensor.dim})")
     if finite and not np.isfinite(arr).all():
         raise NespmError(f"{where(sensor)}: {method} returned NaN or inf ({int((~np.isfinite(arr)).sum())} "
                          f"of {arr.size} values)")
     return arr
-
-
-def describe(shape: tuple) -> str:
-    """``(4, 20, 3)`` -> ``"R, K, m"``-style words for a shape in a message."""
-    names = {1: "m", 2: "K, m", 3: "R, K, m"}
-    return names.get(len(shape), "")
 
 
 def checked_R(sensor: Sensor, R, runs: int, m: int) -> np.ndarray:

@@ -34,6 +34,7 @@ from nespm_cli.nav.state import NavState, StateLayout
 from nespm_cli.sensors.measurement import Measurement
 
 SOURCES = ("synthetic", "recorded")
+MIN_VARIANCE = float(np.finfo(float).tiny)  # a std whose square is below the smallest normal double is refused
 TRACK_LEVEL = 2**31  # the run slot of a track-level draw (jittered stamps: one schedule for every run)
 
 
@@ -336,6 +337,11 @@ def check_options(name: str, opt: SensorOptions) -> None:
         raise bad("std", "must be a positive std")
     if opt.r_std is not None and not (math.isfinite(opt.r_std) and opt.r_std > 0):
         raise bad("r_std", "must be a positive std")
+    for key in ("std", "r_std"):  # R = std²: a square that underflows is a singular R, not a precise sensor
+        v = getattr(opt, key)
+        if isinstance(v, (int, float)) and v**2 < MIN_VARIANCE:
+            raise bad(key, f"is too small: its square underflows ({v**2:.3g}), so R would be singular; "
+                           f"give a std of at least {math.sqrt(MIN_VARIANCE):.2g}")
     if opt.interval is not None and not (math.isfinite(opt.interval) and opt.interval > 0):
         raise bad("interval", "must be a positive number of seconds")
     for key in ("jitter", "bias", "scale"):
