@@ -202,3 +202,13 @@ def test_sys_exit_while_a_plugin_is_imported_is_one_line(tmp_path):
     p.write_text("import sys\nsys.exit(0)\n")
     rc, out, err = nespm("mc", "--sensor-plugin", p, "--sensors", "dvl", *RUN, "--out", tmp_path / "out")
     assert_one_error_line(rc, out, err, "quits.py", "sys.exit(0)")
+
+
+def test_a_class_with_dim_zero_or_an_unknown_block_names_the_sensor(tmp_path):
+    for name, body, needle in (("zero", "dim = 0\n    observes = ('pos',)", "dim = 0"),
+                               ("badblock", "dim = 1\n    observes = ('position',)", "observes 'position'")):
+        p = tmp_path / f"{name}.py"
+        p.write_text("from nespm_cli.sensors import Sensor, register\n\n\n"
+                     f"@register('{name}')\nclass S(Sensor):\n    {body}\n")
+        rc, out, err = nespm("mc", "--sensor-plugin", p, "--sensors", f"dvl,{name}", *RUN, "--out", tmp_path / name)
+        assert_one_error_line(rc, out, err, f"sensor {name} ({p.resolve()})", needle)

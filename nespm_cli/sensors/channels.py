@@ -130,22 +130,22 @@ def recorded_times(sensor: Sensor, track, truth: ImuTruth) -> tuple[np.ndarray, 
 def synthetic_times(sensor: Sensor, truth: ImuTruth, seed: int, number: int) -> np.ndarray:
     """:func:`schedule`, refused in one line where it cannot be a sensor's: an ``interval`` shorter
     than the IMU step (a sensor on the IMU clock measures at most once per step) or a schedule
-    without a time in the track's span (an interval longer than the track, or a ``jitter`` that
-    moves every stamp out of it)."""
+    without a time in the track's span (a given interval longer than the track, or a ``jitter`` that
+    moves every stamp out of it; a sensor's default interval longer than a short ``--window`` is
+    not refused: the sensor then has no measurement there, as its record shows)."""
     every, o = sensor.interval(), sensor.opt
     step = float(np.min(truth.dt))
     if every is not None and every < step * (1 - 1e-9):
         raise NespmError(f"--sensor-option {sensor.name}.interval={every:g}: shorter than track {number}'s IMU "
                          f"step ({step:g} s); a sensor measures at most once per IMU step")
     t = schedule(sensor, truth, seed, number)
-    if len(t) == 0:
+    if len(t) == 0 and (o.interval is not None or o.jitter):  # a default schedule may miss a short --window
         end = float(grid_time(truth)[truth.epoch_index[-1]])
         if o.jitter:
             raise NespmError(f"--sensor-option {sensor.name}.jitter={o.jitter:g}: moves every stamp of track "
                              f"{number} out of its span (0-{end:g} s), so {sensor.name} would have no measurement; "
                              f"use a jitter well below the interval ({every:g} s)")
-        given = "" if o.interval is not None else " (its default)"
-        raise NespmError(f"--sensor-option {sensor.name}.interval={every:g}{given}: longer than track {number} "
+        raise NespmError(f"--sensor-option {sensor.name}.interval={every:g}: longer than track {number} "
                          f"({end:g} s), so {sensor.name} would have no measurement")
     return t
 

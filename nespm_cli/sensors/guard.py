@@ -24,12 +24,14 @@ Built-in sensors are called directly (they are tested; the checks would cost tim
 """
 from __future__ import annotations
 
+import dataclasses
+import math
 import os
 
 import numpy as np
 
 from nespm_cli.errors import NespmError
-from nespm_cli.nav.state import NavState
+from nespm_cli.nav.state import BLOCKS, NavState
 from nespm_cli.sensors.measurement import Measurement
 from nespm_cli.sensors.registry import SENSOR_REGISTRY
 from nespm_cli.sensors.source import Sensor, SensorOptions
@@ -84,7 +86,12 @@ def sensor_call(sensor: Sensor | type, method: str, fn, *args):
 
 
 def check_class(cls: type) -> None:
-    """A plugin's class attributes: ``dim`` a positive int, ``labels`` ``dim`` names (one line)."""
+    """A plugin's class attributes: ``observes`` blocks of the error state, ``dim`` a positive int,
+    ``labels`` ``dim`` names (one line)."""
+    unknown = [b for b in tuple(cls.observes or ()) if b not in BLOCKS]
+    if unknown:
+        raise NespmError(f"{where(cls)}: observes {unknown[0]!r}, not a block of the error state "
+                         f"(choose from {', '.join(BLOCKS)})")
     dim = cls.dim
     if isinstance(dim, property):
         return  # a dimension that follows the options (the fix's) is checked on the instance
@@ -104,6 +111,10 @@ def make_sensor(cls: type, options: SensorOptions) -> Sensor:
     if not is_plugin(cls):
         return cls(options)
     check_class(cls)
+    for f in dataclasses.fields(options):  # a plugin's own options: NaN is no value (built-ins check theirs)
+        v = getattr(options, f.name)
+        if any(isinstance(x, float) and math.isnan(x) for x in (v if isinstance(v, tuple) else (v,))):
+            raise NespmError(f"--sensor-option {cls.name}.{f.name}=nan: is NaN; give a number")
     sensor = sensor_call(cls, "__init__", cls, options)
     check_dim(sensor, sensor.dim, sensor.labels)
     return sensor

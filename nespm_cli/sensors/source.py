@@ -326,10 +326,6 @@ def check_options(name: str, opt: SensorOptions) -> None:
     def bad(key: str, what: str) -> NespmError:
         return NespmError(f"--sensor-option {name}.{key}={getattr(opt, key)!r}: {what}")
 
-    for f in dataclasses.fields(opt):  # every option, a sensor's own too: NaN is no value
-        v = getattr(opt, f.name)
-        if any(isinstance(x, float) and math.isnan(x) for x in (v if isinstance(v, tuple) else (v,))):
-            raise bad(f.name, "is NaN; give a number")
     if opt.source not in SOURCES:
         raise bad("source", f"choose {' or '.join(SOURCES)}")
     derived = opt.std is None and type(opt).__dataclass_fields__["std"].default is None  # a sensor's own default
