@@ -189,7 +189,7 @@ def build_channel(sensor: Sensor, track, truth: ImuTruth, seed: int, number: int
     values = sensor_call(sensor, "lose_components", sensor.lose_components, values, t, seed, number, runs)
     ok = np.asarray(sensor_call(sensor, "present", sensor.present, values), dtype=bool)
     values = np.where(ok[..., None], values, 0.0)  # NaN stays only in the components a Measurement masks
-    ok = ok & availability(sensor, t, where, seed, number, runs)
+    ok = ok & sensor_call(sensor, "available_extra", availability, sensor, t, where, seed, number, runs)
     return Channel(sensor, index, t, values, ok, frac, info)
 
 
