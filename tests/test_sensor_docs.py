@@ -55,11 +55,18 @@ def test_the_doc_plugin_measures_from_the_track_origin(plugin):
 
 def test_the_doc_plugin_runs_consistently_and_records_its_dim(plugin, tmp_path):
     out = tmp_path / "lbl"
-    rc, _, err = nespm("mc", "--sensor-plugin", plugin, "--state", "15", "--sensors", "dvl,lbl-range",
-                       "--dvl", "synthetic", "--tracks", "5", "--runs", "4", "--window", "0:120",
-                       "--filters", "ekf,ukf", "--no-progress", "--out", out)
+    args = ["mc", "--sensor-plugin", plugin, "--state", "15", "--sensors", "dvl,lbl-range", "--dvl", "synthetic",
+            "--tracks", "5", "--runs", "4", "--window", "0:120", "--filters", "ekf,ukf", "--no-progress"]
+    rc, _, err = nespm(*args, "--out", out)
     assert rc == 0, err
     m = pd.read_parquet(out / "metrics.parquet")
+    # new sensor objects per chunk, the origin per track: 2-run chunks give the same numbers
+    rc, _, err = nespm(*args, "--jobs", "1", "--chunk-size", "2", "--out", tmp_path / "split")
+    assert rc == 0, err
+    split = pd.read_parquet(tmp_path / "split" / "metrics.parquet")
+    key = ["filter", "run"]
+    a, b = m.sort_values(key).reset_index(drop=True), split.sort_values(key).reset_index(drop=True)
+    assert np.array_equal(a["nis_lbl-range"].to_numpy(), b["nis_lbl-range"].to_numpy())
     assert not m["diverged"].any()
     k = 4 * 59  # ranges every 2 s over the 0-119 s window (t = 2 .. 118), 4 runs
     lo, hi = chi2.ppf(0.005, k) / k, chi2.ppf(0.995, k) / k
