@@ -180,7 +180,10 @@ class CheckedMeasurement(Measurement):
                              "layout measurement() was given")
 
     def __getattr__(self, name):
-        return getattr(self.__dict__["inner"], name)
+        inner = self.__dict__.get("inner")
+        if inner is None:
+            raise AttributeError(name)
+        return getattr(inner, name)
 
     def _call(self, method: str, nav: NavState, shape: tuple, *args, out=None):
         if out is None:
