@@ -132,6 +132,9 @@ class Registry:
                 module = do_import()
             except NespmError as e:
                 raise NespmError(f"{self.kind} plugin {label}: {_one_line(e)}") from None
+            except SystemExit as e:
+                raise NespmError(f"{self.kind} plugin {label} called sys.exit({e.code!r}) while imported; a plugin "
+                                 "raises nespm_cli.errors.NespmError to stop with a message") from None
             except Exception as e:
                 raise NespmError(f"{self.kind} plugin {label} failed to import: {_one_line(e)}") from None
             if not self.loading[-1] and not self._defines(module):

@@ -183,7 +183,8 @@ def validate(spec: Spec) -> Spec:
     spec = dataclasses.replace(spec, track_corrections=resolve_corrections(spec))
     durations = {n: track_inputs(spec, n)[0].duration
                  for n in spec.tracks}
-    check_suite(spec, layout, {n: track_inputs(spec, n)[0] for n in spec.tracks})
+    check_suite(spec, layout, {n: track_inputs(spec, n)[0] for n in spec.tracks},
+                {n: track_inputs(spec, n)[1] for n in spec.tracks})
     if adaptive and spec.imu == "recorded":  # one network window per DVL interval
         for n in spec.tracks:
             steps = np.diff(track_inputs(spec, n)[1].epoch_index)

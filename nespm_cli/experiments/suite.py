@@ -15,6 +15,8 @@ from pathlib import Path
 
 from nespm_cli.errors import NespmError
 from nespm_cli.nav.state import StateLayout
+from nespm_cli.sensors.channels import probe
+from nespm_cli.sensors.guard import make_sensor
 from nespm_cli.sensors.registry import SENSOR_REGISTRY, get_sensor, sensor_files, sensor_names
 from nespm_cli.sensors.source import Sensor, options_of
 
@@ -60,7 +62,7 @@ def sensor_suite(spec) -> list[Sensor]:
     if len(set(spec.sensors)) != len(spec.sensors):
         raise NespmError("--sensors: give each sensor once")
     raw = raw_options(spec)
-    return [get_sensor(name)(options_of(get_sensor(name), raw[name])) for name in spec.sensors]
+    return [make_sensor(get_sensor(name), options_of(get_sensor(name), raw[name])) for name in spec.sensors]
 
 
 def dvl_of(spec) -> Sensor | None:
@@ -71,10 +73,11 @@ def dvl_of(spec) -> Sensor | None:
     return cls(options_of(cls, raw_options(spec)["dvl"]))
 
 
-def check_suite(spec, layout: StateLayout, tracks: dict) -> list[Sensor]:
+def check_suite(spec, layout: StateLayout, tracks: dict, truths: dict | None = None) -> list[Sensor]:
     """Check the suite against the layout and the data: each sensor sees only blocks the layout
     holds; a recorded source exists on every track (``tracks``: ``{number: Track}``); the outage
-    scenario needs the DVL. Returns the suite."""
+    scenario needs the DVL; with ``truths`` (``{number: ImuTruth}``) each sensor's times and values
+    on every track (:func:`nespm_cli.sensors.channels.probe`). Returns the suite."""
     suite = sensor_suite(spec)
     if spec.scenario == "outage" and "dvl" not in spec.sensors:
         raise NespmError("--scenario outage cuts the DVL, which is not in --sensors; add dvl or use "
@@ -86,6 +89,9 @@ def check_suite(spec, layout: StateLayout, tracks: dict) -> list[Sensor]:
                 if s.recorded(track) is None:
                     raise NespmError(f"--sensors {s.name}: source recorded, but track {n} has no {s.name} file "
                                      f"(docs/data-format.md); use --sensor-option {s.name}.source=synthetic")
+    for n, truth in (truths or {}).items():
+        for s in suite:
+            probe(s, tracks[n], truth, spec.seed, n)
     return suite
 
 
@@ -96,8 +102,19 @@ def suite_record(spec) -> dict:
         d = dataclasses.asdict(s.opt)
         d["lever_arm"] = list(d["lever_arm"])
         d["filter_std"] = s.r_std()
+        d["dim"] = int(s.dim)  # the NIS's dof: reports read it here, without the plugin
         out[s.name] = d
     return out
+
+
+def recorded_dim(manifest: dict, name: str) -> int | None:
+    """The dimension m of sensor ``name`` as the manifest's ``sensors`` record it (:func:`suite_record`,
+    per cell): the one value every cell holding it agrees on, else None (not recorded: a folder made
+    before nespm recorded it; or cells that disagree)."""
+    cells = [c for c in (manifest.get("sensors") or {}).values() if isinstance(c, dict)]
+    dims = {c[name].get("dim") for c in cells if isinstance(c.get(name), dict)}
+    ok = {d for d in dims if isinstance(d, int) and not isinstance(d, bool) and d >= 1}
+    return ok.pop() if len(ok) == 1 and len(dims) == 1 else None
 
 
 def sensor_plugin_files(spec) -> list[Path]:
@@ -105,5 +122,5 @@ def sensor_plugin_files(spec) -> list[Path]:
     return [p for name in spec.sensors for p in sensor_files(name)]
 
 
-__all__ = ["check_suite", "dvl_of", "legacy_options", "load_sensors", "raw_options", "sensor_plugin_files", "sensor_suite",
+__all__ = ["check_suite", "dvl_of", "legacy_options", "load_sensors", "raw_options", "recorded_dim", "sensor_plugin_files", "sensor_suite",
            "suite_record"]

@@ -46,9 +46,10 @@ from nespm_cli.filters import ckf  # noqa: F401
 from nespm_cli.filters import iekf  # noqa: F401
 from nespm_cli.filters.model import FilterConfig, NavState
 from nespm_cli.filters.protocol import ImuData
-from nespm_cli.filters.registry import filter_names, filter_source, get_filter
+from nespm_cli.filters.registry import filter_names, filter_source, get_filter, is_builtin
 from nespm_cli.filters.smoother import SmootherRecord, dead_reckoned_position
 from nespm_cli.filters.timeline import Timeline, dvl_channel
+from nespm_cli.sensors.guard import checked_measurement
 from nespm_cli.sensors.source import Channel, Context
 
 #: the built-in filters' names (plugins: :func:`nespm_cli.filters.registry.filter_names`)
@@ -80,7 +81,12 @@ class SensorRecord:
         with np.errstate(all="ignore"):
             ok = np.isfinite(self.S).all(axis=(-2, -1))
             S = np.where(ok[..., None, None], self.S, np.eye(self.S.shape[-1]))
-            sol = np.linalg.solve(S, np.where(ok[..., None], self.nu, 0.0)[..., None])[..., 0]
+            try:
+                sol = np.linalg.solve(S, np.where(ok[..., None], self.nu, 0.0)[..., None])[..., 0]
+            except np.linalg.LinAlgError:  # a singular S (a diverged run's) has no NIS: NaN there
+                ok = ok & (np.linalg.matrix_rank(S) == S.shape[-1])
+                S = np.where(ok[..., None, None], S, np.eye(self.S.shape[-1]))
+                sol = np.linalg.solve(S, np.where(ok[..., None], self.nu, 0.0)[..., None])[..., 0]
             return np.where(ok, (self.nu * sol).sum(axis=-1), np.nan)
 
 
@@ -183,6 +189,7 @@ def run_filter(
                          f"{', '.join(n for n in filter_names() if getattr(get_filter(n), 'smoothable', False))})")
     filt = call(cls, "__init__", cfg, nav0, ImuData(f_meas, w_meas, dt), noise_std)
     cov = cls.has_covariance
+    builtin = is_builtin(kind)
     n = layout.n
     out = FilterOutput(
         pos=np.empty((R, N, 3)), v_n=np.empty((R, N, 3)), C_bn=np.empty((R, N, 3, 3)),
@@ -202,6 +209,8 @@ def run_filter(
             if np.shape(P) != (R, n, n):
                 raise NespmError(f"filter {kind} ({filter_source(kind)}): covariance() returned shape {np.shape(P)}, "
                                  f"expected ({R}, {n}, {n}) for --state {layout.name}")
+            if not builtin:
+                check_covariance(kind, P, np.asarray(filt.diverged, dtype=bool).reshape(R), k)
             out.P[:, k] = P
 
     def apply(c: int, i: int, j_last: int, epoch: int | None):
@@ -214,8 +223,8 @@ def run_filter(
         if not ok.all():  # rows without it get a valid run's value: finite, and undone after the update
             z = np.where(ok[:, None], z, z[np.argmax(ok)])
         nav = call(filt.state, "state")
-        ctx = Context(f_meas[:, j_last] - nav.b_a, w_meas[:, j_last] - nav.b_g)
-        meas = ch.sensor.measurement(z, nav, ctx, layout)
+        ctx = Context(f_meas[:, j_last] - nav.b_a, w_meas[:, j_last] - nav.b_g, ch.track)
+        meas = checked_measurement(ch.sensor, z, nav, ctx, layout)  # a plugin's: every call checked
         if ok.all():
             res = call(filt.update, "update", meas, j_last)
         elif hasattr(filt, "update_where"):
@@ -226,7 +235,7 @@ def run_filter(
         rec = out.sensors[ch.sensor.name]
         rec.used[:, i] = ok
         if res is not None:
-            nu, S = res
+            nu, S = checked_result(kind, res, R, ch.z.shape[-1], ch.sensor.name)
             rec.nu[:, i] = np.where(ok[:, None], nu, np.nan)
             rec.S[:, i] = np.where(ok[:, None, None], S, np.nan)
         if epoch is not None and ch.sensor.name == "dvl":
@@ -287,6 +296,42 @@ def smoothed_output(out: FilterOutput, rts: SmootherRecord, filt, t_epochs: np.n
     return sm
 
 
+def check_covariance(kind: str, P: np.ndarray, diverged: np.ndarray, k: int) -> None:
+    """A plugin filter's ``covariance()`` at epoch ``k``: symmetric positive definite in every run it
+    has not flagged diverged (the NEES and the report divide by it), else one line naming the filter."""
+    live = np.asarray(P, dtype=float)[~diverged]
+    if live.size == 0:
+        return
+    try:
+        if not np.isfinite(live).all():
+            raise np.linalg.LinAlgError
+        if np.abs(live - np.swapaxes(live, -1, -2)).max() > 1e-9 * np.abs(live).max():
+            raise NespmError(f"filter {kind} ({filter_source(kind)}): covariance() at epoch {k} is not symmetric; "
+                             "symmetrize it (ErrorStateFilter.symmetrize)")
+        np.linalg.cholesky(live)
+    except np.linalg.LinAlgError:
+        with np.errstate(all="ignore"):
+            low = np.linalg.eigvalsh(np.where(np.isfinite(live), live, 0.0)).min(axis=-1)
+        bad = int((~(low > 0) | ~np.isfinite(live).all(axis=(-2, -1))).sum())
+        raise NespmError(f"filter {kind} ({filter_source(kind)}): covariance() at epoch {k} is not positive definite "
+                         f"in {bad} of {len(live)} runs not flagged diverged (smallest eigenvalue "
+                         f"{float(np.nanmin(low)):.3g}); flag such runs in check() or keep P positive definite") from None
+
+
+def checked_result(kind: str, res, R: int, m: int, sensor: str) -> tuple[np.ndarray, np.ndarray]:
+    """A filter's ``update`` result ``(nu (R, m), S (R, m, m))``, else one line naming the filter: a
+    wrong shape is never broadcast into the sensor's record (its NIS)."""
+    try:
+        nu, S = (np.asarray(a, dtype=float) for a in res)
+    except (TypeError, ValueError):
+        raise NespmError(f"filter {kind} ({filter_source(kind)}): update returned {type(res).__name__}; return "
+                         "None or (nu, S) (docs/plugins.md)") from None
+    if nu.shape != (R, m) or S.shape != (R, m, m):
+        raise NespmError(f"filter {kind} ({filter_source(kind)}): update for sensor {sensor} returned nu of shape "
+                         f"{nu.shape} and S of shape {S.shape}, expected ({R}, {m}) and ({R}, {m}, {m})")
+    return nu, S
+
+
 def store(out: FilterOutput, k: int, nav: NavState) -> None:
     """Record the solution ``nav`` of the R runs at epoch ``k``."""
     out.pos[:, k], out.v_n[:, k], out.C_bn[:, k] = nav.pos, nav.v_n, nav.C_bn
@@ -303,10 +348,13 @@ def guarded(kind: str, R: int) -> Callable:
             return fn(*args)
         except NespmError:
             raise
-        except Exception as exc:
+        except (Exception, SystemExit) as exc:
             if os.environ.get("NESPM_DEBUG"):
                 raise
             where = f"filter {kind} ({filter_source(kind)})"
+            if isinstance(exc, SystemExit):
+                raise NespmError(f"{where}: {method} called sys.exit({exc.code!r}); a filter raises "
+                                 "nespm_cli.errors.NespmError to stop with a message") from None
             if isinstance(exc, NotImplementedError):
                 raise NespmError(f"{where}: {method} is not implemented (a filter implements __init__, propagate, "
                                  "update, check, state, covariance and diverged: docs/plugins.md)") from None

@@ -225,16 +225,21 @@ def causal_only(metrics: pd.DataFrame) -> pd.DataFrame:
 
 
 def sensor_dims(manifest: dict, sensors: Iterable[str]) -> dict[str, int | None]:
-    """Measurement size m of each sensor (the dof of its NIS): from the sensor class registered under
+    """Measurement size m of each sensor (the dof of its NIS): as the manifest records it (``dim``), else
+    from the sensor class registered under
     its name with the options the manifest recorded (``sensors``, per cell; the first cell that holds
     it), else with its default options; None for a sensor not registered here (a plugin not loaded)
     or with conflicting sizes across cells."""
+    from nespm_cli.experiments.suite import recorded_dim
     from nespm_cli.sensors.registry import get_sensor
     from nespm_cli.sensors.source import options_of
 
     cells = [c for c in (manifest.get("sensors") or {}).values() if isinstance(c, dict)]
     out: dict[str, int | None] = {}
     for name in sensors:
+        if recorded_dim(manifest, name) is not None:  # recorded at mc time: no plugin needed
+            out[name] = recorded_dim(manifest, name)
+            continue
         try:
             cls = get_sensor(name)
         except NespmError:

@@ -26,7 +26,8 @@ from nespm_cli.errors import NespmError
 from nespm_cli.nav.dvl import body_rate_step
 from nespm_cli.nav.strapdown import na_cycle
 from nespm_cli.nav.synthesis import ImuTruth
-from nespm_cli.sensors.source import Channel, Sensor, Truth, availability, jittered
+from nespm_cli.sensors.guard import checked_values, sensor_call
+from nespm_cli.sensors.source import Channel, Sensor, TrackInfo, Truth, availability, jittered
 
 ON_SAMPLE = 1e-9  # a time within this fraction of a step from a sample is at the sample
 STAMP_TOL = 1e-6  # [s] a recorded stamp this far outside the GT span is still inside it
@@ -51,7 +52,13 @@ def locate(truth: ImuTruth, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return j.astype(np.int64), frac
 
 
-def truth_at(truth: ImuTruth, index: np.ndarray, frac: np.ndarray) -> Truth:
+def track_info(truth: ImuTruth, number: int) -> TrackInfo:
+    """The :class:`TrackInfo` of track ``number``: the truth's position and file time at the first epoch."""
+    e0 = int(truth.epoch_index[0])
+    return TrackInfo(int(number), np.array(truth.pos[e0], dtype=float), float(truth.t[e0]))
+
+
+def truth_at(truth: ImuTruth, index: np.ndarray, frac: np.ndarray, track: TrackInfo | None = None) -> Truth:
     """The truth at grid places ``(index, frac)`` (K,): on a sample the grid's values, inside a step
     ``na_cycle`` over ``frac`` of it with the step's clean IMU; ``w_nb_b`` from the (part-)step
     ending there (eq 31 inverted)."""
@@ -72,7 +79,7 @@ def truth_at(truth: ImuTruth, index: np.ndarray, frac: np.ndarray) -> Truth:
     if inside.any():
         w[inside] = body_rate_step(truth.C_bn[j[inside]], C[inside], frac[inside] * dt[j[inside]])
     t = grid_time(truth)[index] + frac * dt[j]
-    return Truth(t=t, pos=pos, v_n=v, C_bn=C, w_nb_b=w)
+    return Truth(t=t, pos=pos, v_n=v, C_bn=C, w_nb_b=w, track=track)
 
 
 def schedule(sensor: Sensor, truth: ImuTruth, seed: int, track: int) -> np.ndarray:
@@ -97,42 +104,94 @@ def schedule(sensor: Sensor, truth: ImuTruth, seed: int, track: int) -> np.ndarr
 
 
 def recorded_times(sensor: Sensor, track, truth: ImuTruth) -> tuple[np.ndarray, np.ndarray]:
-    """``(t, z)`` of the track's recorded channel: times [s since the first epoch] inside the GT span."""
-    rec = sensor.recorded(track)
+    """``(t, z)`` of the track's recorded channel: times [s since the first epoch] inside the GT span.
+    A file without a measurement there, or with another number of value columns than the sensor
+    measures, is refused in one line naming the track and the sensor."""
+    rec = sensor_call(sensor, "recorded", sensor.recorded, track)
     if rec is None:
         raise NespmError(f"--sensors {sensor.name}: source recorded, but track {track.number} has no "
                          f"{sensor.name} file (docs/data-format.md)")
     t_file, z = (np.asarray(a, dtype=float) for a in rec)
-    t0, t_end = float(track.t[0]), float(track.t[-1])
-    keep = (t_file >= t0 - STAMP_TOL) & (t_file <= t_end + STAMP_TOL)
     if z.ndim == 1:
         z = z[:, None]
+    if z.shape[-1] != sensor.dim:
+        raise NespmError(f"--sensors {sensor.name}: track {track.number}'s recorded {sensor.name} file has "
+                         f"{z.shape[-1]} value column(s), but {sensor.name} measures {sensor.dim} "
+                         f"({', '.join(sensor.labels[:sensor.dim])}) with its --sensor-option values")
+    t0, t_end = float(track.t[0]), float(track.t[-1])
+    keep = (t_file >= t0 - STAMP_TOL) & (t_file <= t_end + STAMP_TOL)
+    if not np.isfinite(z[keep]).any(axis=-1).sum():
+        raise NespmError(f"--sensors {sensor.name}: track {track.number}'s recorded {sensor.name} file has no "
+                         f"measurement inside the track's span ({len(t_file)} rows, {int(keep.sum())} inside, none "
+                         f"finite there); use --sensor-option {sensor.name}.source=synthetic or drop {sensor.name}")
     return np.clip(t_file[keep] - t0, 0.0, t_end - t0), z[keep]
+
+
+def synthetic_times(sensor: Sensor, truth: ImuTruth, seed: int, number: int) -> np.ndarray:
+    """:func:`schedule`, refused in one line where it cannot be a sensor's: an ``interval`` shorter
+    than the IMU step (a sensor on the IMU clock measures at most once per step) or a schedule
+    without a time in the track's span (a given interval longer than the track, or a ``jitter`` that
+    moves every stamp out of it; a sensor's default interval longer than a short ``--window`` is
+    not refused: the sensor then has no measurement there, as its record shows)."""
+    every, o = sensor.interval(), sensor.opt
+    step = float(np.min(truth.dt))
+    if every is not None and every < step * (1 - 1e-9):
+        raise NespmError(f"--sensor-option {sensor.name}.interval={every:g}: shorter than track {number}'s IMU "
+                         f"step ({step:g} s); a sensor measures at most once per IMU step")
+    t = schedule(sensor, truth, seed, number)
+    if len(t) == 0 and (o.interval is not None or o.jitter):  # a default schedule may miss a short --window
+        end = float(grid_time(truth)[truth.epoch_index[-1]])
+        if o.jitter:
+            raise NespmError(f"--sensor-option {sensor.name}.jitter={o.jitter:g}: moves every stamp of track "
+                             f"{number} out of its span (0-{end:g} s), so {sensor.name} would have no measurement; "
+                             f"use a jitter well below the interval ({every:g} s)")
+        raise NespmError(f"--sensor-option {sensor.name}.interval={every:g}: longer than track {number} "
+                         f"({end:g} s), so {sensor.name} would have no measurement")
+    return t
+
+
+def channel_times(sensor: Sensor, track, truth: ImuTruth, seed: int, number: int):
+    """``(t, z)``: a recorded channel's times and values (:func:`recorded_times`), or a synthetic
+    one's times (:func:`synthetic_times`) and None."""
+    if sensor.opt.source == "recorded":
+        return recorded_times(sensor, track, truth)
+    return synthetic_times(sensor, truth, seed, number), None
+
+
+def probe(sensor: Sensor, track, truth: ImuTruth, seed: int, number: int) -> None:
+    """Check ``sensor`` on a track before anything runs: its times (:func:`channel_times`) and, for a
+    synthetic source, its ``true_values`` (K, dim) there (a plugin's failure one line naming it)."""
+    t, z = channel_times(sensor, track, truth, seed, number)
+    if z is None:
+        where = truth_at(truth, *locate(truth, t), track_info(truth, number))
+        values = sensor_call(sensor, "true_values", sensor.true_values, where)
+        checked_values(sensor, "true_values", values, (len(t), sensor.dim))
 
 
 def build_channel(sensor: Sensor, track, truth: ImuTruth, seed: int, number: int, runs: np.ndarray,
                   clean: bool = False) -> Channel:
     """The channel of ``sensor`` on track ``number`` for runs ``runs`` (see the module docstring)."""
     runs = np.asarray(runs, dtype=np.int64)
-    if sensor.opt.source == "recorded":
-        t, z = recorded_times(sensor, track, truth)
-        index, frac = locate(truth, t)
-        where = truth_at(truth, index, frac)
+    info = track_info(truth, number)
+    t, z = channel_times(sensor, track, truth, seed, number)
+    index, frac = locate(truth, t)
+    where = truth_at(truth, index, frac, info)
+    m = sensor.dim
+    if z is not None:
         values = np.broadcast_to(z, (len(runs),) + z.shape)
+    elif clean:
+        v = checked_values(sensor, "true_values", sensor_call(sensor, "true_values", sensor.true_values, where),
+                           (len(t), m))
+        values = np.broadcast_to(v, (len(runs),) + v.shape)
     else:
-        t = schedule(sensor, truth, seed, number)
-        index, frac = locate(truth, t)
-        where = truth_at(truth, index, frac)
-        if clean:
-            v = sensor.true_values(where)
-            values = np.broadcast_to(v, (len(runs),) + v.shape)
-        else:
-            values = sensor.synthesize(where, seed, number, runs)
-    values = sensor.lose_components(values, t, seed, number, runs)
-    ok = np.asarray(sensor.present(values), dtype=bool)
+        values = sensor_call(sensor, "synthesize", sensor.synthesize, where, seed, number, runs)
+        values = checked_values(sensor, "synthesize", values, (len(runs), len(t), m), finite=False)
+    values = sensor_call(sensor, "lose_components", sensor.lose_components, values, t, seed, number, runs)
+    ok = np.asarray(sensor_call(sensor, "present", sensor.present, values), dtype=bool)
     values = np.where(ok[..., None], values, 0.0)  # NaN stays only in the components a Measurement masks
-    ok = ok & availability(sensor, t, where, seed, number, runs)
-    return Channel(sensor, index, t, values, ok, frac)
+    ok = ok & sensor_call(sensor, "available_extra", availability, sensor, t, where, seed, number, runs)
+    return Channel(sensor, index, t, values, ok, frac, info)
 
 
-__all__ = ["build_channel", "grid_time", "locate", "recorded_times", "schedule", "truth_at"]
+__all__ = ["build_channel", "channel_times", "grid_time", "locate", "probe", "recorded_times", "schedule",
+           "synthetic_times", "track_info", "truth_at"]

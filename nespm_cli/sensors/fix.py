@@ -26,7 +26,7 @@ from nespm_cli.nav.rotations import exp_so3_minus_identity, skew
 from nespm_cli.nav.state import NavState, StateLayout, position_plus
 from nespm_cli.sensors.depth import lever_down
 from nespm_cli.sensors.measurement import Measurement
-from nespm_cli.sensors.source import Context, Sensor, SensorOptions, Truth
+from nespm_cli.sensors.source import MIN_VARIANCE, Context, Sensor, SensorOptions, Truth
 
 
 def fix_values(pos: np.ndarray, C_bn: np.ndarray, lever, m: int, errors: np.ndarray | None = None) -> np.ndarray:
@@ -104,14 +104,24 @@ class Fix(Sensor):
     def __init__(self, options: FixOptions | None = None):
         super().__init__(options)
         o = self.opt
-        if o.vertical_std is not None and not (math.isfinite(o.vertical_std) and o.vertical_std > 0):
-            raise NespmError(f"--sensor-option fix.vertical_std={o.vertical_std!r}: must be a positive std")
+        if o.vertical_std is not None and not (math.isfinite(o.vertical_std) and o.vertical_std**2 >= MIN_VARIANCE):
+            raise NespmError(f"--sensor-option fix.vertical_std={o.vertical_std!r}: must be a positive std "
+                             f"(at least {math.sqrt(MIN_VARIANCE):.2g}, so that its square does not underflow)")
         if not (math.isfinite(o.surface_depth) and o.surface_depth >= 0):
             raise NespmError(f"--sensor-option fix.surface_depth={o.surface_depth!r}: must be a depth >= 0 m")
 
     @property
     def dim(self) -> int:  # type: ignore[override]
         return 3 if self.opt.vertical else 2
+
+    def recorded(self, track):
+        """The track's recorded fixes; a file without altitude refused with ``vertical`` (one line)."""
+        rec = super().recorded(track)
+        if rec is not None and self.opt.vertical and np.shape(rec[1])[-1] == 2:
+            raise NespmError(f"--sensor-option fix.vertical=true: track {track.number}'s recorded fix file has no "
+                             "altitude column (FIX_trajectoryN.csv, docs/data-format.md); drop fix.vertical or "
+                             "add the column")
+        return rec
 
     def stds(self, filter_side: bool) -> np.ndarray:
         """Per-axis std [m] (m,): the synthetic noise, or the filter's with ``filter_side``."""

@@ -34,6 +34,7 @@ from nespm_cli.nav.state import NavState, StateLayout
 from nespm_cli.sensors.measurement import Measurement
 
 SOURCES = ("synthetic", "recorded")
+MIN_VARIANCE = float(np.finfo(float).tiny)  # a std whose square is below the smallest normal double is refused
 TRACK_LEVEL = 2**31  # the run slot of a track-level draw (jittered stamps: one schedule for every run)
 
 
@@ -67,16 +68,30 @@ class SensorOptions:
 
 
 @dataclass(frozen=True)
+class TrackInfo:
+    """The track a sensor measures on (docs/conventions.md, "A track's origin and start"):
+    ``number``; ``origin`` (3,) the true ``[lat rad, lon rad, h m]`` (WGS-84, h up) of the vehicle
+    (the IMU) at the run's first GT epoch, t = 0; ``start`` [s] that epoch's time on the track
+    files' clock (the ``Time [s]`` column), so a file time is ``start + t``. Both are the same in
+    every run and chunk of the track (they follow ``--window``)."""
+
+    number: int
+    origin: np.ndarray
+    start: float
+
+
+@dataclass(frozen=True)
 class Truth:
     """The truth at K measurement times: ``t`` (K,) [s since the first epoch], ``pos`` (K, 3)
     ``[lat, lon, h]``, ``v_n`` (K, 3) [m/s], ``C_bn`` (K, 3, 3), ``w_nb_b`` (K, 3) body rate
-    relative to NED [rad/s] (the IMU step ending there)."""
+    relative to NED [rad/s] (the IMU step ending there); ``track`` the :class:`TrackInfo`."""
 
     t: np.ndarray
     pos: np.ndarray
     v_n: np.ndarray
     C_bn: np.ndarray
     w_nb_b: np.ndarray
+    track: TrackInfo | None = None
 
 
 @dataclass
@@ -84,7 +99,8 @@ class Channel:
     """One sensor's measurements in R runs, K times in increasing order: ``index`` (K,) the IMU
     sample at or before each time and ``frac`` (K,) how far into the step that follows it lies
     (0: on the sample; the engine splits the step there); ``t`` (K,) [s since the first epoch];
-    ``z`` (R, K, m) the values; ``ok`` (R, K) whether the measurement exists in that run."""
+    ``z`` (R, K, m) the values; ``ok`` (R, K) whether the measurement exists in that run;
+    ``track`` the :class:`TrackInfo` (None for a channel built outside an experiment)."""
 
     sensor: "Sensor"
     index: np.ndarray
@@ -92,6 +108,7 @@ class Channel:
     z: np.ndarray
     ok: np.ndarray
     frac: np.ndarray | None = None
+    track: TrackInfo | None = None
 
     def __post_init__(self) -> None:
         self.index = np.asarray(self.index, dtype=np.int64)
@@ -101,11 +118,14 @@ class Channel:
 
 @dataclass(frozen=True)
 class Context:
-    """What a measurement may need besides the solution: the compensated IMU of the step that
-    ends at its time, ``f_b`` (R, 3) [m/s²], ``w_ib_b`` (R, 3) [rad/s]."""
+    """What a measurement may need besides the solution: the bias-compensated IMU of the step that
+    ends at its time, ``f_b`` (R, 3) specific force [m/s², body FRD] and ``w_ib_b`` (R, 3) angular
+    rate relative to inertial space [rad/s, body FRD]; ``track`` the :class:`TrackInfo` (origin,
+    start; None outside an experiment)."""
 
     f_b: np.ndarray
     w_ib_b: np.ndarray
+    track: TrackInfo | None = None
 
 
 class Sensor:
@@ -313,6 +333,11 @@ def check_options(name: str, opt: SensorOptions) -> None:
         raise bad("std", "must be a positive std")
     if opt.r_std is not None and not (math.isfinite(opt.r_std) and opt.r_std > 0):
         raise bad("r_std", "must be a positive std")
+    for key in ("std", "r_std"):  # R = std²: a square that underflows is a singular R, not a precise sensor
+        v = getattr(opt, key)
+        if isinstance(v, (int, float)) and v**2 < MIN_VARIANCE:
+            raise bad(key, f"is too small: its square underflows ({v**2:.3g}), so R would be singular; "
+                           f"give a std of at least {math.sqrt(MIN_VARIANCE):.2g}")
     if opt.interval is not None and not (math.isfinite(opt.interval) and opt.interval > 0):
         raise bad("interval", "must be a positive number of seconds")
     for key in ("jitter", "bias", "scale"):
@@ -327,5 +352,5 @@ def check_options(name: str, opt: SensorOptions) -> None:
     parse_windows(opt.outage, f"--sensor-option {name}.outage")
 
 
-__all__ = ["Channel", "Context", "SOURCES", "Sensor", "SensorOptions", "Truth", "availability", "check_options",
+__all__ = ["Channel", "Context", "SOURCES", "Sensor", "SensorOptions", "TrackInfo", "Truth", "availability", "check_options",
            "convert", "jittered", "options_of", "parse_windows"]
