@@ -43,7 +43,10 @@ from nespm_cli.sensors.channels import build_channel
 
 #: the blocks whose efficiency is reported: (block, error column of the epochs table, components)
 EFFICIENCY_BLOCKS = (("vel", "vel_err", None), ("att", "att_err", None), ("hpos", "hpe", ("dpN", "dpE")))
+#: the blocks reported from their per-axis RMS (``--save-series axes``)
+AXES_BLOCKS = ("pos", "ba", "bg")
 RUN_BLOCK = 256  # patterns per Riccati batch (memory: RUN_BLOCK x N x n floats of diagonal)
+RUNS_PER_PASS = 2000  # runs whose channels are built at once (R x K x m floats per sensor)
 
 
 def unknown_reason(spec: Spec) -> str | None:
@@ -69,9 +72,10 @@ def true_sensor(sensor):
     return out
 
 
-def track_bound(spec: Spec, number: int, runs) -> tuple[np.ndarray, list[str]]:
+def track_bound(spec: Spec, number: int, runs, within_span: bool = True) -> tuple[np.ndarray, list[str]]:
     """``(diag, labels)``: the PCRB's variances (R, N, n) of ``runs`` of track ``number`` at the GT
-    epochs [SI units²] and the n component labels (:data:`nespm_cli.nav.state.BLOCKS`)."""
+    epochs [SI units²] and the n component labels (:data:`nespm_cli.nav.state.BLOCKS`).
+    ``within_span``: :func:`nespm_cli.filters.pcrb.noise_within_span` (False: the filters' form)."""
     runs = np.asarray(runs, dtype=np.int64)
     lay = bound_layout(spec)
     track, truth = track_inputs(spec, number)
@@ -112,7 +116,7 @@ def track_bound(spec: Spec, number: int, runs) -> tuple[np.ndarray, list[str]]:
         process = _process(lay, c, pa, pg, S, dt_imu)
         chs = [dataclasses.replace(ch, z=ch.z[idx], ok=ch.ok[idx]) for ch in channels]
         res = pcrb(lay, nav0, truth.f_b, truth.w_ib_b, truth.dt, e, chs, P0, process,
-                   per_step=spec.filter_config.time_update == "imu")
+                   per_step=spec.filter_config.time_update == "imu", within_span=within_span)
         out[lo:lo + len(idx)] = res.diag
     labels = [lab for b in lay.blocks for lab in BLOCKS[b][2]]
     return out[inverse], labels
@@ -155,8 +159,12 @@ def bound_columns(spec: Spec, number: int, runs) -> pd.DataFrame:
         lay = bound_layout(spec)
         return pd.DataFrame({"epoch": np.arange(N),
                              **{f"pcrb_{lab}": np.full(N, np.nan) for b in lay.blocks for lab in BLOCKS[b][2]}})
-    diag, labels = track_bound(spec, number, runs)
-    mean = diag.mean(axis=0)
+    runs = np.asarray(runs, dtype=np.int64)
+    total, labels = 0.0, []
+    for lo in range(0, len(runs), RUNS_PER_PASS):  # the channels of RUNS_PER_PASS runs in memory at a time
+        diag, labels = track_bound(spec, number, runs[lo:lo + RUNS_PER_PASS])
+        total = total + diag.sum(axis=0)
+    mean = total / len(runs)
     return pd.DataFrame({"epoch": np.arange(N), **{f"pcrb_{lab}": mean[:, i] for i, lab in enumerate(labels)}})
 
 
@@ -189,23 +197,31 @@ def add_pcrb(epochs: pd.DataFrame, cells: list, keys: tuple = ()) -> tuple[pd.Da
 
 
 def efficiency(epochs: pd.DataFrame, keys: tuple = ()) -> pd.DataFrame:
-    """Per (keys, track, filter, block): ``rmse`` (the RMS over runs and epochs of the block's error
-    norm: eq 50 for the velocity, the attitude's Euler-angle norm, the horizontal position), ``root_pcrb``
-    (the root of the bound's trace of that block, averaged over the epochs) and ``efficiency`` =
-    rmse / root_pcrb (1: the filter reaches the bound). NaN where the bound is unknown or the layout
-    lacks the block."""
+    """Per (keys, track, filter, block): ``rmse`` the RMS over the runs (not lost) and the epochs of the
+    block's error (the velocity error norm as eq 50, the attitude's Euler-angle norm, the horizontal
+    position; with ``--save-series axes`` also the bias and 3-D position blocks from their per-axis
+    RMS), ``root_pcrb`` the root of the bound's trace of that block averaged over the epochs, and
+    ``efficiency`` = rmse / root_pcrb (1: the filter reaches the bound; below 1 only by sampling, or
+    for a smoothed ``-rts`` result, which the filtering bound does not bound). NaN where the bound is
+    unknown or the block absent."""
     rows = []
+    blocks = list(EFFICIENCY_BLOCKS) + [(b, None, BLOCKS[b][2]) for b in AXES_BLOCKS]
     for key, g in epochs.groupby([*keys, "track", "filter"], sort=True):
-        for block, col, comps in EFFICIENCY_BLOCKS:
+        for block, col, comps in blocks:
             labels = comps or BLOCKS[block][2]
             cols = [f"pcrb_{lab}" for lab in labels]
-            mse = (g[f"{col}_mean"] ** 2 + g[f"{col}_std"] ** 2).mean() if f"{col}_std" in g else np.nan
+            if col is not None:
+                mse = (g[f"{col}_mean"] ** 2 + g[f"{col}_std"] ** 2).mean() if f"{col}_std" in g else np.nan
+            elif all(f"rms_{lab}" in g for lab in labels):
+                mse = sum(g[f"rms_{lab}"] ** 2 for lab in labels).mean()
+            else:
+                continue
             bound = g[cols].sum(axis=1, min_count=len(cols)).mean() if all(c in g for c in cols) else np.nan
             rmse = float(np.sqrt(mse))
             root = float(np.sqrt(bound)) if np.isfinite(bound) else np.nan
             rows.append({**dict(zip([*keys, "track", "filter"], key)), "block": block, "rmse": rmse,
                          "root_pcrb": root, "efficiency": rmse / root if root and np.isfinite(root) else np.nan})
-    return pd.DataFrame(rows)
+    return pd.DataFrame(rows, columns=[*keys, "track", "filter", "block", "rmse", "root_pcrb", "efficiency"])
 
 
 __all__ = ["EFFICIENCY_BLOCKS", "add_pcrb", "bound_columns", "bound_layout", "efficiency", "track_bound",

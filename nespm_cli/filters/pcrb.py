@@ -84,9 +84,19 @@ def riccati_update(P: np.ndarray, H: np.ndarray, Rm: np.ndarray, ok: np.ndarray 
     return np.where(np.asarray(ok, dtype=bool)[:, None, None], Pu, P)
 
 
+def noise_within_span(Phi: np.ndarray, Q: np.ndarray) -> np.ndarray:
+    """The noise ``Q`` (n, n) or (B, n, n) of a span, injected uniformly over it, at its end:
+    ``Q + (A Q + Q Aᵀ)/2 + A Q Aᵀ/3`` with ``A = Φ − I`` (``Φ`` (n, n) the span's transition), the
+    integral ``∫ e^{F s} (Q/T) e^{Fᵀ s} ds`` for F constant over the span (exact for ``dp' = dv``:
+    the velocity noise's ``q T³/3`` in position, ``q T²/2`` between them); docs/pcrb.md."""
+    A = Phi - np.eye(Phi.shape[-1])
+    AQ = A @ Q
+    return Q + 0.5 * (AQ + np.swapaxes(AQ, -1, -2)) + AQ @ A.T / 3.0
+
+
 def pcrb(layout: StateLayout, truth_nav0: NavState, f: np.ndarray, w: np.ndarray, dt: np.ndarray,
          epoch_index: np.ndarray, channels: list[Channel], P0: np.ndarray, process: Process,
-         per_step: bool = False, full: bool = False) -> Bound:
+         per_step: bool = False, within_span: bool = True, full: bool = False) -> Bound:
     """The PCRB of the error state of ``layout`` at every GT epoch, for B patterns.
 
     Args:
@@ -102,6 +112,8 @@ def pcrb(layout: StateLayout, truth_nav0: NavState, f: np.ndarray, w: np.ndarray
         process: the true process noise and bias steps of a span (:data:`Process`).
         per_step: one time update per IMU step (the exact discretization of white noise) instead
             of one per span between events (the filters' ``--time-update dvl``).
+        within_span: the white noise of a span propagated inside it (:func:`noise_within_span`);
+            False: added at its end, as the filters add their Q (their Riccati recursion exactly).
         full: also return the full matrices.
 
     Returns:
@@ -130,6 +142,8 @@ def pcrb(layout: StateLayout, truth_nav0: NavState, f: np.ndarray, w: np.ndarray
         for j0, j1 in (((j, j + 1) for j in range(a, b)) if per_step else ((a, b),)):
             Phi = traj.transition(j0, j1)[0]
             Q, D = process(float(tgrid[j0] - t0), float(tgrid[j1] - t0))
+            if within_span:
+                Q = noise_within_span(Phi, Q)
             P = riccati_predict(P, Phi, Q, D)
         nav = traj.nav
         for c, i in todo:
@@ -147,4 +161,4 @@ def pcrb(layout: StateLayout, truth_nav0: NavState, f: np.ndarray, w: np.ndarray
     return Bound(diag, full_P)
 
 
-__all__ = ["Bound", "Process", "TrueTrajectory", "pcrb", "riccati_predict", "riccati_update"]
+__all__ = ["Bound", "Process", "TrueTrajectory", "noise_within_span", "pcrb", "riccati_predict", "riccati_update"]
