@@ -9,7 +9,7 @@ from nespm_cli.experiments.mc import simulate
 from nespm_cli.experiments.pcrb_table import track_bound, unknown_reason
 from nespm_cli.experiments.spec import Spec, validate
 from nespm_cli.filters.model import FilterConfig
-from nespm_cli.filters.pcrb import riccati_predict, riccati_update
+from nespm_cli.filters.pcrb import noise_within_span, riccati_predict, riccati_update
 
 TRUE_TUNING = FilterConfig(acc_bias_rw=0.0, gyro_bias_rw=0.0)  # the realizations' biases are constant
 
@@ -34,6 +34,11 @@ def test_linear_gaussian_covariance_form_is_the_information_recursion():
         D11, D12, D22 = F.T @ Qi @ F, -F.T @ Qi, Qi + np.where(ok[:, None, None], H.T @ np.linalg.inv(Rm) @ H, 0.0)
         J = D22 - D12.T @ np.linalg.solve(J + D11, np.broadcast_to(D12, (B, n, n)))
         P = riccati_update(riccati_predict(P, F, Q), H[None], Rm, ok)
+    q = rng.random(n)  # the noise within a span, diagonal and dense forms
+    A = F - np.eye(n)
+    Qd = np.diag(q)
+    np.testing.assert_allclose(noise_within_span(F, q[None])[0], Qd + (A @ Qd + Qd @ A.T) / 2 + A @ Qd @ A.T / 3,
+                               rtol=1e-13, atol=1e-15)
     Pj = np.linalg.inv(J)
     assert np.abs(P - Pj).max() / np.abs(Pj).max() < 1e-10
 

@@ -138,7 +138,6 @@ def _process(lay, c, pa: np.ndarray, pg: np.ndarray, S: int, dt_imu: float):
         q = np.zeros((B, n))
         q[:, vel] = (qa @ w)[:, None]
         q[:, att] = (qg @ w)[:, None]
-        Q = np.einsum("bi,ij->bij", q, np.eye(n))
         D = None
         if c.dynamic_bias == "segment":
             s0, s1 = segment_index(np.array([t0, t1]), T, S)
@@ -146,7 +145,7 @@ def _process(lay, c, pa: np.ndarray, pg: np.ndarray, S: int, dt_imu: float):
                 D = np.ones((B, n))
                 D[:, ba] = (pa[:, s1] / pa[:, s0])[:, None]
                 D[:, bg] = (pg[:, s1] / pg[:, s0])[:, None]
-        return Q, D
+        return q, D
 
     return process
 

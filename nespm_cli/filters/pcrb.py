@@ -15,7 +15,7 @@ The model is not written a second time: Φ is the EKF's own ``Π (I + F dt)``
 (:meth:`nespm_cli.filters.protocol.ErrorStateFilter.transition`, compiled where numba is)
 on the navigation solution of the clean IMU started at the truth (it reproduces the truth to
 ~1e-11), and ``H`` is each sensor's own Jacobian (:meth:`Measurement.H`) there; the update is
-:func:`nespm_cli.filters.model.joseph_update` with a zero innovation. The solution is never
+the Kalman update of the covariance (:func:`riccati_update`). The solution is never
 corrected (there is nothing to correct).
 
 Batched over B *patterns*: what may differ between Monte Carlo runs (the measurements that
@@ -30,14 +30,15 @@ from typing import Callable
 
 import numpy as np
 
-from nespm_cli.filters.model import FilterConfig, joseph_update
+from nespm_cli.filters.model import FilterConfig
 from nespm_cli.filters.protocol import ErrorStateFilter, ImuData
 from nespm_cli.filters.timeline import Timeline
 from nespm_cli.nav.state import NavState, StateLayout
 from nespm_cli.sensors.source import Channel, Context
 
-#: ``process(t0, t1)`` -> ``(Q, D)``: the discrete process noise (B, n, n) or (n, n) added over
-#: the span from ``t0`` to ``t1`` [s since the first epoch], and a diagonal (B, n) applied to the
+#: ``process(t0, t1)`` -> ``(q, D)``: the variances (B, n) or (n,) of the white process noise over the
+#: span from ``t0`` to ``t1`` [s since the first epoch] (diagonal in the error coordinates: the
+#: IMU's noise is isotropic per block, so ``G Q Gᵀ = Q``), and a diagonal (B, n) applied to the
 #: state at its end (a bias step of the schedule), or None
 Process = Callable[[float, float], tuple]
 
@@ -65,33 +66,48 @@ class Bound:
 
 
 def riccati_predict(P: np.ndarray, Phi: np.ndarray, Q: np.ndarray, D: np.ndarray | None = None) -> np.ndarray:
-    """``D (Φ P Φᵀ + Q) D`` symmetrized: ``P`` (B, n, n), ``Phi`` (n, n) or (B, n, n), ``Q``
-    (n, n) or (B, n, n), ``D`` (B, n) or None."""
-    P = Phi @ P @ np.swapaxes(Phi, -1, -2) + Q
+    """``D (Φ P Φᵀ + Q) D`` symmetrized: ``P`` (B, n, n), ``Phi`` (n, n) (shared: two matrix
+    products over the whole batch) or (B, n, n), ``Q`` (n, n) or (B, n, n), ``D`` (B, n) or None."""
+    B, n = P.shape[0], P.shape[-1]
+    if Phi.ndim == 2:
+        X = (P.reshape(B * n, n) @ Phi.T).reshape(B, n, n)  # P Φᵀ
+        P = (Phi @ X.transpose(1, 0, 2).reshape(n, B * n)).reshape(n, B, n).transpose(1, 0, 2) + Q
+    else:
+        P = Phi @ P @ np.swapaxes(Phi, -1, -2) + Q
     if D is not None:
         P = D[..., :, None] * P * D[..., None, :]
     return 0.5 * (P + np.swapaxes(P, -1, -2))
 
 
 def riccati_update(P: np.ndarray, H: np.ndarray, Rm: np.ndarray, ok: np.ndarray | None = None) -> np.ndarray:
-    """The posterior of ``P`` (B, n, n) after a measurement with Jacobian ``H`` (B, m, n) and
-    noise ``Rm`` (m, m) or (B, m, m), in the patterns where ``ok`` (B,) (None: all)."""
-    B = P.shape[0]
-    H = np.broadcast_to(H, (B,) + H.shape[-2:])
-    _, Pu, _ = joseph_update(P, H, np.zeros((B, H.shape[-2])), Rm)
+    """The posterior of ``P`` (B, n, n) after a measurement with Jacobian ``H`` (B, m, n) or (1, m, n)
+    and noise ``Rm`` (m, m) or (B, m, m), in the patterns where ``ok`` (B,) (None: all):
+    ``P − P Hᵀ S⁻¹ H P`` with ``S = H P Hᵀ + R`` (solved, not inverted), symmetrized. The same
+    posterior as the EKF's Joseph form (:func:`nespm_cli.filters.model.joseph_update`) with the
+    optimal gain (tests/test_pcrb.py: 4e-13 relative on the papers' track)."""
+    PHt = P @ np.swapaxes(H, -1, -2)
+    S = H @ PHt + Rm
+    KPt = np.linalg.solve(S, np.swapaxes(PHt, -1, -2))  # S⁻¹ H P  (B, m, n)
+    Pu = P - PHt @ KPt
+    Pu = 0.5 * (Pu + np.swapaxes(Pu, -1, -2))
     if ok is None:
         return Pu
     return np.where(np.asarray(ok, dtype=bool)[:, None, None], Pu, P)
 
 
-def noise_within_span(Phi: np.ndarray, Q: np.ndarray) -> np.ndarray:
-    """The noise ``Q`` (n, n) or (B, n, n) of a span, injected uniformly over it, at its end:
-    ``Q + (A Q + Q Aᵀ)/2 + A Q Aᵀ/3`` with ``A = Φ − I`` (``Φ`` (n, n) the span's transition), the
-    integral ``∫ e^{F s} (Q/T) e^{Fᵀ s} ds`` for F constant over the span (exact for ``dp' = dv``:
-    the velocity noise's ``q T³/3`` in position, ``q T²/2`` between them); docs/pcrb.md."""
-    A = Phi - np.eye(Phi.shape[-1])
-    AQ = A @ Q
-    return Q + 0.5 * (AQ + np.swapaxes(AQ, -1, -2)) + AQ @ A.T / 3.0
+def noise_within_span(Phi: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """The white noise of a span, ``diag(q)`` with ``q`` (n,) or (B, n) its variances over the span,
+    injected uniformly over it, at its end: ``Q + (A Q + Q Aᵀ)/2 + A Q Aᵀ/3`` with ``A = Φ − I``
+    (``Φ`` (n, n) the span's transition), the integral ``∫ e^{F s} (Q/T) e^{Fᵀ s} ds`` for F
+    constant over the span (exact for ``dp' = dv``: the velocity noise's ``q T³/3`` in position,
+    ``q T²/2`` between them); docs/pcrb.md. Returns (n, n) or (B, n, n)."""
+    n = Phi.shape[-1]
+    A = Phi - np.eye(n)
+    q = np.asarray(q, dtype=float)
+    AQ = A * q[..., None, :]
+    outer = np.einsum("ik,jk->kij", A, A).reshape(n, n * n)  # A Q Aᵀ = Σ_k q_k a_k a_kᵀ
+    AQA = (q @ outer).reshape(q.shape[:-1] + (n, n))
+    return 0.5 * (AQ + np.swapaxes(AQ, -1, -2)) + AQA / 3.0 + q[..., None, :] * np.eye(n)
 
 
 def pcrb(layout: StateLayout, truth_nav0: NavState, f: np.ndarray, w: np.ndarray, dt: np.ndarray,
@@ -141,9 +157,8 @@ def pcrb(layout: StateLayout, truth_nav0: NavState, f: np.ndarray, w: np.ndarray
     for a, b, _k, epoch, todo in line.spans():
         for j0, j1 in (((j, j + 1) for j in range(a, b)) if per_step else ((a, b),)):
             Phi = traj.transition(j0, j1)[0]
-            Q, D = process(float(tgrid[j0] - t0), float(tgrid[j1] - t0))
-            if within_span:
-                Q = noise_within_span(Phi, Q)
+            q, D = process(float(tgrid[j0] - t0), float(tgrid[j1] - t0))
+            Q = noise_within_span(Phi, q) if within_span else np.asarray(q)[..., None, :] * np.eye(n)
             P = riccati_predict(P, Phi, Q, D)
         nav = traj.nav
         for c, i in todo:
