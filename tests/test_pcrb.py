@@ -140,3 +140,33 @@ def test_noise_within_a_span_is_the_per_step_bound():
     end, _ = track_bound(spec("dvl"), 5, [0], within_span=False)
     assert np.abs(np.sqrt(span[0, 1:] / step[0, 1:]) - 1).max() < 1e-5
     assert np.abs(np.sqrt(end[0, 1:] / step[0, 1:]) - 1).max() > 1e-2
+
+
+@pytest.mark.parametrize("dvl", ["synthetic", "recorded"])
+def test_mc_writes_the_bound_and_the_report_its_efficiency(tmp_path, dvl):
+    """``mc`` puts ``pcrb_<label>`` into epochs.parquet and the status into the manifest; the report
+    has the efficiency table, or, with the recorded DVL (statistics unknown), says so instead."""
+    import json
+
+    import nespm_cli.api as nespm
+    from nespm_cli.reports.mc import write_mc_report
+
+    out = tmp_path / dvl
+    nespm.run_mc(Spec(tracks=(5,), runs=4, dvl=dvl, filters=("ekf",), window="0:30"), out, progress=False)
+    man = json.loads((out / "manifest.json").read_text())
+    e = nespm.load(out).epochs
+    cols = [c for c in e.columns if c.startswith("pcrb_")]
+    assert len(cols) == 12
+    text = write_mc_report(out, n_boot=50).read_text()
+    eff = nespm.report_tables(out, n_boot=50)["efficiency"]
+    if dvl == "synthetic":
+        assert man["pcrb"]["status"] == "computed"
+        assert np.isfinite(e[cols].to_numpy()).all()
+        np.testing.assert_allclose(e.loc[e["epoch"] == 0, "pcrb_dvN"], 0.25 ** 2)  # the true P0
+        vel = eff[eff["block"] == "vel"].iloc[0]
+        assert vel["efficiency"] == pytest.approx(vel["rmse"] / vel["root_pcrb"]) and vel["efficiency"] > 0.5
+        assert "| 5 | ekf | velocity [m/s] |" in text
+    else:
+        assert man["pcrb"]["status"] == "unknown" and "dvl is recorded" in man["pcrb"]["reason"]
+        assert e[cols].isna().all().all() and eff["efficiency"].isna().all()
+        assert "**Unknown**: dvl is recorded" in text
