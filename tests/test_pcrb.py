@@ -170,3 +170,22 @@ def test_mc_writes_the_bound_and_the_report_its_efficiency(tmp_path, dvl):
         assert man["pcrb"]["status"] == "unknown" and "dvl is recorded" in man["pcrb"]["reason"]
         assert e[cols].isna().all().all() and eff["efficiency"].isna().all()
         assert "**Unknown**: dvl is recorded" in text
+
+
+def test_a_failing_sensor_model_leaves_the_study_and_says_why(monkeypatch):
+    """An exception in the bound (here: a sensor's measurement model) does not lose a finished
+    study: its columns are NaN and the manifest's status says why."""
+    from nespm_cli.experiments import pcrb_table
+    from nespm_cli.experiments.mc import Cell
+    from nespm_cli.sensors.dvl import Dvl
+
+    def broken(self, *a, **k):
+        raise ValueError("no model here")
+
+    monkeypatch.setattr(Dvl, "measurement", broken)
+    spec = validate(Spec(tracks=(5,), runs=2, dvl="synthetic", filters=("ekf",), window="0:10"))
+    import pandas as pd
+    epochs = pd.DataFrame({"track": 5, "filter": "ekf", "epoch": np.arange(11)})
+    out, status = pcrb_table.add_pcrb(epochs, [Cell(spec)])
+    assert status["status"] == "unknown" and "ValueError: no model here" in status["reason"]
+    assert out["pcrb_dvN"].isna().all() and len(out) == 11

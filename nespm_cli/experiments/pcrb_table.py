@@ -29,6 +29,7 @@ not a number, and :func:`unknown_reason` says why (the tables and the report pri
 from __future__ import annotations
 
 import dataclasses
+import os
 import time
 
 import numpy as np
@@ -150,21 +151,25 @@ def _process(lay, c, pa: np.ndarray, pg: np.ndarray, S: int, dt_imu: float):
     return process
 
 
+def unknown_columns(spec: Spec, number: int) -> pd.DataFrame:
+    """:func:`bound_columns` where the bound is unknown: every ``pcrb_<label>`` NaN."""
+    N = len(track_inputs(spec, number)[1].epoch_index)
+    labels = [lab for b in bound_layout(spec).blocks for lab in BLOCKS[b][2]]
+    return pd.DataFrame({"epoch": np.arange(N), **{f"pcrb_{lab}": np.full(N, np.nan) for lab in labels}})
+
+
 def bound_columns(spec: Spec, number: int, runs) -> pd.DataFrame:
     """Per GT epoch of track ``number``: ``pcrb_<label>`` the runs' mean PCRB variance of each
     component [SI units²] (NaN, every one, where :func:`unknown_reason` says the bound is unknown)."""
-    N = len(track_inputs(spec, number)[1].epoch_index)
     if unknown_reason(spec) is not None:
-        lay = bound_layout(spec)
-        return pd.DataFrame({"epoch": np.arange(N),
-                             **{f"pcrb_{lab}": np.full(N, np.nan) for b in lay.blocks for lab in BLOCKS[b][2]}})
+        return unknown_columns(spec, number)
     runs = np.asarray(runs, dtype=np.int64)
     total, labels = 0.0, []
     for lo in range(0, len(runs), RUNS_PER_PASS):  # the channels of RUNS_PER_PASS runs in memory at a time
         diag, labels = track_bound(spec, number, runs[lo:lo + RUNS_PER_PASS])
         total = total + diag.sum(axis=0)
     mean = total / len(runs)
-    return pd.DataFrame({"epoch": np.arange(N), **{f"pcrb_{lab}": mean[:, i] for i, lab in enumerate(labels)}})
+    return pd.DataFrame({"epoch": np.arange(mean.shape[0]), **{f"pcrb_{lab}": mean[:, i] for i, lab in enumerate(labels)}})
 
 
 def add_pcrb(epochs: pd.DataFrame, cells: list, keys: tuple = ()) -> tuple[pd.DataFrame, dict]:
@@ -180,7 +185,14 @@ def add_pcrb(epochs: pd.DataFrame, cells: list, keys: tuple = ()) -> tuple[pd.Da
             reasons.add(why)
         kv = dict(cell.columns)
         for n in spec.tracks:
-            df = bound_columns(spec, int(n), np.arange(spec.runs))
+            try:
+                df = bound_columns(spec, int(n), np.arange(spec.runs))
+            except Exception as exc:  # e.g. a plugin sensor's model: the study's results stay, the bound says why
+                if os.environ.get("NESPM_DEBUG"):
+                    raise
+                why = f"the bound could not be computed on track {n} ({exc.__class__.__name__}: {' '.join(str(exc).split())[:120]})"
+                reasons.add(why)
+                df = unknown_columns(spec, int(n))
             df["track"] = n
             for k in keys:
                 df[k] = kv[k]
@@ -224,4 +236,4 @@ def efficiency(epochs: pd.DataFrame, keys: tuple = ()) -> pd.DataFrame:
 
 
 __all__ = ["EFFICIENCY_BLOCKS", "add_pcrb", "bound_columns", "bound_layout", "efficiency", "track_bound",
-           "true_sensor", "unknown_reason"]
+           "true_sensor", "unknown_columns", "unknown_reason"]
