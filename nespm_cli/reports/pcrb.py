@@ -20,13 +20,20 @@ BLOCK_NAMES = {"vel": ("velocity", "m/s", 1.0), "att": ("attitude", "deg", 180.0
                "hpos": ("horizontal position", "m", 1.0), "pos": ("position", "m", 1.0),
                "ba": ("accelerometer bias", "m/s²", 1.0), "bg": ("gyro bias", "deg/h", 180.0 / math.pi * 3600.0)}
 SMOOTHED = "-rts"
+SECTION = "## Efficiency against the posterior Cramér–Rao bound"
 
 
 def efficiency_table(epochs: pd.DataFrame | None) -> pd.DataFrame:
     """:func:`nespm_cli.experiments.pcrb_table.efficiency` of a folder's epochs (empty without them)."""
+    keys = sweep_keys(epochs)
     if epochs is None or epochs.empty or not any(c.startswith("pcrb_") for c in epochs.columns):
-        return pd.DataFrame(columns=["track", "filter", "block", "rmse", "root_pcrb", "efficiency"])
-    return efficiency(epochs)
+        return pd.DataFrame(columns=[*keys, "track", "filter", "block", "rmse", "root_pcrb", "efficiency"])
+    return efficiency(epochs, keys)
+
+
+def sweep_keys(epochs: pd.DataFrame | None) -> tuple[str, ...]:
+    """A sweep's key columns (``param``, ``value``) where ``epochs`` has them, else ()."""
+    return tuple(k for k in ("param", "value") if epochs is not None and k in epochs.columns)
 
 
 def pcrb_md(epochs: pd.DataFrame | None, manifest: dict) -> str:
@@ -47,6 +54,7 @@ def pcrb_md(epochs: pd.DataFrame | None, manifest: dict) -> str:
     if table.empty:
         return intro + "\n\nNo epochs table: no efficiency."
     rows = []
+    value = "value" in table.columns
     for r in table.itertuples(index=False):
         name, unit, k = BLOCK_NAMES.get(r.block, (r.block, "SI", 1.0))
         eff = "—" if not np.isfinite(r.root_pcrb) else fmt(r.efficiency, ".3f")
@@ -54,9 +62,11 @@ def pcrb_md(epochs: pd.DataFrame | None, manifest: dict) -> str:
             eff += " (smoothed)"
         if not np.isfinite(r.rmse):
             continue
-        rows.append([str(r.track), str(r.filter), f"{name} [{unit}]", fmt(r.rmse * k),
-                     fmt(r.root_pcrb * k) if np.isfinite(r.root_pcrb) else "not in the state", eff])
-    return intro + "\n\n" + md_table(["track", "filter", "block", "RMSE", "√PCRB", "efficiency"], rows)
+        rows.append(([fmt(r.value, "g")] if value else [])
+                    + [str(r.track), str(r.filter), f"{name} [{unit}]", fmt(r.rmse * k),
+                       fmt(r.root_pcrb * k) if np.isfinite(r.root_pcrb) else "not in the state", eff])
+    return intro + "\n\n" + md_table((["value"] if value else []) + ["track", "filter", "block", "RMSE", "√PCRB",
+                                                                    "efficiency"], rows)
 
 
-__all__ = ["efficiency_table", "pcrb_md"]
+__all__ = ["SECTION", "efficiency_table", "pcrb_md", "sweep_keys"]
