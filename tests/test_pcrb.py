@@ -68,29 +68,39 @@ def rmse_against_bound(err2: np.ndarray, bound: np.ndarray) -> tuple[float, floa
     return rmse, 3.0 * s.std(ddof=1) / np.sqrt(len(s)) / (2.0 * rmse), float(np.sqrt(bound.mean()))
 
 
-@pytest.mark.parametrize("case", ["papers", "dynamic-dropout"])
+@pytest.mark.parametrize("case", ["papers", "dynamic-dropout", "position"])
 def test_no_filter_beats_the_bound_at_200_runs(case):
     """200 runs, the first 60 s of track 5: every filter's velocity and attitude RMSE (over runs and
     epochs, and per epoch) is at least √PCRB less its sampling interval (3σ of the runs' spread;
     per epoch 4.5σ for the ~60 epochs tested). ``dynamic-dropout``: the dynamic schedule with bias
     steps at every segment and 30 % DVL dropouts (a bound per run, averaged); the filters keep
-    their default tuning there (mismatched), which the bound does not care about."""
+    their default tuning there (mismatched), which the bound does not care about. ``position``: 15
+    states, DVL, depth and 1 m fixes every 10 s, a 2 m initial position error: the EKF and the
+    invariant EKF, the horizontal position too."""
     R = 200
     if case == "papers":
         spec = validate(Spec(tracks=(5,), runs=R, dvl="synthetic", filters=("ekf", "ukf"), window="0:60",
                              filter_config=TRUE_TUNING))
+    elif case == "position":
+        spec = validate(Spec(tracks=(5,), runs=R, dvl="synthetic", filters=("ekf", "iekf"), window="0:60",
+                             sensors=("dvl", "depth", "fix"), sensor_options=(("fix", "interval", 10.0),),
+                             corruption=CorruptionConfig(pos_h_std=2.0, pos_v_std=0.5),
+                             filter_config=FilterConfig(state="15", p0_pos=(2.0, 2.0, 0.5))))
     else:
         spec = validate(Spec(tracks=(5,), runs=R, dvl="synthetic", filters=("ekf",), window="0:60",
                              corruption=CorruptionConfig(schedule="dynamic", dynamic_bias="segment", segment_s=10.0),
                              sensor_options=(("dvl", "dropout", 0.3),)))
     res, _, _ = simulate(spec, 5, np.arange(R))
-    bound, _ = track_bound(spec, 5, np.arange(R))
-    if case != "papers":
+    bound, labels = track_bound(spec, 5, np.arange(R))
+    if case == "dynamic-dropout":
         assert len({tuple(b) for b in bound[:, -1].round(12)}) > 100  # a bound per run
     mean = bound.mean(axis=0)
     for name, (_, err, _) in res.items():
-        for e2, sl in ((err.vel ** 2, slice(0, 3)), (err.att ** 2, slice(3, 6))):
-            b = mean[:, sl].sum(axis=1)
+        blocks = [(err.vel ** 2, ("dvN", "dvE", "dvD")), (err.att ** 2, ("dpsiN", "dpsiE", "dpsiD"))]
+        if "dpN" in labels:
+            blocks.append((err.hpe ** 2, ("dpN", "dpE")))
+        for e2, comps in blocks:
+            b = mean[:, [labels.index(c) for c in comps]].sum(axis=1)
             rmse, half, root = rmse_against_bound(e2, b)
             assert rmse >= root - half, (name, rmse, half, root)
             sd = e2.std(axis=0, ddof=1) / np.sqrt(R)
