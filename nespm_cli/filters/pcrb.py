@@ -59,10 +59,9 @@ class TrueTrajectory(ErrorStateFilter):
 @dataclass
 class Bound:
     """The PCRB of B patterns at the N GT epochs (posterior: after the epoch's measurements):
-    ``diag`` (B, N, n) its variances [SI units²] and, when asked, ``P`` (B, N, n, n)."""
+    ``diag`` (B, N, n) its variances [SI units²]."""
 
     diag: np.ndarray
-    P: np.ndarray | None = None
 
 
 def riccati_predict(P: np.ndarray, Phi: np.ndarray, Q: np.ndarray, D: np.ndarray | None = None) -> np.ndarray:
@@ -112,7 +111,7 @@ def noise_within_span(Phi: np.ndarray, q: np.ndarray) -> np.ndarray:
 
 def pcrb(layout: StateLayout, truth_nav0: NavState, f: np.ndarray, w: np.ndarray, dt: np.ndarray,
          epoch_index: np.ndarray, channels: list[Channel], P0: np.ndarray, process: Process,
-         per_step: bool = False, within_span: bool = True, full: bool = False) -> Bound:
+         per_step: bool = False, within_span: bool = True) -> Bound:
     """The PCRB of the error state of ``layout`` at every GT epoch, for B patterns.
 
     Args:
@@ -130,7 +129,6 @@ def pcrb(layout: StateLayout, truth_nav0: NavState, f: np.ndarray, w: np.ndarray
             of one per span between events (the filters' ``--time-update dvl``).
         within_span: the white noise of a span propagated inside it (:func:`noise_within_span`);
             False: added at its end, as the filters add their Q (their Riccati recursion exactly).
-        full: also return the full matrices.
 
     Returns:
         :class:`Bound` with ``diag`` (B, N, n).
@@ -141,17 +139,14 @@ def pcrb(layout: StateLayout, truth_nav0: NavState, f: np.ndarray, w: np.ndarray
     fx, wx = line.expand(np.asarray(f, float)[None]), line.expand(np.asarray(w, float)[None])
     tgrid = np.concatenate([[0.0], np.cumsum(line.dt)])
     t0 = tgrid[line.epochs[0]]
-    cfg = FilterConfig(state=layout.name if layout.name else ",".join(layout.blocks))
+    cfg = FilterConfig(state=layout.name)
     traj = TrueTrajectory(cfg, truth_nav0, ImuData(fx, wx, line.dt))
     P = np.broadcast_to(np.asarray(P0, dtype=float), (B, n, n)).copy()
     N = len(epoch_index)
     diag = np.empty((B, N, n))
-    full_P = np.empty((B, N, n, n)) if full else None
 
     def record(k: int) -> None:
         diag[:, k] = np.einsum("bii->bi", P)
-        if full_P is not None:
-            full_P[:, k] = P
 
     record(0)
     for a, b, _k, epoch, todo in line.spans():
@@ -173,7 +168,7 @@ def pcrb(layout: StateLayout, truth_nav0: NavState, f: np.ndarray, w: np.ndarray
             P = riccati_update(P, meas.H(navb), meas.R, ok)
         if epoch is not None:
             record(epoch)
-    return Bound(diag, full_P)
+    return Bound(diag)
 
 
 __all__ = ["Bound", "Process", "TrueTrajectory", "noise_within_span", "pcrb", "riccati_predict", "riccati_update"]
