@@ -363,6 +363,10 @@ def test_epochs_schema(mc_b, short_data_dir):
     # the per-component columns exist with --save-series axes only (tests/test_consistency.py)
     documented = {c: t for c, t in documented.items() if "<label>" not in c and "<block>" not in c}
     e = epochs(mc_b)
+    # the bound's pcrb_<label>: one per component of the 12 states (docs/pcrb.md)
+    assert sorted(c for c in e.columns if c.startswith("pcrb_")) == sorted(
+        f"pcrb_{lab}" for lab in ("dvN", "dvE", "dvD", "dpsiN", "dpsiE", "dpsiD", "baX", "baY", "baZ", "bgX", "bgY", "bgZ"))
+    e = e[[c for c in e.columns if not c.startswith("pcrb_")]]
     assert sorted(e.columns) == sorted(documented)
     _check_dtypes(e, documented, _doc_columns("metrics.parquet"))
     m = metrics(mc_b)

@@ -26,6 +26,7 @@ from nespm_cli.experiments.assembly import epoch_table
 from nespm_cli.experiments.backend import Execution
 from nespm_cli.experiments.chunks import chunk_problem, concat_parquet, write_chunk
 from nespm_cli.experiments.inputs import READ_HASHES, verify_read
+from nespm_cli.experiments.pcrb_table import add_pcrb
 from nespm_cli.experiments.metrics import (alive_metrics, block_statistics, divergence, epoch_errors, epoch_nis,
                                           lost_epoch, run_metrics, sensor_nis)
 from nespm_cli.experiments.spec import (Spec, couple_filter, filter_config, filter_config_of, load_filters,
@@ -343,6 +344,7 @@ def run_cells(cells: list[Cell], options: dict, out_dir: str | Path, execution: 
     recover_timings(folder.manifest["chunk_seconds"], tasks, out / "chunks")
     metrics, epochs = assemble(folder, tasks, tuple(k for k, _ in cells[0].columns))
     epochs = add_true_track(epochs, first)
+    epochs, folder.manifest["pcrb"] = add_pcrb(epochs, cells, tuple(k for k, _ in cells[0].columns))  # docs/pcrb.md
     write_parquet_atomic(epochs, out / "epochs.parquet")
     folder.finish(chunks=len(tasks))
     return metrics

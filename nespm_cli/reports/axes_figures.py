@@ -60,7 +60,8 @@ def axes_figure(ep: pd.DataFrame, title: str, path: Path) -> Drawn | None:
     the envelope up to its 95th percentile (an initial transient may leave it). None without a block.
 
     Returns the :class:`Drawn` whose ``data`` has panels ``<block> <axis>`` (e.g. ``vel north``) and
-    series ``rms`` and ``3sigma`` in the plotted unit (attitude in deg), ``x`` the time [s].
+    series ``rms``, ``3sigma`` (and ``root_pcrb``, the root of the posterior Cramér–Rao bound, where
+    the epochs hold it) in the plotted unit (attitude in deg), ``x`` the time [s].
     """
     import matplotlib.pyplot as plt
 
@@ -82,6 +83,10 @@ def axes_figure(ep: pd.DataFrame, title: str, path: Path) -> Drawn | None:
             ax.plot(t, s3, color="tab:blue", lw=0.8)
             ax.plot(t, -s3, color="tab:blue", lw=0.8)
             ax.plot(t, rms, color="k", lw=1.3, label="RMS error over runs")
+            if f"pcrb_{lab}" in d.columns and np.isfinite(d[f"pcrb_{lab}"].to_numpy(float)).any():  # docs/pcrb.md
+                root = np.sqrt(d[f"pcrb_{lab}"].to_numpy(float)) * factor
+                ax.plot(t, root, color="tab:red", lw=0.9, ls="--", label="√PCRB (no causal filter below)")
+                parts.append(drawn_rows(f"{block} {axis}", "root_pcrb", t, root))
             ax.axhline(0.0, color="0.4", lw=0.6)
             ax.set_ylim(-1.08 * _top(rms, s3), 1.08 * _top(rms, s3))
             ax.set_title(f"{name}, {axis}", fontsize="medium")

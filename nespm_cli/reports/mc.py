@@ -16,6 +16,7 @@ from typing import Sequence
 from nespm_cli.data.atomic import write_text_atomic
 from nespm_cli.reports.comparisons import compare_filters
 from nespm_cli.reports.mc_figures import figure_notes, plot_track_figures
+from nespm_cli.reports.pcrb import pcrb_md
 from nespm_cli.reports.mc_markdown import beside_md, folder_label, render_report
 from nespm_cli.reports.results import load_results, scenario_of
 from nespm_cli.reports.stats import PRACTICAL_PCT, check_practical_pct
@@ -76,7 +77,7 @@ def write_mc_report(out_dir: Path, reference: str | None = None, n_boot: int = 2
         figures = plot_track_figures(epochs, metrics, out_dir / "figures", scenario_of(metrics, manifest), manifest)
     text = render_report(metrics, manifest, table, tt, figures, out_dir, n_boot, seed,
                          practical_pct=practical_pct, beside=beside_text, all_runs=all_runs,
-                         notes=figure_notes(epochs, metrics, manifest))
+                         notes=figure_notes(epochs, metrics, manifest), pcrb=pcrb_md(epochs, manifest))
     path = out_dir / "report.md"
     write_text_atomic(path, text)
     return path

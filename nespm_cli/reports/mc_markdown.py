@@ -24,6 +24,7 @@ from nespm_cli.reports.markdown import (
     md_table,
 )
 from nespm_cli.reports.mc_figures import figures_md
+from nespm_cli.reports.pcrb import SECTION as PCRB_SECTION
 from nespm_cli.reports.published import PUBLISHED, published_tables
 from nespm_cli.reports.results import filters_in_order, scenario_of, smoother_label
 from nespm_cli.reports.stats import (
@@ -232,6 +233,7 @@ def render_report(
     beside: str = "",
     notes: Sequence[str] = (),
     all_runs: str = "median",
+    pcrb: str = "",
 ) -> str:
     """The full markdown text of ``report.md``: header, the link to docs/report.md, the Verdict
     (:func:`verdict.verdict_table` of :func:`compare_filters` with ``practical_pct``), the Caveats
@@ -258,6 +260,7 @@ def render_report(
             "## Figures\n\n" + figures_md(figures, out_dir),
             "## Per-track results (eqs 50, 52)\n\n" + _track_md(tt),
             "## Horizontal position error\n\n" + _horizontal_md(metrics),
+            *([PCRB_SECTION + "\n\n" + pcrb] if pcrb else []),
             "## Pairwise comparisons\n\n" + pairwise_md(comps, min_pairs),
             "## Comparison with the published tables\n\n" + _published_md(metrics, table, scenario, n_boot, seed),
             *(["## Beside other results folders\n\n" + beside] if beside else []),

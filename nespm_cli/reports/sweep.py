@@ -12,6 +12,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import pandas as pd
+
 from nespm_cli.data.atomic import write_text_atomic
 from nespm_cli.errors import NespmError
 from nespm_cli.reports.figures import use_log_x, use_log_y
@@ -24,6 +26,7 @@ from nespm_cli.reports.sweep_data import (
     sweep_values,
 )
 from nespm_cli.reports.sweep_figures import plot_sweep_figures
+from nespm_cli.reports.pcrb import SECTION as PCRB_SECTION, pcrb_md
 from nespm_cli.reports.sweep_markdown import render_sweep_report
 from nespm_cli.reports.sweep_tables import (
     filter_bootstrap,
@@ -71,6 +74,9 @@ def write_sweep_report(out_dir: Path, baseline: str | None = None, n_boot: int =
     figures = plot_sweep_figures(metrics, manifest, table, imp, out_dir / "figures")
     text = render_sweep_report(metrics, manifest, table, imp, figures, out_dir, n_boot, seed,
                                practical_pct=practical_pct, all_runs=all_runs)
+    epochs_path = out_dir / "epochs.parquet"  # the bound per swept value (docs/pcrb.md)
+    epochs = pd.read_parquet(epochs_path) if epochs_path.is_file() else None
+    text = text.rstrip("\n") + f"\n\n{PCRB_SECTION}\n\n{pcrb_md(epochs, manifest)}\n"
     path = out_dir / "report.md"
     write_text_atomic(path, text)
     return path
