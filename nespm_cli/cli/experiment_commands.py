@@ -10,7 +10,7 @@ import typer
 
 from nespm_cli.cli.options import COMMON, KERNELS, PARALLEL, RUNNER, default, with_options
 from nespm_cli.cli.parsing import build_spec, execution, parse_filters, parse_tracks
-from nespm_cli.experiments.gp_ukf import GPSpec
+from nespm_cli.experiments.gp_ukf_spec import GPSpec
 
 
 @with_options(COMMON, [KERNELS])

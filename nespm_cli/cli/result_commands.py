@@ -6,7 +6,7 @@ from typing import List, Optional
 
 import typer
 
-from nespm_cli.reports.stats import PRACTICAL_PCT
+from nespm_cli.reports.thresholds import PRACTICAL_PCT
 
 
 def report(

@@ -19,8 +19,6 @@ import hashlib
 import json
 from pathlib import Path
 
-import pandas as pd
-
 from nespm_cli.data.atomic import write_atomic
 from nespm_cli.errors import NespmError
 

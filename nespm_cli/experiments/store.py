@@ -26,7 +26,6 @@ from pathlib import Path
 from typing import Callable, Iterable
 
 import numpy as np
-import pandas as pd
 
 from nespm_cli import __version__
 from nespm_cli.data.atomic import write_atomic, write_text_atomic
@@ -57,6 +56,7 @@ def write_json_atomic(obj, path: Path) -> None:
 def versions() -> dict:
     """Versions of Python, nespm and the numeric stack, for the manifest."""
     import joblib
+    import pandas as pd
     import pyarrow
     import scipy
 
