@@ -19,6 +19,8 @@ from nespm_cli.errors import NespmError
 from nespm_cli.nav.rotations import euler_to_dcm
 from nespm_cli.nav.strapdown import na_cycle_inverse
 
+DEFAULT_IMU_RATE = 100.0  # [Hz] the synthesized IMU's rate (the papers')
+
 
 @dataclass(frozen=True)
 class ImuTruth:
