@@ -41,7 +41,7 @@ def run(
             typer.echo(f"{k:>12}: {v}")
 
 
-def _run_many(tracks_: str, runs: int, filters_: str, jobs: int, chunk_size: int,
+def _run_many(tracks_: str, runs: int, filters_: str, jobs: int, chunk_size: Optional[int],
               no_progress: bool, backend: str, scheduler: Optional[str], **kw):
     """Shared body of mc and sweep: build the spec, run, print the summary line."""
     kw.pop("config")  # always None: --config is expanded before parsing (config.expand_config); declared for --help

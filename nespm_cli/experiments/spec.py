@@ -49,7 +49,7 @@ class Spec:
     filters: tuple = ("ekf", "ukf", "ukf-nespm")
     scenario: str = "nominal"
     seed: int = 0
-    chunk_size: int = 50
+    chunk_size: int | None = None  # runs per chunk; None: by runs and jobs, or the folder's (experiments/chunking.py)
     data_dir: str | None = None
     imu: str = "synthetic"
     dvl: str = "recorded"
@@ -115,7 +115,7 @@ def validate(spec: Spec) -> Spec:
     from nespm_cli.learn.noise_model import WINDOW, load_weights
 
     check_domains(spec)
-    if spec.chunk_size < 1:
+    if spec.chunk_size is not None and spec.chunk_size < 1:
         raise NespmError(f"--chunk-size must be at least 1, got {spec.chunk_size}")
     spec = load_sensors(load_filters(spec))
     for f in spec.filters:
