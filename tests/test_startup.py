@@ -48,12 +48,13 @@ def test_help_imports_no_heavy_package(argv):
     assert heavy(r["modules"]) == [], f"nespm {' '.join(argv)} imported {heavy(r['modules'])}"
 
 
-def test_help_imports_no_filter_or_sensor():
-    """The option defaults come from light config modules: the filters, sensors and track readers
-    (and the numba kernels) are imported only when a command runs."""
+def test_help_imports_no_reader_runner_or_report():
+    """The option defaults come from light config modules: the track readers, the ProcessNet
+    training, the results store, the runners and the report are imported only when a command runs."""
     mods = imported_by(["--help"])["modules"]
-    for m in ("nespm_cli.filters.engine", "nespm_cli.filters.kernels", "nespm_cli.sensors",
-              "nespm_cli.data.tracks", "nespm_cli.experiments.store", "nespm_cli.reports.stats"):
+    for m in ("nespm_cli.data.tracks", "nespm_cli.data.csvtable", "nespm_cli.learn.training",
+              "nespm_cli.experiments.store", "nespm_cli.experiments.mc", "nespm_cli.experiments.gp_ukf",
+              "nespm_cli.reports.stats", "nespm_cli.nav.kernels"):
         assert m not in mods, m
 
 
@@ -76,9 +77,3 @@ def test_the_light_modules_keep_their_old_names():
     assert gp_ukf.validate is gp_ukf_spec.validate
     assert stats.PRACTICAL_PCT == thresholds.PRACTICAL_PCT == 1.0
     assert inputs.DEFAULT_IMU_RATE == synthesis.DEFAULT_IMU_RATE == 100.0
-    import nespm_cli.filters as filters
-    from nespm_cli.filters import engine
-
-    assert filters.run_filter is engine.run_filter and filters.FILTERS is engine.FILTERS
-    with pytest.raises(AttributeError):
-        filters.no_such_name  # noqa: B018
