@@ -233,10 +233,22 @@ class Poller:
             self._thread.join(timeout=2)
 
 
+#: the open :class:`Status` displays, innermost last: where :func:`phase` reports
+ACTIVE: list["Status"] = []
+
+
+def phase(text: str) -> None:
+    """Say what a long library call is doing now (``"figure anees.png"``) on the innermost open
+    :class:`Status` (the command's, e.g. ``nespm report``); nothing when none is open (the Python API)."""
+    if ACTIVE:
+        ACTIVE[-1](text)
+
+
 class Status:
     """Say what a short command is doing: a transient rich status on a terminal, else one
     line per step on ``stream`` (stderr), prefixed with ``label`` (``plain=False``: nothing off a
-    terminal, for steps too quick to be worth a log line). ``enabled=False``: silent."""
+    terminal, for steps too quick to be worth a log line). ``enabled=False``: silent. While open
+    (``with``), the library's :func:`phase` calls report here."""
 
     def __init__(self, label: str, enabled: bool = True, stream: TextIO | None = None, plain: bool = True) -> None:
         self.label, self.enabled, self.plain = label, enabled, plain
@@ -261,9 +273,12 @@ class Status:
                   flush=True)
 
     def __enter__(self) -> "Status":
+        ACTIVE.append(self)
         return self
 
     def __exit__(self, *exc) -> None:
+        if self in ACTIVE:
+            ACTIVE.remove(self)
         if self._status is not None:
             self._status.stop()
             self._status = None
