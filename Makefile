@@ -12,10 +12,14 @@ DATA_OPT := $(if $(DATA),--data-dir $(DATA),)
 
 setup: $(VENV)/.installed
 
+# pip prints one line per package it collects and installs (no --quiet): the first install takes
+# minutes (numpy, scipy, pandas, pyarrow, matplotlib, numba, scikit-learn, dask, rosbags).
 $(VENV)/.installed: pyproject.toml
+	@echo "setup: creating $(VENV) and installing nespm with its dependencies (numpy, scipy, pandas, pyarrow, matplotlib, numba, scikit-learn, dask, rosbags, pytest): a few minutes the first time"
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
-	$(BIN)/pip install --quiet -e '.[test,dask]'
+	$(BIN)/pip install --progress-bar on -e '.[test,dask]'
+	@echo "setup: done; the filters' kernels compile on the first run (about a minute, once per machine)"
 	touch $@
 
 # The main job: EKF, UKF and UKF-NESPM on tracks 5 and 6, 100 MC runs, then the report.

@@ -359,7 +359,7 @@ def test_cli_defaults_are_the_library_defaults():
     from nespm_cli.filters import FilterConfig
 
     kw = {name: d for name, _, d, _, _ in cli_mod._COMMON}
-    spec = cli_mod._spec(tracks=(5, 6), runs=100, filters=("ekf", "ukf", "ukf-nespm"), chunk_size=50, **kw)
+    spec = cli_mod._spec(tracks=(5, 6), runs=100, filters=("ekf", "ukf", "ukf-nespm"), chunk_size=None, **kw)
     assert spec == Spec()
     # the filters are told the corruption by the library, for the API as for the CLI
     from nespm_cli.experiments.spec import validate

@@ -10,7 +10,7 @@ import typer
 
 from nespm_cli.cli.options import COMMON, KERNELS, PARALLEL, RUNNER, default, with_options
 from nespm_cli.cli.parsing import build_spec, execution, parse_filters, parse_tracks
-from nespm_cli.experiments.gp_ukf import GPSpec
+from nespm_cli.experiments.gp_ukf_spec import GPSpec
 
 
 @with_options(COMMON, [KERNELS])
@@ -41,7 +41,7 @@ def run(
             typer.echo(f"{k:>12}: {v}")
 
 
-def _run_many(tracks_: str, runs: int, filters_: str, jobs: int, chunk_size: int,
+def _run_many(tracks_: str, runs: int, filters_: str, jobs: int, chunk_size: Optional[int],
               no_progress: bool, backend: str, scheduler: Optional[str], **kw):
     """Shared body of mc and sweep: build the spec, run, print the summary line."""
     kw.pop("config")  # always None: --config is expanded before parsing (config.expand_config); declared for --help

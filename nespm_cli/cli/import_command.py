@@ -8,6 +8,8 @@ from typing import Optional
 
 import typer
 
+from nespm_cli.experiments.progress import Status
+
 
 def import_cmd(
     bag: Path = typer.Argument(..., metavar="BAG",
@@ -20,6 +22,7 @@ def import_cmd(
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing TrajectoryN folder of that number."),
     list_: bool = typer.Option(False, "--list", help="List the bag's topics (type, messages, rate, frame_id of the "
                                "first message) and write nothing."),
+    no_progress: bool = typer.Option(False, "--no-progress", help="Do not say what is being done (a status on a terminal; nothing off one)."),
 ) -> None:
     """Import a ROS bag (rosbags, no ROS install) as a track: GT from Odometry (or pose + twist), IMU,
     DVL, depth (FluidPressure or a depth field) and fixes (NavSatFix), converted to NED / body FRD, with
@@ -43,10 +46,12 @@ def import_cmd(
     for name, value in (("--spec", spec), ("--out", out)):
         if value is None:
             raise NespmError(f"{name} is required (or --list to see the bag's topics)")
-    from nespm_cli.data.plausibility import DataWarning
-    from nespm_cli.data.rosbag_import import NOTE_MD, import_bag
+    with Status("nespm import", enabled=not no_progress, plain=False) as status:
+        status(f"reading {bag.name} and converting its messages (spec {spec.name})")
+        from nespm_cli.data.plausibility import DataWarning
+        from nespm_cli.data.rosbag_import import NOTE_MD, import_bag
 
-    result = import_bag(bag, spec, out, track=track, overwrite=overwrite)
+        result = import_bag(bag, spec, out, track=track, overwrite=overwrite)
     for text in result.warnings:
         warnings.warn(text, DataWarning, stacklevel=1)
     gt, *rest = result.record["channels"]

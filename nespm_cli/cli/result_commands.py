@@ -6,7 +6,8 @@ from typing import List, Optional
 
 import typer
 
-from nespm_cli.reports.stats import PRACTICAL_PCT
+from nespm_cli.experiments.progress import Status
+from nespm_cli.reports.thresholds import PRACTICAL_PCT
 
 
 def non_empty_out(out: str) -> Path:
@@ -25,14 +26,18 @@ def report(
     practical: float = typer.Option(PRACTICAL_PCT, "--practical", help="Smallest improvement [%] the verdict calls practically meaningful (a difference must also be statistically significant)."),
     all_runs: str = typer.Option("median", "--all-runs", help="Where runs were lost: 'median' adds the comparison over every run, a lost run ranked the worst (medians, paired median improvements, losses; docs/report.md); 'none' leaves it out."),
     beside: Optional[List[Path]] = typer.Option(None, "--beside", help="Another mc folder whose numbers are set beside this one's (e.g. the synthetic-IMU run of a recorded-IMU one); repeatable."),
+    no_progress: bool = typer.Option(False, "--no-progress", help="Do not say what is being done (a status on a terminal; nothing off one)."),
 ) -> None:
     """Write DIR/report.md (verdict first, each caveat once, Tables I/II layout, paired 95 % intervals, published values; docs/report.md) and figures."""
-    from nespm_cli.reports.dispatch import write_report
     from nespm_cli.reports.results import check_n_boot
 
     check_n_boot(n_boot)
-    path = write_report(out_dir, baseline, n_boot=n_boot, practical_pct=practical, beside=tuple(beside or ()),
-                        all_runs=all_runs)
+    with Status("nespm report", enabled=not no_progress, plain=False) as status:  # phases: experiments.progress.phase
+        status("loading the report modules")
+        from nespm_cli.reports.dispatch import write_report
+
+        path = write_report(out_dir, baseline, n_boot=n_boot, practical_pct=practical, beside=tuple(beside or ()),
+                            all_runs=all_runs)
     typer.echo(path.read_text(encoding="utf-8"))
     typer.echo(f"wrote {path}")
 
@@ -43,14 +48,18 @@ def compare(
     labels: Optional[str] = typer.Option(None, "--labels", help="Comma list of case names, one per folder (default: the folder names)."),
     reference: Optional[str] = typer.Option(None, "--reference", help="The case the others are compared with (default: the first)."),
     n_boot: int = typer.Option(2000, "--n-boot", help="Paired bootstrap resamples for the 95 % intervals."),
+    no_progress: bool = typer.Option(False, "--no-progress", help="Do not say what is being done (a status on a terminal; nothing off one)."),
 ) -> None:
     """Compare cases (sensor suites, tunings) run on the same realizations: one table per case and filter, paired improvements over the reference case."""
-    from nespm_cli.reports.cases_report import write_compare_report
     from nespm_cli.reports.results import check_n_boot
 
     check_n_boot(n_boot)
     names = [x.strip() for x in labels.split(",")] if labels else None
-    path = write_compare_report(folders, non_empty_out(out), names, reference, n_boot=n_boot)
+    with Status("nespm compare", enabled=not no_progress, plain=False) as status:
+        status("loading the report modules")
+        from nespm_cli.reports.cases_report import write_compare_report
+
+        path = write_compare_report(folders, non_empty_out(out), names, reference, n_boot=n_boot)
     typer.echo(path.read_text(encoding="utf-8"))
     typer.echo(f"wrote {path}")
 

@@ -11,7 +11,6 @@ import io
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 
 from nespm_cli.data.atomic import write_atomic
 from nespm_cli.data.plausibility import printable
@@ -41,6 +40,8 @@ def link_problem(path: Path) -> str | None:
 def read_frame(path: Path) -> pd.DataFrame:
     """The CSV ``path`` as a DataFrame (every cell as parsed, header names stripped); refuses a missing,
     unreadable, binary, empty (no header line) or unparsable file. A header-only file gives 0 rows."""
+    import pandas as pd  # here, not at the top: `nespm --help` and the embedded tracks need no pandas
+
     if not path.is_file():
         raise NespmError(f"{path}: {link_problem(path) or 'file not found'}")
     try:
@@ -83,6 +84,8 @@ def require_columns(path: Path, df: pd.DataFrame, columns: tuple[str, ...]) -> N
 def to_array(path: Path, df: pd.DataFrame, columns: tuple[str, ...], nan_ok: tuple[str, ...] = ()) -> np.ndarray:
     """``columns`` of ``df`` as a float array (rows, len(columns)): refuses non-numeric text and any
     non-finite value, except NaN (an empty cell or ``nan``) in the columns ``nan_ok``."""
+    import pandas as pd
+
     out = np.empty((len(df), len(columns)))
     for j, col in enumerate(columns):
         s = df[col]
@@ -134,5 +137,7 @@ def check_nan_rows(path: Path, values: np.ndarray, columns: tuple[str, ...], wha
 def write_table(path: Path, data: np.ndarray, columns: tuple[str, ...]) -> None:
     """Write ``data`` under the header ``columns`` at full precision (``%.17g``, NaN as ``nan``),
     atomically (:func:`nespm_cli.data.atomic.write_atomic`)."""
+    import pandas as pd
+
     frame = pd.DataFrame(np.asarray(data, dtype=float).reshape(-1, len(columns)), columns=list(columns))
     write_atomic(path, lambda tmp: frame.to_csv(tmp, index=False, float_format="%.17g", na_rep="nan"))

@@ -75,6 +75,12 @@ class Execution:
     progress: bool = True
     argv: tuple | None = None
 
+    @property
+    def local(self) -> bool:
+        """Whether the chunks run in processes on this machine (loky, or the local Dask cluster),
+        which share this machine's compiled-kernel cache and memory."""
+        return not (self.backend == "dask" and (self.scheduler or os.environ.get(ENV_SCHEDULER, "").strip()))
+
     def check(self) -> "Execution":
         """One-line errors for a bad ``jobs``, backend or scheduler (before any folder is made)."""
         if not isinstance(self.jobs, int) or self.jobs < 1:

@@ -26,8 +26,6 @@ import os
 import struct
 from pathlib import Path
 
-import pandas as pd
-
 from nespm_cli.data.atomic import write_atomic
 from nespm_cli.errors import NespmError
 

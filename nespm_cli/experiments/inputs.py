@@ -20,9 +20,7 @@ from nespm_cli.data.track import Track
 from nespm_cli.data.tracks import load_track, track_files
 from nespm_cli.errors import NespmError
 from nespm_cli.experiments.store import file_hashes
-from nespm_cli.nav.synthesis import ImuTruth, from_recorded, synthesize
-
-DEFAULT_IMU_RATE = 100.0  # [Hz] the synthesized IMU's rate (the papers')
+from nespm_cli.nav.synthesis import DEFAULT_IMU_RATE, ImuTruth, from_recorded, synthesize
 
 #: ``{absolute path: sha256}`` of every file this process has read through :func:`prepared`
 READ_HASHES: dict[str, str] = {}

@@ -24,6 +24,7 @@ from nespm_cli.data.tracks import track_files
 from nespm_cli.errors import NespmError
 from nespm_cli.experiments.assembly import epoch_table
 from nespm_cli.experiments.backend import Execution
+from nespm_cli.experiments.chunking import chunk_detail, chunk_size_for
 from nespm_cli.experiments.chunks import chunk_problem, concat_parquet, write_chunk
 from nespm_cli.experiments.inputs import READ_HASHES, verify_read
 from nespm_cli.experiments.pcrb_table import add_pcrb
@@ -31,6 +32,7 @@ from nespm_cli.experiments.metrics import (alive_metrics, block_statistics, dive
                                           lost_epoch, run_metrics, sensor_nis)
 from nespm_cli.experiments.spec import (Spec, couple_filter, filter_config, filter_config_of, load_filters,
                                         needs_noise_std, track_inputs, validate)
+from nespm_cli.experiments.progress import compile_kernels
 from nespm_cli.experiments.suite import load_sensors, sensor_plugin_files, sensor_suite, suite_record
 from nespm_cli.experiments.store import (GROWABLE, ResultsFolder, Task, chunk_firsts, file_hashes, run_blocks,
                                         write_parquet_atomic)
@@ -316,6 +318,10 @@ def run_cells(cells: list[Cell], options: dict, out_dir: str | Path, execution: 
     change the results.
     """
     ex = execution.check()  # before --out is created
+    size = chunk_size_for(cells[0].spec.chunk_size, out_dir, cells[0].spec.runs,
+                          sum(len(c.spec.tracks) for c in cells), ex.jobs)  # given, the folder's, or by runs and jobs
+    cells = [dataclasses.replace(c, spec=dataclasses.replace(c.spec, chunk_size=size)) for c in cells]
+    options = {**options, "chunk_size": size}
     check_memory(chunk_tasks(cells), ex)  # before anything is written (a first block's chunks are the largest)
     folder = ResultsFolder(out_dir, options, list(ex.argv) if ex.argv is not None else None, extendable=GROWABLE)
     first = cells[0].spec
@@ -340,7 +346,9 @@ def run_cells(cells: list[Cell], options: dict, out_dir: str | Path, execution: 
     todo = [Task(chunk_key(c, n, f0), (_absolute(c), n, f0, str(out.resolve()), f1, fs),
                  len(fs) * (track_epochs(c.spec, n) - 1))
             for c, n, f0, f1 in tasks for fs in [missing(c, n, f0)] if fs]
-    folder.run(run_chunk_keyed, todo, ex, label)
+    if todo and ex.local:  # before the progress bar: its ETA starts with the chunks
+        compile_kernels(label, ex.progress)
+    folder.run(run_chunk_keyed, todo, ex, label, detail=chunk_detail([t.args[4] - t.args[2] for t in todo]))
     recover_timings(folder.manifest["chunk_seconds"], tasks, out / "chunks")
     metrics, epochs = assemble(folder, tasks, tuple(k for k, _ in cells[0].columns))
     epochs = add_true_track(epochs, first)

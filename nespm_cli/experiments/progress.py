@@ -89,14 +89,16 @@ class Progress:
     """A progress display of ``total`` units over ``chunks`` chunks.
 
     ``label`` names the job (``mc``, ``sweep``); ``enabled=False`` shows nothing. On a terminal
-    (``stream.isatty()``) a rich bar, else plain lines every ``interval`` seconds. Use as a
-    context manager; call :meth:`set_running` with the units done inside unfinished chunks and
-    :meth:`chunk_done` when one finishes.
+    (``stream.isatty()``) a rich bar, else plain lines every ``interval`` seconds. ``detail``
+    describes a chunk (``of 4 runs``), said once at the start. Use as a context manager; call
+    :meth:`set_running` with the units done inside unfinished chunks and :meth:`chunk_done` when
+    one finishes.
     """
 
     def __init__(self, label: str, total: int, chunks: int, unit: str = "filter-epochs", enabled: bool = True,
-                 stream: TextIO | None = None, interval: float = PLAIN_EVERY_S) -> None:
+                 stream: TextIO | None = None, interval: float = PLAIN_EVERY_S, detail: str = "") -> None:
         self.label, self.total, self.chunks, self.unit = label, max(int(total), 1), chunks, unit
+        self.detail = detail
         self.enabled = enabled
         self.stream = stream if stream is not None else sys.stderr
         self.interval = interval
@@ -131,9 +133,14 @@ class Progress:
     def line(self) -> str:
         el = time.monotonic() - self.t0
         pct = 100.0 * self.done / self.total
+        if self.done >= self.total:
+            when = "done"
+        elif self._first is None:  # nothing reported yet: the workers import nespm and load the kernels
+            when = "workers starting (imports, compiled kernels), ETA once a rate is measured"
+        else:
+            when = f"ETA {fmt_seconds(eta)}" if (eta := self.eta()) is not None else "ETA once a rate is measured"
         return (f"{self.label}: {pct:.0f} % ({self.done}/{self.total} {self.unit}, {self.finished_chunks}/{self.chunks} "
-                f"chunks) {fmt_seconds(el)} elapsed, " + (f"ETA {fmt_seconds(eta)}" if (eta := self.eta()) is not None
-                                                            else "ETA once a rate is measured"))
+                f"chunks) {fmt_seconds(el)} elapsed, {when}")
 
     # --- updates ---------------------------------------------------------------------
     def set_running(self, units: int) -> None:
@@ -178,9 +185,11 @@ class Progress:
                                console=Console(file=self.stream), transient=False)
             bar.start()
             self._bar = (bar, bar.add_task(f"0/{self.chunks} chunks", total=self.total))
+            if self.detail:
+                bar.console.print(f"{self.label}: {self.chunks} chunk{'s' if self.chunks != 1 else ''} {self.detail}")
         elif self.enabled:
-            print(f"{self.label}: {self.chunks} chunk{'s' if self.chunks != 1 else ''}, {self.total} {self.unit} to compute", file=self.stream,
-                  flush=True)
+            what = f"{self.chunks} chunk{'s' if self.chunks != 1 else ''}" + (f" {self.detail}" if self.detail else "")
+            print(f"{self.label}: {what}, {self.total} {self.unit} to compute", file=self.stream, flush=True)
         return self
 
     def __exit__(self, *exc) -> None:
@@ -224,10 +233,22 @@ class Poller:
             self._thread.join(timeout=2)
 
 
+#: the open :class:`Status` displays, innermost last: where :func:`phase` reports
+ACTIVE: list["Status"] = []
+
+
+def phase(text: str) -> None:
+    """Say what a long library call is doing now (``"figure anees.png"``) on the innermost open
+    :class:`Status` (the command's, e.g. ``nespm report``); nothing when none is open (the Python API)."""
+    if ACTIVE:
+        ACTIVE[-1](text)
+
+
 class Status:
     """Say what a short command is doing: a transient rich status on a terminal, else one
     line per step on ``stream`` (stderr), prefixed with ``label`` (``plain=False``: nothing off a
-    terminal, for steps too quick to be worth a log line). ``enabled=False``: silent."""
+    terminal, for steps too quick to be worth a log line). ``enabled=False``: silent. While open
+    (``with``), the library's :func:`phase` calls report here."""
 
     def __init__(self, label: str, enabled: bool = True, stream: TextIO | None = None, plain: bool = True) -> None:
         self.label, self.enabled, self.plain = label, enabled, plain
@@ -252,9 +273,35 @@ class Status:
                   flush=True)
 
     def __enter__(self) -> "Status":
+        ACTIVE.append(self)
         return self
 
     def __exit__(self, *exc) -> None:
+        if self in ACTIVE:
+            ACTIVE.remove(self)
         if self._status is not None:
             self._status.stop()
             self._status = None
+
+
+COMPILING = "compiling the filters' kernels (once per machine; later runs load them from the disk cache)"
+
+
+def compile_kernels(label: str, enabled: bool = True, stream: TextIO | None = None) -> float | None:
+    """The numba kernels' compilation as its own phase, before the chunks start (and so before any
+    ETA): where the compiled kernels are in use and numba's disk cache does not hold them yet
+    (:func:`nespm_cli.filters.kernels.kernels_cached`), say so (``<label>: compiling ...``, a status
+    on a terminal, a line off one) and compile them here (:func:`~nespm_cli.filters.kernels.warm_up`);
+    the workers then load them from the cache instead of each compiling its own. Returns the seconds
+    it took, or None when there was nothing to compile (nothing is said then). ``enabled=False``
+    compiles without a word."""
+    from nespm_cli.filters.kernels import kernels_cached, warm_up
+
+    if kernels_cached() is not False:
+        return None
+    with Status(label, enabled=enabled, stream=stream) as status:
+        status(COMPILING)
+        seconds = warm_up()
+    if enabled:
+        print(f"{label}: kernels compiled in {fmt_seconds(seconds)}", file=status.stream, flush=True)
+    return seconds

@@ -42,6 +42,12 @@ def run_single(spec: Spec, track: int, filt: str, run: int, clean: bool = False,
     imu = "synthesizing the 100 Hz IMU from the GT" if spec.imu == "synthetic" else "reading the recorded IMU"
     say(f"track {track}: {imu}")
     _, truth0 = track_inputs(spec, track)
+    from nespm_cli.experiments.progress import COMPILING
+    from nespm_cli.filters.kernels import kernels_cached, warm_up
+
+    if kernels_cached() is False:  # the first run on a machine: its own phase, not the filter's epochs
+        say(COMPILING)
+        warm_up()
     n = len(truth0.epoch_index) - 1
     tenth = max(n // 10, 1)
 

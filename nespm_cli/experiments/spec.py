@@ -19,19 +19,18 @@ import numpy as np
 from nespm_cli.data.corrections import IDENTITY_AXES, Corrections, resolve
 from nespm_cli.data.corruption import CorruptionConfig, check_seed
 from nespm_cli.data.track import Track
-from nespm_cli.data.tracks import available_tracks, load_track, resolve_data_dir
 from nespm_cli.errors import NespmError
-from nespm_cli.experiments.inputs import DEFAULT_IMU_RATE, prepared
 from nespm_cli.experiments.metrics import DivergenceRule
 from nespm_cli.filters import FilterConfig
 from nespm_cli.filters.adaptive import BIAS_MODES
-from nespm_cli.filters.registry import FILTER_REGISTRY, filter_names, get_filter
 from nespm_cli.filters.options import check_filter_options, configure
 from nespm_cli.filters.smoother import smoothed_name
-from nespm_cli.learn.noise_model import WINDOW, load_weights
-from nespm_cli.experiments.suite import check_suite, dvl_of, load_sensors
 from nespm_cli.nav.state import parse_layout
-from nespm_cli.nav.synthesis import ImuTruth
+from nespm_cli.nav.synthesis import DEFAULT_IMU_RATE, ImuTruth
+
+# The track readers, the filter and sensor registries and ProcessNet are imported in the functions
+# that use them: the ``nespm`` command imports this module for its option defaults (``nespm
+# --help`` stays fast), and they import every filter, sensor and data reader.
 
 SCENARIOS = ("nominal", "outage")
 
@@ -50,7 +49,7 @@ class Spec:
     filters: tuple = ("ekf", "ukf", "ukf-nespm")
     scenario: str = "nominal"
     seed: int = 0
-    chunk_size: int = 50
+    chunk_size: int | None = None  # runs per chunk; None: by runs and jobs, or the folder's (experiments/chunking.py)
     data_dir: str | None = None
     imu: str = "synthetic"
     dvl: str = "recorded"
@@ -114,8 +113,13 @@ class Spec:
 
 def validate(spec: Spec) -> Spec:
     """Check every option against the data; return the spec with ``data_dir`` resolved."""
+    from nespm_cli.data.tracks import available_tracks, load_track, resolve_data_dir
+    from nespm_cli.experiments.suite import check_suite, load_sensors
+    from nespm_cli.filters.registry import filter_names, get_filter
+    from nespm_cli.learn.noise_model import WINDOW, load_weights
+
     check_domains(spec)
-    if spec.chunk_size < 1:
+    if spec.chunk_size is not None and spec.chunk_size < 1:
         raise NespmError(f"--chunk-size must be at least 1, got {spec.chunk_size}")
     spec = load_sensors(load_filters(spec))
     for f in spec.filters:
@@ -315,11 +319,15 @@ def load_filters(spec: Spec) -> Spec:
     """Import the spec's filter plugins and the installed ``nespm.filters`` entry points (in the
     parent and again in every worker; idempotent); return the spec with plugin files as
     absolute paths (module names stay as given)."""
+    from nespm_cli.filters.registry import FILTER_REGISTRY
+
     return dataclasses.replace(spec, filter_plugins=FILTER_REGISTRY.load_plugins(spec.filter_plugins))
 
 
 def needs_noise_std(name: str) -> bool:
     """Whether filter ``name`` takes the ProcessNet noise std (the adaptive filters)."""
+    from nespm_cli.filters.registry import get_filter
+
     return bool(get_filter(name).needs_noise_std)
 
 
@@ -340,6 +348,8 @@ def corrections_for(spec: Spec, number: int) -> Corrections:
 def track_inputs(spec: Spec, number: int) -> tuple[Track, ImuTruth]:
     """Track ``number`` as ``spec`` runs it (its corrections applied) and its IMU-rate truth and
     IMU (:func:`nespm_cli.experiments.inputs.prepared`: read once per process)."""
+    from nespm_cli.experiments.inputs import prepared
+
     return prepared(number, spec.data_dir, spec.imu, corrections_for(spec, number), spec.imu_rate)
 
 
@@ -348,6 +358,8 @@ def filter_config(spec: Spec) -> FilterConfig:
     (:func:`couple_filter`, unless ``tell_filter`` is False), the filters' own white noise
     (``filter_acc_noise``, ``filter_gyro_noise``) over it, and the DVL's filter std and lever arm as
     the DVL sensor resolves them (:func:`nespm_cli.experiments.suite.dvl_of`; recorded in the manifest)."""
+    from nespm_cli.experiments.suite import dvl_of
+
     fc = couple_filter(spec.filter_config, spec.corruption) if spec.tell_filter else spec.filter_config
     own = {k: float(v) for k, v in (("acc_noise", spec.filter_acc_noise), ("gyro_noise", spec.filter_gyro_noise))
            if v is not None}
@@ -360,6 +372,8 @@ def filter_config(spec: Spec) -> FilterConfig:
 def filter_config_of(spec: Spec, name: str, cfg: FilterConfig | None = None) -> FilterConfig:
     """The FilterConfig filter ``name`` runs with: the study's (``cfg``, default
     :func:`filter_config`) with its ``--filter-option`` values (:func:`nespm_cli.filters.options.configure`)."""
+    from nespm_cli.filters.registry import get_filter
+
     return configure(cfg if cfg is not None else filter_config(spec), name, get_filter(name), spec.filter_options)
 
 

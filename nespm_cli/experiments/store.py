@@ -26,7 +26,6 @@ from pathlib import Path
 from typing import Callable, Iterable
 
 import numpy as np
-import pandas as pd
 
 from nespm_cli import __version__
 from nespm_cli.data.atomic import write_atomic, write_text_atomic
@@ -57,6 +56,7 @@ def write_json_atomic(obj, path: Path) -> None:
 def versions() -> dict:
     """Versions of Python, nespm and the numeric stack, for the manifest."""
     import joblib
+    import pandas as pd
     import pyarrow
     import scipy
 
@@ -436,10 +436,11 @@ class ResultsFolder:
         self.manifest["assembled"]["chunks"] += [p.name for p in out]
         return out
 
-    def run(self, fn: Callable, tasks: list[Task], execution, label: str, unit: str = "filter-epochs") -> None:
+    def run(self, fn: Callable, tasks: list[Task], execution, label: str, unit: str = "filter-epochs",
+            detail: str = "") -> None:
         """Compute ``tasks`` (``fn(*task.args) -> (key, timings)``) where ``execution`` (an
         :class:`nespm_cli.experiments.backend.Execution`) says, with a progress display fed by the
-        workers' reports (:mod:`nespm_cli.experiments.progress`).
+        workers' reports (:mod:`nespm_cli.experiments.progress`; ``detail`` describes a chunk there).
 
         A worker process that dies (killed by the system, e.g. out of memory) ends the command
         with one line naming the chunks it was computing; finished chunks are kept."""
@@ -452,7 +453,8 @@ class ResultsFolder:
         ex = execution
         results = parallel_map(fn, [t.args for t in tasks], ex.jobs, ex.backend, ex.scheduler)
         try:
-            with Progress(label, sum(units.values()), len(tasks), unit=unit, enabled=ex.progress) as bar, \
+            with Progress(label, sum(units.values()), len(tasks), unit=unit, enabled=ex.progress,
+                          detail=detail) as bar, \
                     Poller(bar, self.chunks) as poller:
                 for key, timings in results:
                     finished.add(key)

@@ -171,3 +171,26 @@ def warm_up() -> float:
     for layout in (LAYOUT_12, LAYOUT_15):
         points_through_cycle(pos, v, C, b, b, np.zeros((R, 2 * layout.n, layout.n)), f, w, dt, 0, M, layout)
     return time.perf_counter() - t0
+
+
+def kernels_cached() -> bool | None:
+    """Whether numba's on-disk cache holds machine code of every kernel :func:`warm_up` compiles, for
+    this source (its index exists and its source stamp matches): True, False, or None where the
+    compiled kernels are not in use or cannot be cached here (then every process compiles its own).
+
+    Imports numba and the kernel modules (about 0.4 s), compiles nothing; reads numba's cache index
+    (``Dispatcher._cache``, numba internals: any surprise there counts as not cached).
+    """
+    if not compiled_enabled():
+        return None
+    from nespm_cli.filters import transition_kernel as tk
+    from nespm_cli.nav import kernels as nk
+
+    if nk.NO_CACHE:
+        return None
+    entries = (nk.strapdown_span, tk.transition_span, tk.transition_span_invariant_position, tk.points_span,
+               tk.points_span_position)
+    try:
+        return all(bool(d._cache._cache_file._load_index()) for d in entries)
+    except Exception:  # noqa: BLE001 - another numba's internals: compile up front, as on a new machine
+        return False

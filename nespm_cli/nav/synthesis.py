@@ -13,13 +13,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.interpolate import CubicSpline
-from scipy.spatial.transform import Rotation, RotationSpline
 
 from nespm_cli.nav.earth import height_rate, lat_rate, lon_rate, radii
 from nespm_cli.errors import NespmError
 from nespm_cli.nav.rotations import euler_to_dcm
 from nespm_cli.nav.strapdown import na_cycle_inverse
+
+DEFAULT_IMU_RATE = 100.0  # [Hz] the synthesized IMU's rate (the papers')
 
 
 @dataclass(frozen=True)
@@ -82,6 +82,9 @@ def truth_on_grid(track, t: np.ndarray, epoch_index: np.ndarray) -> tuple[np.nda
     (``t[epoch_index] == track.t``). Position: eqs 28-30 integrated from that velocity
     (:func:`integrate_position`) from the first GT position.
     """
+    from scipy.interpolate import CubicSpline  # here: importing scipy costs ~0.4 s (CLI start-up)
+    from scipy.spatial.transform import Rotation, RotationSpline
+
     t_gt = np.asarray(track.t, dtype=float)
     v_n = CubicSpline(t_gt, track.v_n, axis=0, bc_type="not-a-knot")(t)
     v_n[epoch_index] = track.v_n

@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from nespm_cli.experiments.progress import phase
 from nespm_cli.reports.cases import CASE_METRICS, Case, case_improvements, case_table, load_cases
 from nespm_cli.reports.figures import filter_colors, save_figure, use_agg
 from nespm_cli.reports.markdown import fmt, fmt_imprv, md_table
@@ -77,8 +78,10 @@ def plot_cases(table: pd.DataFrame, imp: pd.DataFrame, path: Path) -> Path:
 def write_compare_report(folders, out: str | Path, labels=None, reference: str | None = None, n_boot: int = 2000,
                          seed: int = 0) -> Path:
     """Write ``out/compare.md`` and ``out/figures/compare.png`` comparing the cases ``folders``."""
+    phase("reading the cases")
     cases: list[Case] = load_cases(folders, labels)
     table = case_table(cases)
+    phase(f"paired improvements over the reference case ({n_boot} bootstrap resamples)")
     imp = case_improvements(cases, reference, n_boot=n_boot, seed=seed)
     from nespm_cli.reports.results import check_figures_dir
 

@@ -47,6 +47,9 @@ def save_figure(fig, path: Path, dpi: int = FIG_DPI) -> Path:
     ``path``. Every report figure ends here."""
     import matplotlib.pyplot as plt
 
+    from nespm_cli.experiments.progress import phase
+
+    phase(f"figures: writing {Path(path).name}")
     fig.tight_layout()
     fig.savefig(path, dpi=dpi, bbox_inches="tight")
     plt.close(fig)

@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Sequence
 
 from nespm_cli.data.atomic import write_text_atomic
+from nespm_cli.experiments.progress import phase
 from nespm_cli.reports.comparisons import compare_filters
 from nespm_cli.reports.mc_figures import figure_notes, plot_track_figures
 from nespm_cli.reports.pcrb import pcrb_md
@@ -62,6 +63,7 @@ def write_mc_report(out_dir: Path, reference: str | None = None, n_boot: int = 2
     """
     check_practical_pct(practical_pct)
     out_dir = Path(out_dir)
+    phase("reading the results")
     metrics, epochs, manifest = load_results(out_dir)
     others = []
     for b in beside:
@@ -70,11 +72,13 @@ def write_mc_report(out_dir: Path, reference: str | None = None, n_boot: int = 2
     beside_text = (beside_md(metrics, folder_label(out_dir, manifest), others, scenario_of(metrics, manifest))
                    if others else "")
     seed = 0
+    phase(f"tables and paired bootstrap intervals ({n_boot} resamples)")
     table = filter_table(metrics, reference, n_boot=n_boot, seed=seed)
     tt = track_table(metrics)
     figures: list[Path] = []
     if epochs is not None and not epochs.empty:
         figures = plot_track_figures(epochs, metrics, out_dir / "figures", scenario_of(metrics, manifest), manifest)
+    phase("verdict and report.md")
     text = render_report(metrics, manifest, table, tt, figures, out_dir, n_boot, seed,
                          practical_pct=practical_pct, beside=beside_text, all_runs=all_runs,
                          notes=figure_notes(epochs, metrics, manifest), pcrb=pcrb_md(epochs, manifest))

@@ -16,10 +16,7 @@ import pandas as pd
 from nespm_cli.errors import NespmError
 from nespm_cli.experiments import metrics as eqs
 from nespm_cli.reports.markdown import DASH, SIG_MARK, SMALL_MARK
-
-#: Default practical threshold [%]: an improvement smaller than this in magnitude is "no practical
-#: difference" even when its interval excludes 0 (``write_report(..., practical_pct=...)``).
-PRACTICAL_PCT = 1.0
+from nespm_cli.reports.thresholds import PRACTICAL_PCT  # the default practical threshold [%] (re-exported)
 #: Fewest paired runs per track for which a percentile-bootstrap interval is trusted; below it the
 #: interval is marked ``†`` and no significance is claimed.
 MIN_PAIRED_RUNS = 10
