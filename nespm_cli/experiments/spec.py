@@ -293,6 +293,8 @@ def check_effective(spec: Spec) -> None:
     ``--dvl-r-std``) without the ``dvl`` sensor, ``--outage-start``/``--outage-length`` without
     ``--scenario outage``. An option counts as given when it is in ``spec.given`` (the command line or a
     config named it) or differs from its default (the API); one left at its default is never an error."""
+    from nespm_cli.filters.registry import filter_names, get_filter
+
     base = Spec()
     sigma = [f for f in spec.filters if "alpha" in (getattr(get_filter(f), "tunable", ()) or ())]
     adaptive = [f for f in spec.filters if needs_noise_std(f)]
