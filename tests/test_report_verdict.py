@@ -43,7 +43,9 @@ def metrics_of(levels: dict[str, float], runs: int = 20, noise: float = 0.002, s
                              "diverged_reason": "", "sse_hpe": n * h**2, "hpe_rms": h, "hpe_final": 1.5 * h,
                              "north_final": 0.9 * h, "east_final": 1.2 * h, "hpe_max": 2 * h,
                              "distance": 1000.0 + tr, "hpe_final_pct": 0.15 * h})
-    return pd.DataFrame(rows)
+    m = pd.DataFrame(rows)  # posterior sums (the verdict's) equal to the papers' here
+    return m.assign(sse_vel_post=m["sse_vel"], sse_att_post=m["sse_att"], sse_hpe_post=m["sse_hpe"],
+                    n_post=m["n_samples"])
 
 
 def lose(m: pd.DataFrame, filt: str, runs, reason: str = "attitude") -> pd.DataFrame:
@@ -144,7 +146,7 @@ def with_floor(m: pd.DataFrame, filt: str = "ekf", factor: float = 0.5) -> pd.Da
     f["filter"] = f"{filt}-rts"
     for c in ("vrmse", "mrmse", "hpe_rms", "hpe_final", "north_final", "east_final"):
         f[c] = factor * f[c]
-    for c in ("sse_vel", "sse_att", "sse_hpe"):
+    for c in ("sse_vel", "sse_att", "sse_hpe", "sse_vel_post", "sse_att_post", "sse_hpe_post"):
         f[c] = factor**2 * f[c]
     f["nees"] = 6.0  # the most consistent too: still never the best
     return pd.concat([m, f], ignore_index=True)

@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Sequence
 
 from nespm_cli.data.atomic import write_text_atomic
+from nespm_cli.reports.block_consistency import block_consistency
 from nespm_cli.reports.comparisons import compare_filters
 from nespm_cli.reports.mc_figures import figure_notes, plot_track_figures
 from nespm_cli.reports.mc_markdown import beside_md, folder_label, render_report
@@ -76,7 +77,9 @@ def write_mc_report(out_dir: Path, reference: str | None = None, n_boot: int = 2
         figures = plot_track_figures(epochs, metrics, out_dir / "figures", scenario_of(metrics, manifest), manifest)
     text = render_report(metrics, manifest, table, tt, figures, out_dir, n_boot, seed,
                          practical_pct=practical_pct, beside=beside_text, all_runs=all_runs,
-                         notes=figure_notes(epochs, metrics, manifest))
+                         notes=figure_notes(epochs, metrics, manifest),
+                         consistency=block_consistency(epochs, manifest),
+                         consistency_by_track=block_consistency(epochs, manifest, by_track=True))
     path = out_dir / "report.md"
     write_text_atomic(path, text)
     return path

@@ -121,7 +121,8 @@ def render_sweep_report(
         header,
         header_line(metrics, manifest),
         docs_line(out_dir),
-        "## Verdict\n\n" + verdict_intro(base, n_boot, seed, practical_pct, vt.attrs["any_lost"], "baseline")
+        "## Verdict\n\n" + verdict_intro(base, n_boot, seed, practical_pct, vt.attrs["any_lost"], "baseline",
+                                                  posterior=vt.attrs.get("posterior"))
         + " Per swept value.\n\n" + verdict_md(vt, comps, tracks, value_col=label, role="baseline"),
         *([all_runs_section(metrics, base, n_boot, seed, value_label=label)]
           if all_runs == "median" and vt.attrs["any_lost"] else []),
