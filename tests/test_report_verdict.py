@@ -97,7 +97,7 @@ def test_verdict_markdown_shows_those_numbers(tmp_path: Path) -> None:
     vt = verdict_table(m, n_boot=300).set_index("metric")
     r = vt.loc["vrmse"]
     row = cells(text, "velocity RMSE")
-    assert row[1] == f"`ukf` {r['best_value']:.4g}" and row[2] == "`ukf-nespm` (reference)"
+    assert row[1] == f"`ukf` {r['best_value']:.4g}" and row[2] == f"`ukf-nespm` {r['other_value']:.4g} (reference)"
     assert row[3] == fmt_imprv(r["imprv"], r["ci_lo"], r["ci_hi"], "*" if r["significant"] else "")
     assert row[4] == ("yes" if r["significant"] else "no") and row[5] == ("yes" if r["practical"] else "no")
     assert "Common survivors" not in text  # no loss: the same numbers are not repeated
@@ -135,7 +135,7 @@ def test_common_survivor_columns_with_lost_runs(tmp_path: Path) -> None:
     m.to_parquet(tmp_path / "metrics.parquet")
     text = write_report(tmp_path, n_boot=300).read_text()
     row = cells(text, "velocity RMSE")
-    assert len(row) == 12 and row[9] in ("yes", "no") and row[11] == "24 (≥ 12 per track)"
+    assert len(row) == 13 and row[10] in ("yes", "no") and row[12] == "24 (≥ 12 per track)"
     assert "Common survivors: improvement [95 % CI]" in text
     assert "Lost (diverged) runs per filter: ekf 10, ukf 0, ukf-nespm 6 (" in text
 

@@ -114,8 +114,9 @@ def _error_row(key: str, c: pd.DataFrame, causal: pd.DataFrame, survivors: pd.Da
 
 def anees_row(causal: pd.DataFrame, survivors: pd.DataFrame, ref: str) -> dict[str, Any]:
     """The consistency row: the causal filter whose mean NEES over its own kept runs is closest to
-    :data:`stats.NEES_DOF` on a log scale (``|ln(NEES / 6)|``), the reference beside it (the runner-up
-    when the best is the reference); ``pairs`` / ``s_pairs``: the runs averaged; no interval."""
+    :data:`stats.NEES_DOF` on a log scale (``|ln(NEES / 6)|``), the runner-up (the next closest) beside it;
+    ``pairs`` / ``s_pairs``: the runs averaged; no interval. Used for a folder without the per-block NEES
+    (:func:`consistency_row` otherwise)."""
     row: dict[str, Any] = dict.fromkeys(VERDICT_COLUMNS, math.nan)
     row.update(metric="anees", best=None, other=None, other_is_reference=False, excludes_0=False,
                significant=False, practical=False, pairs_min=0, pairs=0, s_excludes_0=False,
@@ -130,7 +131,7 @@ def anees_row(causal: pd.DataFrame, survivors: pd.DataFrame, ref: str) -> dict[s
     order = [f for f in filters_in_order(causal) if f in dist.index]
     ranked = sorted(order, key=lambda f: (dist[f], order.index(f)))
     best = ranked[0]
-    other = ref if ref != best and ref in all_runs.index else (ranked[1] if len(ranked) > 1 else None)
+    other = ranked[1] if len(ranked) > 1 else None  # the runner-up, as in every row
 
     def value(table: pd.DataFrame, f: str | None, col: str = "mean") -> float:
         return float(table.loc[f, col]) if f is not None and f in table.index else math.nan
