@@ -9,7 +9,7 @@ import pandas as pd
 
 from nespm_cli.reports.cases import CASE_METRICS, Case, case_improvements, case_table, load_cases
 from nespm_cli.reports.figures import filter_colors, save_figure, use_agg
-from nespm_cli.reports.markdown import SIG_MARK, SMALL_MARK, fmt, fmt_imprv, md_table
+from nespm_cli.reports.markdown import SIG_MARK, SMALL_MARK, fmt, fmt_imprv, layout_text, md_table, sensors_text
 from nespm_cli.reports.stats import MIN_PAIRED_RUNS, has_posterior
 
 #: the case table's columns: (column, header)
@@ -96,14 +96,15 @@ def write_compare_report(folders, out: str | Path, labels=None, reference: str |
     lines = [
         "# nespm comparison of cases on the same realizations",
         "",
-        "**Cases:** " + "; ".join(f"`{c.label}` = {c.folder} ({', '.join(c.manifest['options'].get('sensors', []))})"
-                                  for c in cases) + ".",
+        "**Cases:** " + "; ".join(f"`{c.label}` = {c.folder} (error state {layout_text(c.manifest)}; sensors "
+                                  f"{sensors_text(c.manifest)})" for c in cases) + ".",
         "",
         "The folders share the seed, tracks, runs, corruption and data (checked), so run r of track N has the "
         "same IMU and initial errors in every case and the comparisons are paired by (track, run). Each case's "
         "numbers are over the runs no filter of that case lost; `lost` counts the filter's own losses. "
         "DT = distance travelled; drift = final horizontal error per hour of track; CEP50 and R95 of the final "
-        "horizontal error; NIS: mean per run (its chi-square expectation is the sensor's dimension). "
+        "horizontal error; NIS: mean per run (its chi-square expectation is the sensor's dimension); the RMS "
+        "values over every epoch including t = 0, the papers' definition. "
         "Definitions: docs/report.md.",
         "",
         "## Cases",

@@ -48,13 +48,17 @@ from nespm_cli.reports.verdict_markdown import pairwise_md, verdict_intro, verdi
 __all__ = ["beside_md", "folder_label", "render_report"]
 
 #: the caption of the papers' tables: the t = 0 rule (docs/report.md)
-TABLE_CAPTION = ("VRMSE and MRMSE as in the papers' tables: eq 50 over every GT epoch including t = 0 (the initial "
+TABLE_CAPTION = ("VRMSE and MRMSE as in the papers' tables: eq 50 of `anukf.md` (Levy and Klein, arXiv:2503.05490; "
+                 "docs/references.md) over every GT epoch including t = 0 (the initial "
                  "error, the same for every filter), so they compare with the published numbers; the improvement "
-                 "columns are the papers' \"Imprv.\" of the reference over the row. The verdict and the pairwise "
-                 "comparisons use the errors after t = 0, which are not diluted by the initial error (docs/report.md, "
-                 "\"The t = 0 rule\"). RTS-smoother floors stand in their own rows, without an improvement.")
+                 "columns are the papers' \"Imprv.\" of the reference over the row. {verdict} RTS-smoother floors stand "
+                 "in their own rows, without an improvement.")
+#: what the caption says of the verdict's errors, with the posterior sums and for a folder without them
+VERDICT_EPOCHS = {True: ("The verdict and the pairwise comparisons use the errors after t = 0, which are not diluted "
+                         "by the initial error (docs/report.md, \"The t = 0 rule\")."),
+                  False: "The verdict's line above says which errors it uses."}  # the fallback is said once, there
 PAIRWISE_CAPTION = ("The best filter of each metric against every other filter: its improvement [95 % CI] over the "
-                    "runs both kept, errors after t = 0 as in the verdict.")
+                    "runs both kept, the errors as in the verdict.")
 CONSISTENCY_CAPTION = (" Consistency: judged per block and sensor from the share of epochs inside the 95 % bounds "
                        "(section \"Consistency per block and sensor\"), not from the mean NEES.")
 
@@ -158,7 +162,8 @@ def _published_note(filters: Sequence[str], scenario: str | None, shown: Sequenc
                       for e in missing)
     lead = ("No published table has rows for at least two of the filters run "
             if not shown else "Not shown (fewer than two of their filters run, or another scenario) ")
-    return f"{lead}({', '.join(filters)}; scenario `{scenario}`): {needs}."
+    return (f"{lead}({', '.join(filters)}; scenario `{scenario}`): {needs}. The papers' bibliographic references: "
+            "docs/references.md.")
 
 
 def _published_md(metrics: pd.DataFrame, table: pd.DataFrame, scenario: str | None, n_boot: int,
@@ -179,7 +184,10 @@ def _published_md(metrics: pd.DataFrame, table: pd.DataFrame, scenario: str | No
         "or with a synthesized IMU, are not expected to match them closely. Methods we did not "
         f"run show \"{DASH}\". Imprv. is the improvement of the table's proposed method over the "
         "row, 100 (row - proposed) / row, with our paired bootstrap 95 % interval "
-        f"({SIG_MARK} = excludes 0, {SMALL_MARK} = too few paired runs to judge)."
+        f"({SIG_MARK} = excludes 0, {SMALL_MARK} = too few paired runs to judge). The papers: `anukf.md` = Levy and "
+        "Klein, \"Adaptive Neural Unscented Kalman Filter\", arXiv:2503.05490 (2025); `ukf-nespm.md` = Levy and Klein, "
+        "\"Unscented Kalman Filter with a Nonlinear Propagation Model for Navigation Applications\", arXiv:2507.10082 "
+        "(2025); docs/references.md."
     )
     parts = [intro]
     ours = {r.filter: r for r in table.itertuples(index=False)}
@@ -290,6 +298,7 @@ def render_report(
     vt = verdict_table(metrics, ref, n_boot=n_boot, seed=seed, practical_pct=practical_pct,
                        min_pairs=min_pairs, comps=comps, consistency=consistency)
     has_blocks = consistency is not None and not consistency.empty
+    posterior = bool(vt.attrs["posterior"])
     words = consistency_words(consistency, shares=False) if has_blocks else {}
     track_words = consistency_words(consistency_by_track, shares=False) if consistency_by_track is not None else {}
     tracks = int(metrics["track"].nunique())
@@ -303,7 +312,7 @@ def render_report(
             + verdict_md(vt, comps, tracks),
             *([all_runs_section(metrics, ref, n_boot, seed)] if all_runs == "median" and vt.attrs["any_lost"] else []),
             "## Caveats\n\n" + caveats_md(caveats(metrics, comps, min_pairs, notes)),
-            "## Track-averaged results (eq 51)\n\n" + TABLE_CAPTION + (CONSISTENCY_CAPTION if has_blocks else "")
+            "## Track-averaged results (eq 51)\n\n" + TABLE_CAPTION.format(verdict=VERDICT_EPOCHS[posterior]) + (CONSISTENCY_CAPTION if has_blocks else "")
             + "\n\n" + _main_table(table, words),
             *(["## Consistency per block and sensor\n\n" + consistency_md(consistency, smoother_label)]
               if has_blocks else []),
