@@ -148,3 +148,19 @@ def test_the_intro_says_which_epochs_once():
     assert "include the t = 0 error" in old and "diluted" in old
     m = metrics_of({"ekf": 0.15, "ukf": 0.10}).drop(columns=["sse_vel_post", "sse_att_post", "sse_hpe_post", "n_post"])
     assert not verdict_table(m, n_boot=50).attrs["posterior"]
+
+
+def test_the_share_is_an_option():
+    from nespm_cli.errors import NespmError
+
+    N = 101
+    lo, hi = nees_band(3, 8)
+    att = np.full(N, 4 * hi)
+    att[1:61] = 3.0  # 60 % inside
+    ep = _epochs({"ekf": {"nees_att_mean": att}})
+    assert block_consistency(ep)["word"].tolist() == ["overconfident"]
+    t = block_consistency(ep, share=0.5)
+    assert t["word"].tolist() == ["consistent"] and t.attrs["share"] == 0.5
+    for bad in (0.0, 1.5, float("nan")):
+        with pytest.raises(NespmError, match="--consistent-share"):
+            block_consistency(ep, share=bad)

@@ -56,25 +56,39 @@ def epoch_shares(x: np.ndarray, n: np.ndarray, dof: int) -> tuple[float, float, 
     return 1.0 - above - below, above, below, int(len(x))
 
 
-def _word(inside: float, above: float, below: float) -> str:
+def _word(inside: float, above: float, below: float, share: float = CONSISTENT_SHARE) -> str:
     if not np.isfinite(inside):
         return "—"
-    if inside >= CONSISTENT_SHARE:
+    if inside >= share:
         return "consistent"
     return "overconfident" if above > below else "conservative"
 
 
+def check_share(share: float) -> float:
+    """``share`` as a float in (0, 1], or one line naming ``--consistent-share``."""
+    from nespm_cli.errors import NespmError
+
+    share = float(share)
+    if not (0.0 < share <= 1.0):
+        raise NespmError(f"--consistent-share must be a fraction in (0, 1] of the epochs, got {share:g}")
+    return share
+
+
 def block_consistency(epochs: pd.DataFrame | None, manifest: dict | None = None,
-                      by_track: bool = False) -> pd.DataFrame:
+                      by_track: bool = False, share: float = CONSISTENT_SHARE) -> pd.DataFrame:
     """One row per (filter, item) (and ``track`` with ``by_track``; else the epochs of every track pooled):
     ``item`` a block of :data:`BLOCK_NAMES` (``kind`` ``ANEES``, 3 dof) or a sensor (``kind`` ``ANIS``, its
     measurement size from the manifest, :func:`results.sensor_dims`; a sensor of unknown size is left out),
     ``name``, ``dof``, ``mean`` (the mean over the epochs of the ANEES / ANIS), ``inside``, ``above``,
     ``below`` (:func:`epoch_shares`), ``epochs`` and ``word`` (consistent, overconfident, conservative).
-    The epochs after t = 0 (epoch > 0) count; an empty frame without ``epochs`` or any ANEES column."""
+    The epochs after t = 0 (epoch > 0) count; an empty frame without ``epochs`` or any ANEES column.
+    ``share``: the least share inside for *consistent* (default :data:`CONSISTENT_SHARE`; ``attrs["share"]``)."""
+    share = check_share(share)
     cols = ["track", "filter", "kind", "item", "name", "dof", "mean", "inside", "above", "below", "epochs", "word"]
     if epochs is None or epochs.empty or "n_runs" not in epochs.columns:
-        return pd.DataFrame(columns=cols)
+        out = pd.DataFrame(columns=cols)
+        out.attrs["share"] = share
+        return out
     ep = epochs[epochs["epoch"] > 0]
     items: list[tuple[str, str, str, str, str, int]] = [
         ("ANEES", b, name, f"nees_{b}_mean", "n_runs", 3) for b, name in BLOCK_NAMES.items()
@@ -95,8 +109,10 @@ def block_consistency(epochs: pd.DataFrame | None, manifest: dict | None = None,
             inside, above, below, k = epoch_shares(x, d[ncol].to_numpy(float), dof)
             rows.append({"track": key[0] if by_track else None, "filter": key[-1], "kind": kind, "item": item,
                          "name": name, "dof": dof, "mean": float(np.nanmean(x)), "inside": inside,
-                         "above": above, "below": below, "epochs": k, "word": _word(inside, above, below)})
-    return pd.DataFrame(rows, columns=cols)
+                         "above": above, "below": below, "epochs": k, "word": _word(inside, above, below, share)})
+    out = pd.DataFrame(rows, columns=cols)
+    out.attrs["share"] = share
+    return out
 
 
 def consistency_words(table: pd.DataFrame, shares: bool = True) -> dict[Any, str]:
@@ -137,6 +153,7 @@ def consistency_md(table: pd.DataFrame, label=lambda f: f) -> str:
              str(r.epochs), r.word] for r in table.itertuples(index=False)]
     return (f"Per state block (ANEES, 3 dof) and sensor (ANIS, its measurement size): at each epoch after t = 0 the "
             "average over the runs not lost against its 95 % bounds `chi2.ppf([0.025, 0.975], dof n) / n` (n = the "
-            f"runs averaged), every track's epochs pooled. *consistent*: at least {100 * CONSISTENT_SHARE:.0f} % of "
+            f"runs averaged), every track's epochs pooled. *consistent*: at least "
+            f"{100 * table.attrs.get('share', CONSISTENT_SHARE):.0f} % of "
             "the epochs inside; else *overconfident* (more epochs above: covariance too small) or *conservative* "
             "(more below). A filter is consistent when every block and sensor is.\n\n" + md_table(headers, rows))

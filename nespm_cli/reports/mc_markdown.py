@@ -308,7 +308,8 @@ def render_report(
             header_line(metrics, manifest),
             docs_line(out_dir),
             "## Verdict\n\n" + verdict_intro(ref, n_boot, seed, practical_pct, vt.attrs["any_lost"],
-                                                  posterior=vt.attrs["posterior"], consistency=has_blocks) + "\n\n"
+                                                  posterior=vt.attrs["posterior"],
+                                                  consistency=consistency.attrs.get("share") if has_blocks else None) + "\n\n"
             + verdict_md(vt, comps, tracks),
             *([all_runs_section(metrics, ref, n_boot, seed)] if all_runs == "median" and vt.attrs["any_lost"] else []),
             "## Caveats\n\n" + caveats_md(caveats(metrics, comps, min_pairs, notes)),

@@ -9,7 +9,6 @@ from typing import Any, Sequence
 import numpy as np
 import pandas as pd
 
-from nespm_cli.reports.block_consistency import CONSISTENT_SHARE
 from nespm_cli.reports.markdown import DASH, fmt, fmt_imprv, md_table
 from nespm_cli.reports.stats import MIN_PAIRED_RUNS, interval_mark, nees_check
 from nespm_cli.reports.verdict import VERDICT_METRICS
@@ -162,14 +161,15 @@ POSTERIOR_NOTE = {
 
 
 def verdict_intro(reference: str, n_boot: int, seed: int, practical_pct: float, any_lost: bool,
-                  role: str = "reference", posterior: bool | None = None, consistency: bool = False) -> str:
+                  role: str = "reference", posterior: bool | None = None, consistency: float | None = None) -> str:
     """The lines above the verdict table: reference, practical threshold, bootstrap, and (``posterior``
-    not None) which epochs the errors are over (:data:`POSTERIOR_NOTE`, said once)."""
+    not None) which epochs the errors are over (:data:`POSTERIOR_NOTE`, said once); ``consistency``: the share
+    of epochs of the consistency row's rule, when the verdict has that row."""
     surv = "" if any_lost else " No run was lost, so all runs are the common survivors."
     note = "" if posterior is None else " " + POSTERIOR_NOTE[bool(posterior)]
     note += (f" Consistency row: each filter's worst state block or sensor, its share of the epochs whose ANEES (ANIS) "
              f"lies inside the 95 % bounds; consistent when every block and sensor has at least "
-             f"{100 * CONSISTENT_SHARE:.0f} %." if consistency else "")
+             f"{100 * consistency:.0f} %." if consistency else "")
     return (f"{role.capitalize()} `{reference}`. Improvement of the best filter = 100 · (compared − best) / "
             f"compared over the runs both kept, paired bootstrap 95 % interval ({n_boot} resamples, seed {seed}); "
             f"practical threshold {practical_pct:g} %.{surv}{note}")
