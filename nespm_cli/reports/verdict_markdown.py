@@ -170,8 +170,9 @@ def verdict_intro(reference: str, n_boot: int, seed: int, practical_pct: float, 
     note += (f" Consistency row: each filter's worst state block or sensor, its share of the epochs whose ANEES (ANIS) "
              f"lies inside the 95 % bounds; consistent when every block and sensor has at least "
              f"{100 * consistency:.0f} %." if consistency else "")
-    return (f"{role.capitalize()} `{reference}`. Improvement of the best filter = 100 · (compared − best) / "
-            f"compared over the runs both kept, paired bootstrap 95 % interval ({n_boot} resamples, seed {seed}); "
+    return (f"{role.capitalize()} `{reference}`. Improvement of the best filter = 100 · (runner-up − best) / "
+            f"runner-up over the runs both kept (over every other filter in the pairwise comparisons), paired "
+            f"bootstrap 95 % interval ({n_boot} resamples, seed {seed}); "
             f"practical threshold {practical_pct:g} %.{surv}{note}")
 
 
