@@ -164,3 +164,14 @@ def test_the_share_is_an_option():
     for bad in (0.0, 1.5, float("nan")):
         with pytest.raises(NespmError, match="--consistent-share"):
             block_consistency(ep, share=bad)
+
+
+def test_every_run_counted_uses_the_verdicts_epochs():
+    from nespm_cli.reports.all_runs import run_errors
+
+    m = metrics_of({"ekf": 0.15, "ukf": 0.10})
+    e = run_errors(m, "vrmse")
+    ukf = m[m["filter"] == "ukf"].set_index(["track", "run"])["vrmse"]
+    assert np.allclose(e["ukf"].to_numpy(), np.sqrt(0.9 * 300 / 299) * ukf.loc[e.index].to_numpy(), rtol=1e-12)
+    old = m.drop(columns=["sse_vel_post", "sse_att_post", "sse_hpe_post", "n_post"])
+    assert np.allclose(run_errors(old, "vrmse")["ukf"].to_numpy(), ukf.loc[e.index].to_numpy(), rtol=0)
