@@ -134,7 +134,8 @@ def render_sweep_report(
         "## Mean NEES (6 DOF)\n\n"
         f"95 % consistency band for {n} runs: **[{blo:.2f}, {bhi:.2f}]** "
         f"(`nees_band(6, {n})`, i.e. χ²₍{NEES_DOF * n}₎ quantiles / {n}): above it overconfident, below "
-        "conservative.\n\n"
+        "conservative. A mean inside it is a lenient test, not the per-block judgment of a Monte Carlo report "
+        "(docs/report.md, \"Consistency\"), which needs the per-epoch series a sweep report does not read.\n\n"
         + _metric_md(table, "nees", filters, label) + fig("sweep_nees"),
         "## Divergences\n\nRate `diverged / runs` [95 % Wilson interval] (count).\n\n"
         + _metric_md(table, "div_rate", filters, label) + "\n\n" + div_text + fig("sweep_divergence"),
