@@ -175,3 +175,18 @@ def test_every_run_counted_uses_the_verdicts_epochs():
     assert np.allclose(e["ukf"].to_numpy(), np.sqrt(0.9 * 300 / 299) * ukf.loc[e.index].to_numpy(), rtol=1e-12)
     old = m.drop(columns=["sse_vel_post", "sse_att_post", "sse_hpe_post", "n_post"])
     assert np.allclose(run_errors(old, "vrmse")["ukf"].to_numpy(), ukf.loc[e.index].to_numpy(), rtol=0)
+
+
+def test_an_old_folder_still_reports_and_says_so_once(tmp_path):
+    import json
+
+    from nespm_cli.reports.dispatch import write_report
+
+    m = metrics_of({"ekf": 0.15, "ukf": 0.10}).drop(columns=["sse_vel_post", "sse_att_post", "sse_hpe_post", "n_post"])
+    m.to_parquet(tmp_path / "metrics.parquet")
+    (tmp_path / "manifest.json").write_text(json.dumps({"options": {"scenario": "nominal"}}))
+    text = write_report(tmp_path, n_boot=50).read_text()
+    assert text.count("include the t = 0 error") == 1 and "Errors are posterior" not in text
+    vt = verdict_table(m, n_boot=50).set_index("metric")
+    assert f"`ukf` {vt.loc['vrmse', 'best_value']:.4g}" in text  # the every-epoch value, as the tables
+    assert vt.loc["vrmse", "best_value"] == pytest.approx(filter_table(m, None, n_boot=0).set_index("filter").loc["ukf", "vrmse"])
