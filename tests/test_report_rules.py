@@ -190,3 +190,12 @@ def test_an_old_folder_still_reports_and_says_so_once(tmp_path):
     vt = verdict_table(m, n_boot=50).set_index("metric")
     assert f"`ukf` {vt.loc['vrmse', 'best_value']:.4g}" in text  # the every-epoch value, as the tables
     assert vt.loc["vrmse", "best_value"] == pytest.approx(filter_table(m, None, n_boot=0).set_index("filter").loc["ukf", "vrmse"])
+
+
+def test_without_epochs_the_nis_numbers_still_show():
+    from nespm_cli.reports.mc_markdown import nis_md
+
+    m = metrics_of({"ekf": 0.15}).assign(nis_dvl=2.5)
+    text = nis_md(m, {"sensors": {"all": {"dvl": {"source": "synthetic"}}}})
+    assert "| ekf | dvl | 2.5 | 3 |" in text
+    assert nis_md(metrics_of({"ekf": 0.15}), {}) == ""

@@ -26,7 +26,7 @@ from nespm_cli.reports.markdown import (
 from nespm_cli.reports.mc_figures import figures_md
 from nespm_cli.reports.published import PUBLISHED, published_tables
 from nespm_cli.reports.block_consistency import consistency_md, consistency_words
-from nespm_cli.reports.results import filters_in_order, is_smoother, scenario_of, smoother_label
+from nespm_cli.reports.results import filters_in_order, is_smoother, scenario_of, sensor_dims, smoother_label
 from nespm_cli.reports.stats import (
     METRICS,
     MIN_PAIRED_RUNS,
@@ -135,6 +135,23 @@ def _horizontal_md(metrics: pd.DataFrame) -> str:
             + ("; vertical RMS: the RMS over those runs and the epochs of the vertical error (eq 51 over tracks)"
                if vert else "") + ".\n\n"
             + md_table(headers, rows))
+
+
+def nis_md(metrics: pd.DataFrame, manifest: dict) -> str:
+    """Without the per-epoch series: per filter and sensor the mean over the common survivors of each run's NIS
+    (``nis_<sensor>`` of metrics.parquet) beside its expectation, the sensor's measurement size; not judged
+    (a mean is no per-epoch test). Empty without a NIS column."""
+    cols = [c for c in metrics.columns if c.startswith("nis_") and np.isfinite(metrics[c].to_numpy(float)).any()]
+    if not cols:
+        return ""
+    dims = sensor_dims(manifest, [c[4:] for c in cols])
+    kept = metrics[~lost_by_any(metrics)]
+    rows = [[smoother_label(f), c[4:], fmt(float(kept.loc[kept["filter"] == f, c].mean()), ".3g"),
+             str(dims.get(c[4:]) or DASH)]
+            for f in filters_in_order(metrics) for c in cols if kept.loc[kept["filter"] == f, c].notna().any()]
+    return ("No per-epoch series (`epochs.parquet`), so no per-epoch consistency test: the mean over the runs no "
+            "filter lost of each run's mean NIS, beside its expectation (the measurement size).\n\n"
+            + md_table(["Method", "sensor", "mean NIS", "expected"], rows))
 
 
 def vertical_rms(metrics: pd.DataFrame) -> dict:
@@ -316,7 +333,8 @@ def render_report(
             "## Track-averaged results (eq 51)\n\n" + TABLE_CAPTION.format(verdict=VERDICT_EPOCHS[posterior]) + (CONSISTENCY_CAPTION if has_blocks else "")
             + "\n\n" + _main_table(table, words),
             *(["## Consistency per block and sensor\n\n" + consistency_md(consistency, smoother_label)]
-              if has_blocks else []),
+              if has_blocks else ["## Innovations per sensor\n\n" + nis_md(metrics, manifest)]
+              if nis_md(metrics, manifest) else []),
             "## Figures\n\n" + figures_md(figures, out_dir),
             "## Per-track results (eqs 50, 52)\n\n" + _track_md(tt, track_words),
             "## Horizontal position error\n\n" + _horizontal_md(metrics),
