@@ -157,7 +157,7 @@ def nis_md(metrics: pd.DataFrame, manifest: dict) -> str:
 def vertical_rms(metrics: pd.DataFrame) -> dict:
     """``{(track or None, filter): vertical RMS [m]}`` over the runs no filter lost: per track the RMS over the
     runs of each run's ``vert_rms`` (all runs have the same epochs), over tracks eq 51 (key track None); empty
-    when no filter has a finite ``vert_rms`` (no such column, or no filter estimates its depth)."""
+    when no filter has a finite ``vert_rms`` (a folder written before the column)."""
     if "vert_rms" not in metrics.columns or not np.isfinite(metrics["vert_rms"].to_numpy(float)).any():
         return {}
     kept = metrics[~lost_by_any(metrics)]
