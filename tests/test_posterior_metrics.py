@@ -38,4 +38,5 @@ def test_a_common_initial_error_no_longer_dilutes_an_improvement():
     assert papers < post
     # a folder without the posterior columns is returned as it is (the caller says so once)
     old = metrics.drop(columns=list(POSTERIOR_COLUMNS.values()))
-    assert posterior_view(old) is old
+    same = posterior_view(old)
+    assert same.equals(old) and same.attrs["posterior"] is False and "posterior" not in old.attrs

@@ -63,11 +63,12 @@ def posterior_view(metrics: pd.DataFrame) -> pd.DataFrame:
     """``metrics`` with the papers' sums (``sse_vel``, ``sse_att``, ``sse_hpe``, ``n_samples``) replaced by
     their posterior twins, the sums over the epochs after t = 0 (the t = 0 rule, docs/filters.md), so
     every function here computes the posterior RMSE and its improvements from them; ``attrs["posterior"]``
-    True. A folder without them (:func:`has_posterior`) is returned as it is (``attrs["posterior"]``
+    True. A folder without them (:func:`has_posterior`) comes back with the same numbers (``attrs["posterior"]``
     False): its improvements include the t = 0 error, and the report says so once."""
     if not has_posterior(metrics):
-        metrics.attrs["posterior"] = False
-        return metrics
+        out = metrics.copy(deep=False)  # the caller's frame keeps its attrs
+        out.attrs["posterior"] = False
+        return out
     out = metrics.assign(**{c: metrics[p] for c, p in eqs.POSTERIOR_COLUMNS.items() if c in metrics.columns})
     out.attrs["posterior"] = True
     return out
