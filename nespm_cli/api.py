@@ -62,9 +62,11 @@ def report_tables(folder: str | Path, reference: str | None = None, n_boot: int 
     An ``mc`` folder: ``filters`` (track-averaged, eqs 50-52, improvements over ``reference``),
     ``tracks`` (per track), ``horizontal`` (horizontal position error, CEP50/R95), ``verdict``,
     ``comparisons`` (every pair), ``all_runs`` (every run counted, lost ranked worst), ``nees``,
-    ``efficiency`` (RMSE / √PCRB per track, filter and block; NaN where unknown: docs/pcrb.md). A
+    ``efficiency`` (RMSE / √PCRB per track, filter and block; NaN where unknown: docs/pcrb.md),
+    ``consistency`` (per filter, block and sensor: the share of epochs inside the bounds). A
     ``sweep`` folder: ``sweep`` (per value and filter) and ``improvements`` (over the baseline)."""
     from nespm_cli.reports.all_runs import all_runs_table
+    from nespm_cli.reports.block_consistency import block_consistency
     from nespm_cli.reports.comparisons import compare_filters
     from nespm_cli.reports.pcrb import efficiency_table
     from nespm_cli.reports.sweep_data import default_baseline
@@ -81,10 +83,12 @@ def report_tables(folder: str | Path, reference: str | None = None, n_boot: int 
                 "improvements": improvement_table(m, base, n_boot=n_boot, seed=seed)}
     ref = default_reference(m, reference)
     comps = compare_filters(m, n_boot=n_boot, seed=seed)
+    blocks = block_consistency(res.epochs, res.manifest)
     return {"filters": filter_table(m, ref, n_boot=n_boot, seed=seed), "tracks": track_table(m),
-            "horizontal": horizontal_table(m), "verdict": verdict_table(m, ref, n_boot=n_boot, seed=seed, comps=comps),
+            "horizontal": horizontal_table(m),
+            "verdict": verdict_table(m, ref, n_boot=n_boot, seed=seed, comps=comps, consistency=blocks),
             "comparisons": comps, "all_runs": all_runs_table(m, ref, n_boot=n_boot, seed=seed),
-            "nees": nees_consistency(m), "efficiency": efficiency_table(res.epochs)}
+            "nees": nees_consistency(m), "consistency": blocks, "efficiency": efficiency_table(res.epochs)}
 
 
 def compare(folders, labels=None, reference: str | None = None, n_boot: int = 2000) -> dict[str, pd.DataFrame]:

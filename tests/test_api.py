@@ -49,7 +49,8 @@ def test_report_tables_are_the_reports_numbers(tmp_path, capsys):
     rc, _, err = cli(capsys, "report", tmp_path / "f", "--n-boot", "200")
     assert rc == 0, err
     tables = nespm.report_tables(tmp_path / "f", n_boot=200)
-    assert set(tables) == {"filters", "tracks", "horizontal", "verdict", "comparisons", "all_runs", "nees", "efficiency"}
+    assert set(tables) == {"filters", "tracks", "horizontal", "verdict", "comparisons", "all_runs", "nees", "consistency",
+                           "efficiency"}
     text = (tmp_path / "f" / "report.md").read_text()
     f = tables["filters"].set_index("filter")
     from nespm_cli.reports.markdown import fmt

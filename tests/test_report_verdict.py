@@ -43,7 +43,9 @@ def metrics_of(levels: dict[str, float], runs: int = 20, noise: float = 0.002, s
                              "diverged_reason": "", "sse_hpe": n * h**2, "hpe_rms": h, "hpe_final": 1.5 * h,
                              "north_final": 0.9 * h, "east_final": 1.2 * h, "hpe_max": 2 * h,
                              "distance": 1000.0 + tr, "hpe_final_pct": 0.15 * h})
-    return pd.DataFrame(rows)
+    m = pd.DataFrame(rows)  # posterior sums (the verdict's) equal to the papers' here
+    return m.assign(sse_vel_post=m["sse_vel"], sse_att_post=m["sse_att"], sse_hpe_post=m["sse_hpe"],
+                    n_post=m["n_samples"])
 
 
 def lose(m: pd.DataFrame, filt: str, runs, reason: str = "attitude") -> pd.DataFrame:
@@ -95,7 +97,7 @@ def test_verdict_markdown_shows_those_numbers(tmp_path: Path) -> None:
     vt = verdict_table(m, n_boot=300).set_index("metric")
     r = vt.loc["vrmse"]
     row = cells(text, "velocity RMSE")
-    assert row[1] == f"`ukf` {r['best_value']:.4g}" and row[2] == "`ukf-nespm` (reference)"
+    assert row[1] == f"`ukf` {r['best_value']:.4g}" and row[2] == f"`ukf-nespm` {r['other_value']:.4g} (reference)"
     assert row[3] == fmt_imprv(r["imprv"], r["ci_lo"], r["ci_hi"], "*" if r["significant"] else "")
     assert row[4] == ("yes" if r["significant"] else "no") and row[5] == ("yes" if r["practical"] else "no")
     assert "Common survivors" not in text  # no loss: the same numbers are not repeated
@@ -133,7 +135,7 @@ def test_common_survivor_columns_with_lost_runs(tmp_path: Path) -> None:
     m.to_parquet(tmp_path / "metrics.parquet")
     text = write_report(tmp_path, n_boot=300).read_text()
     row = cells(text, "velocity RMSE")
-    assert len(row) == 12 and row[9] in ("yes", "no") and row[11] == "24 (≥ 12 per track)"
+    assert len(row) == 13 and row[10] in ("yes", "no") and row[12] == "24 (≥ 12 per track)"
     assert "Common survivors: improvement [95 % CI]" in text
     assert "Lost (diverged) runs per filter: ekf 10, ukf 0, ukf-nespm 6 (" in text
 
@@ -144,7 +146,7 @@ def with_floor(m: pd.DataFrame, filt: str = "ekf", factor: float = 0.5) -> pd.Da
     f["filter"] = f"{filt}-rts"
     for c in ("vrmse", "mrmse", "hpe_rms", "hpe_final", "north_final", "east_final"):
         f[c] = factor * f[c]
-    for c in ("sse_vel", "sse_att", "sse_hpe"):
+    for c in ("sse_vel", "sse_att", "sse_hpe", "sse_vel_post", "sse_att_post", "sse_hpe_post"):
         f[c] = factor**2 * f[c]
     f["nees"] = 6.0  # the most consistent too: still never the best
     return pd.concat([m, f], ignore_index=True)

@@ -25,6 +25,7 @@ def report(
     n_boot: int = typer.Option(2000, "--n-boot", help="Paired bootstrap resamples for the 95 % intervals."),
     practical: float = typer.Option(PRACTICAL_PCT, "--practical", help="Smallest improvement [%] the verdict calls practically meaningful (a difference must also be statistically significant)."),
     all_runs: str = typer.Option("median", "--all-runs", help="Where runs were lost: 'median' adds the comparison over every run, a lost run ranked the worst (medians, paired median improvements, losses; docs/report.md); 'none' leaves it out."),
+    consistent_share: Optional[float] = typer.Option(None, "--consistent-share", help="Least share of the epochs (0-1] whose ANEES / ANIS lies inside its 95 % bounds for a state block or sensor to be called consistent (default 0.8; docs/report.md, \"Consistency\"); mc folders."),
     beside: Optional[List[Path]] = typer.Option(None, "--beside", help="Another mc folder whose numbers are set beside this one's (e.g. the synthetic-IMU run of a recorded-IMU one); repeatable."),
     no_progress: bool = typer.Option(False, "--no-progress", help="Do not say what is being done (a status on a terminal; nothing off one)."),
 ) -> None:
@@ -37,7 +38,7 @@ def report(
         from nespm_cli.reports.dispatch import write_report
 
         path = write_report(out_dir, baseline, n_boot=n_boot, practical_pct=practical, beside=tuple(beside or ()),
-                            all_runs=all_runs)
+                            all_runs=all_runs, consistent_share=consistent_share)
     typer.echo(path.read_text(encoding="utf-8"))
     typer.echo(f"wrote {path}")
 

@@ -10,6 +10,13 @@
 * per-block NEES (:func:`block_nees`): the NEES of any block of the filter's layout (position,
   velocity, attitude, biases), ``dof`` 3 each;
 * per-sensor NIS (:func:`sensor_nis`): ``νᵀ S⁻¹ ν`` of every applied measurement, mean per run.
+
+The t = 0 rule (docs/filters.md, "Epochs in the metrics"): the papers' columns (``sse_vel``,
+``sse_att``, ``sse_hpe``, ``n_samples``, ``vrmse``, ``mrmse``) sum over every GT epoch including the
+first, t = 0, where the error is the initial error no filter can change (eq 50 sums over "the
+samples in the trajectory"); the posterior columns (``*_post``, :data:`POSTERIOR_COLUMNS`) sum over
+the epochs after the first, where every filter has had its first update. The reports' verdicts and
+comparisons use the posterior ones, so an improvement is not diluted by the common initial error.
 """
 from __future__ import annotations
 
@@ -273,6 +280,27 @@ def alive_metrics(err: EpochErrors, lost_k: np.ndarray, t_rel: np.ndarray) -> di
     return out
 
 
+#: papers' column -> its posterior twin (the sum over the epochs after the first; ``n_samples`` -> ``n_post``)
+POSTERIOR_COLUMNS: dict[str, str] = {"sse_vel": "sse_vel_post", "sse_att": "sse_att_post",
+                                     "sse_hpe": "sse_hpe_post", "n_samples": "n_post"}
+
+
+def posterior_sums(err: EpochErrors, diverged: np.ndarray) -> dict[str, np.ndarray]:
+    """(R,) each: ``sse_vel_post`` [(m/s)²], ``sse_att_post`` [rad²], ``sse_hpe_post`` [m²], the sums of
+    the squared errors over the epochs after the first (t > 0; NaN for a lost run) and ``n_post``
+    (int, the epochs summed: N − 1). The t = 0 error is the initial error, the same for every filter
+    of a run, so these are the sums a filter can change (module docstring, "the t = 0 rule")."""
+    bad = np.asarray(diverged, dtype=bool)
+    n = err.vel.shape[1]
+    with np.errstate(all="ignore"):
+        sums = {"sse_vel_post": (np.asarray(err.vel, float)[:, 1:] ** 2).sum(axis=1),
+                "sse_att_post": (np.asarray(err.att, float)[:, 1:] ** 2).sum(axis=1),
+                "sse_hpe_post": (np.asarray(err.hpe, float)[:, 1:] ** 2).sum(axis=1)}
+    out = {k: np.where(bad, np.nan, v) for k, v in sums.items()}
+    out["n_post"] = np.full(len(bad), max(n - 1, 0), dtype=np.int64)
+    return out
+
+
 def run_metrics(err: EpochErrors, diverged: np.ndarray) -> dict[str, np.ndarray]:
     """Per-run summary (R,) arrays; every error sum of a diverged run is NaN.
 
@@ -282,6 +310,9 @@ def run_metrics(err: EpochErrors, diverged: np.ndarray) -> dict[str, np.ndarray]
     for the scatter of final positions), ``distance`` [m] the truth's horizontal distance travelled over the track
     (a property of the truth: finite for diverged runs too) and ``hpe_final_pct`` =
     100 · hpe_final / distance (NaN when the truth did not move).
+
+    Posterior sums (:func:`posterior_sums`): ``sse_vel_post``, ``sse_att_post``, ``sse_hpe_post``,
+    ``n_post``, the same sums without the first epoch (t = 0).
     """
     n = err.vel.shape[1]
     bad = np.asarray(diverged, dtype=bool)
@@ -319,6 +350,7 @@ def run_metrics(err: EpochErrors, diverged: np.ndarray) -> dict[str, np.ndarray]
         "nees": nan_if_bad(err.nees.mean(axis=1)),
         "diverged": bad,
         **hpe_cols,
+        **posterior_sums(err, bad),
     }
 
 

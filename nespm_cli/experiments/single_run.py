@@ -61,7 +61,7 @@ def run_single(spec: Spec, track: int, filt: str, run: int, clean: bool = False,
     m = run_metrics(err, div)
     m.update(sensor_nis(o))
     summary = {"track": track, "filter": filt, "run": run, "clean": clean, "scenario": spec.scenario,
-               "schedule": spec.corruption.schedule, **{k: (bool(v[0]) if k == "diverged" else (int(v[0]) if k == "n_samples" else float(v[0])))
+               "schedule": spec.corruption.schedule, **{k: (bool(v[0]) if k == "diverged" else (int(v[0]) if k in ("n_samples", "n_post") else float(v[0])))
                                              for k, v in m.items()}}
     summary = {k: (None if isinstance(v, float) and not np.isfinite(v) else v) for k, v in summary.items()}
     summary["diverged_reason"] = str(why[0])

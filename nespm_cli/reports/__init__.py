@@ -9,7 +9,9 @@ in this list; none imports one that imports it back). docs/report.md defines wha
   paired comparisons, intervals), :mod:`~nespm_cli.reports.published` (the papers' tables),
   :mod:`~nespm_cli.reports.figures` (saving, colours, styles, what a figure drew);
 * analysis: :mod:`~nespm_cli.reports.tables` (per-filter tables), :mod:`~nespm_cli.reports.comparisons`
-  (head-to-head paired comparisons), :mod:`~nespm_cli.reports.verdict` (one row per metric);
+  (head-to-head paired comparisons), :mod:`~nespm_cli.reports.block_consistency` (consistency per block
+  and sensor from the share of epochs inside the bounds), :mod:`~nespm_cli.reports.verdict` (one row per
+  metric);
 * words and markdown: :mod:`~nespm_cli.reports.wording`, :mod:`~nespm_cli.reports.caveats` (each said
   once), :mod:`~nespm_cli.reports.verdict_markdown`;
 * figures: :mod:`~nespm_cli.reports.axes_figures` (per-axis error and ±3σ),

@@ -25,19 +25,28 @@ import numpy as np
 import pandas as pd
 
 from nespm_cli.reports.results import causal_only, filters_in_order
-from nespm_cli.reports.stats import track_rng
+from nespm_cli.reports.stats import has_posterior, track_rng
 
 #: per-run error columns of metrics.parquet: key -> (column, name, unit)
 RUN_METRICS = {"vrmse": ("vrmse", "velocity RMSE", "m/s"), "mrmse": ("mrmse", "attitude RMSE", "rad"),
                "hpe": ("hpe_rms", "horizontal position error, RMS", "m")}
 ALL_RUNS = ("median", "none")
+#: the posterior sum of each per-run error (:data:`nespm_cli.experiments.metrics.POSTERIOR_COLUMNS`)
+POSTERIOR_SSE = {"vrmse": "sse_vel_post", "mrmse": "sse_att_post", "hpe": "sse_hpe_post"}
 
 
 def run_errors(metrics: pd.DataFrame, key: str) -> pd.DataFrame:
-    """(track, run) x filter: each causal filter's per-run error ``key``, +∞ for a lost run."""
+    """(track, run) x filter: each causal filter's per-run error ``key``, +∞ for a lost run; posterior (the RMS
+    over the epochs after t = 0, ``sqrt(sse_*_post / n_post)``, the t = 0 rule) where the folder has those sums,
+    as the verdict's, else the papers' every-epoch column."""
     col = RUN_METRICS[key][0]
     m = causal_only(metrics)
-    v = np.where(m["diverged"].astype(bool), np.inf, m[col].to_numpy(float))
+    if has_posterior(m):
+        with np.errstate(all="ignore"):
+            x = np.sqrt(m[POSTERIOR_SSE[key]].to_numpy(float) / m["n_post"].to_numpy(float))
+    else:
+        x = m[col].to_numpy(float)
+    v = np.where(m["diverged"].astype(bool), np.inf, x)
     t = pd.DataFrame({"track": m["track"], "run": m["run"], "filter": m["filter"], "v": v})
     return t.pivot_table(index=["track", "run"], columns="filter", values="v", aggfunc="first")[
         [f for f in filters_in_order(m)]]
@@ -108,7 +117,8 @@ def all_runs_section(metrics: pd.DataFrame, reference: str, n_boot: int, seed: i
     """The report section "Every run counted" (a sweep: one table per value, ``value_label`` its axis)."""
     intro = ("Some runs were lost, and the tables above are over the runs kept. Here every run counts: the "
              "median of each filter's per-run error with a lost run ranked the worst (+∞), its losses, and "
-             f"the median paired improvement over `{reference}` with a bootstrap 95 % interval (docs/report.md, "
+             f"the median paired improvement over `{reference}` with a bootstrap 95 % interval; per-run errors "
+             "over the same epochs as the verdict's (docs/report.md, "
              "\"Every run counted\"; `--all-runs none` leaves this out).")
     if "value" not in metrics.columns:
         return "## Every run counted\n\n" + intro + "\n\n" + all_runs_md(all_runs_table(metrics, reference, n_boot,

@@ -26,8 +26,8 @@ import pandas as pd
 from nespm_cli.errors import NespmError
 from nespm_cli.experiments.metrics import cep
 from nespm_cli.reports.results import is_smoother
-from nespm_cli.reports.stats import (lost_by_any, paired_bootstrap, paired_improvement, paired_run_counts,
-                                     percentile_ci, track_average, track_value)
+from nespm_cli.reports.stats import (MIN_PAIRED_RUNS, ci_marks, lost_by_any, paired_bootstrap, paired_improvement, paired_run_counts,
+                                     percentile_ci, posterior_view, track_average, track_value)
 
 #: options that define the realizations: equal in every case
 REALIZATION_KEYS = ("seed", "tracks", "runs", "corruption", "imu", "imu_rate", "data_dir", "window", "corrections",
@@ -158,15 +158,19 @@ def case_table(cases: list[Case]) -> pd.DataFrame:
 
 
 def case_improvements(cases: list[Case], reference: str | None = None, n_boot: int = 2000,
-                      seed: int = 0) -> pd.DataFrame:
+                      seed: int = 0, min_pairs: int = MIN_PAIRED_RUNS) -> pd.DataFrame:
     """For every filter present in the reference case (default: the first) and another case: the
     improvement [%] of the other case over the reference for each metric of :data:`CASE_METRICS`,
     point and paired bootstrap 95 % interval over the runs neither lost (paired by track and run),
-    and ``pairs`` (paired runs). Positive: the case has the smaller error."""
+    and ``pairs`` (paired runs; ``pairs_min`` the fewest on a track). Positive: the case has the smaller error.
+    The same rule as ``nespm report`` (:func:`stats.ci_marks`): ``<key>_significant`` when the interval
+    excludes 0 with at least ``min_pairs`` pairs on every track; ``<key>_mark`` ``*``, ``†`` (too few pairs:
+    not assessed, whatever the interval) or ``""``. The RMS metrics are posterior (the t = 0 rule) where
+    every case has those sums (:func:`stats.posterior_view`)."""
     ref = reference or cases[0].label
     if ref not in [c.label for c in cases]:
         raise NespmError(f"--reference {ref}: not a case label ({', '.join(c.label for c in cases)})")
-    m = combined(cases)
+    m = posterior_view(combined(cases))
     keys = [k for k in CASE_METRICS if k != "hpe" or "sse_hpe" in m.columns]
     rows = []
     ref_filters = list(dict.fromkeys(m.loc[m["case"] == ref, "base_filter"]))
@@ -180,11 +184,15 @@ def case_improvements(cases: list[Case], reference: str | None = None, n_boot: i
             sub = m[m["filter"].isin([a, b])]
             point = paired_improvement(sub, b, a, keys)  # improvement of a (the case) over b (the reference)
             boot = paired_bootstrap(sub, b, a, n_boot=n_boot, seed=seed, keys=keys)
-            pairs = int(sum(paired_run_counts(sub, b, a).values()))
-            row = {"case": c.label, "reference": ref, "filter": f, "pairs": pairs}
+            counts = paired_run_counts(sub, b, a)
+            pairs_min = min(counts.values()) if counts else 0
+            row = {"case": c.label, "reference": ref, "filter": f, "pairs": int(sum(counts.values())),
+                   "pairs_min": pairs_min}
             for k in keys:
                 lo, hi = percentile_ci(boot[k])
-                row.update({k: point[k], f"{k}_lo": lo, f"{k}_hi": hi})
+                _, significant, mark = ci_marks(lo, hi, pairs_min, min_pairs)
+                row.update({k: point[k], f"{k}_lo": lo, f"{k}_hi": hi, f"{k}_significant": significant,
+                            f"{k}_mark": mark})
             rows.append(row)
     return pd.DataFrame(rows)
 

@@ -10,7 +10,8 @@ import pandas as pd
 from nespm_cli.experiments.progress import phase
 from nespm_cli.reports.cases import CASE_METRICS, Case, case_improvements, case_table, load_cases
 from nespm_cli.reports.figures import filter_colors, save_figure, use_agg
-from nespm_cli.reports.markdown import fmt, fmt_imprv, md_table
+from nespm_cli.reports.markdown import SIG_MARK, SMALL_MARK, fmt, fmt_imprv, layout_text, md_table, sensors_text
+from nespm_cli.reports.stats import MIN_PAIRED_RUNS, has_posterior
 
 #: the case table's columns: (column, header)
 TABLE_COLUMNS = (("vrmse", "VRMSE [m/s]"), ("hpe_rms", "HPE RMS [m]"), ("hpe_final", "HPE final [m]"),
@@ -30,12 +31,20 @@ def case_table_md(table: pd.DataFrame) -> str:
     return md_table(headers, rows)
 
 
-def improvements_md(imp: pd.DataFrame) -> str:
-    """Paired improvement of each case over the reference for each filter, with its 95 % interval."""
+def improvements_md(imp: pd.DataFrame, min_pairs: int = MIN_PAIRED_RUNS) -> str:
+    """Paired improvement of each case over the reference for each filter, with its 95 % interval, its mark
+    (``*`` significant, ``†`` too few pairs) and whether it was assessed, by the rule of ``nespm report``."""
     keys = [k for k in CASE_METRICS if k in imp.columns]
-    headers = ["case", "filter", *(f"{CASE_METRICS[k]}: improvement [95 % CI]" for k in keys), "pairs"]
-    rows = [[r["case"], f"`{r['filter']}`", *(fmt_imprv(r[k], r[f"{k}_lo"], r[f"{k}_hi"]) for k in keys), str(r["pairs"])]
-            for _, r in imp.iterrows()]
+    headers = ["case", "filter", *(f"{CASE_METRICS[k]}: improvement [95 % CI]" for k in keys), "pairs",
+               "statistically"]
+    rows = []
+    for _, r in imp.iterrows():
+        few = int(r.get("pairs_min", r["pairs"])) < min_pairs
+        stat = (f"not assessed {SMALL_MARK} (fewer than {min_pairs} pairs on some track)" if few else
+                "; ".join(f"{CASE_METRICS[k]} {'yes' if r.get(f'{k}_significant', False) else 'no'}" for k in keys))
+        rows.append([r["case"], f"`{r['filter']}`",
+                     *(fmt_imprv(r[k], r[f"{k}_lo"], r[f"{k}_hi"], r.get(f"{k}_mark", "")) for k in keys),
+                     str(r["pairs"]), stat])
     return md_table(headers, rows)
 
 
@@ -92,14 +101,15 @@ def write_compare_report(folders, out: str | Path, labels=None, reference: str |
     lines = [
         "# nespm comparison of cases on the same realizations",
         "",
-        "**Cases:** " + "; ".join(f"`{c.label}` = {c.folder} ({', '.join(c.manifest['options'].get('sensors', []))})"
-                                  for c in cases) + ".",
+        "**Cases:** " + "; ".join(f"`{c.label}` = {c.folder} (error state {layout_text(c.manifest)}; sensors "
+                                  f"{sensors_text(c.manifest)})" for c in cases) + ".",
         "",
         "The folders share the seed, tracks, runs, corruption and data (checked), so run r of track N has the "
         "same IMU and initial errors in every case and the comparisons are paired by (track, run). Each case's "
         "numbers are over the runs no filter of that case lost; `lost` counts the filter's own losses. "
         "DT = distance travelled; drift = final horizontal error per hour of track; CEP50 and R95 of the final "
-        "horizontal error; NIS: mean per run (its chi-square expectation is the sensor's dimension). "
+        "horizontal error; NIS: mean per run (its chi-square expectation is the sensor's dimension); the RMS "
+        "values over every epoch including t = 0, the papers' definition. "
         "Definitions: docs/report.md.",
         "",
         "## Cases",
@@ -109,7 +119,13 @@ def write_compare_report(folders, out: str | Path, labels=None, reference: str |
         f"## What each case changes, against `{ref}`",
         "",
         "Improvement = 100 · (reference − case) / reference for the same filter, over the runs neither "
-        f"lost, with its paired bootstrap 95 % interval ({n_boot} resamples): positive = the case is better.",
+        f"lost, with its paired bootstrap 95 % interval ({n_boot} resamples): positive = the case is better. "
+        "Errors after t = 0 (the first update; docs/report.md, \"The t = 0 rule\")"
+        + ("" if all(has_posterior(c.metrics) for c in cases) else
+           " — except that some folder has no posterior sums (older nespm): these include the t = 0 error and are "
+           "diluted towards 0") + f". The rule of `nespm report`: {SIG_MARK} = the interval excludes 0 with at "
+        f"least {MIN_PAIRED_RUNS} pairs on every track; {SMALL_MARK} = fewer pairs on some track, not assessed "
+        "whatever the interval (the percentile bootstrap is too narrow there).",
         "",
         improvements_md(imp) if len(imp) else "(no filter is in both a case and the reference)",
         "",

@@ -22,6 +22,7 @@ from nespm_cli.reports.stats import (
     paired_improvement,
     paired_run_counts,
     percentile_ci,
+    posterior_view,
 )
 from nespm_cli.reports.tables import filter_table
 
@@ -64,9 +65,12 @@ def compare_filters(
     ``not significant`` (practical point, interval includes 0), ``too few runs``
     (``pairs_min < min_pairs``) or ``undefined`` (no paired point). A metric with a single
     usable filter gets one row with ``other`` None and verdict ``only filter``.
+
+    The RMS metrics are posterior (the t = 0 rule: the sums over the epochs after the first,
+    :func:`stats.posterior_view`) where the folder has those sums; ``attrs["posterior"]`` says which.
     """
     check_metrics(metrics)
-    metrics = causal_only(metrics)
+    metrics = posterior_view(causal_only(metrics))
     if keys is None:
         keys = default_keys(metrics)
     keys = metric_keys(metrics, keys)
@@ -126,7 +130,8 @@ def compare_filters(
             rows.append(dict(zip(cols, [key, best, other, own[best], imp, lo, hi, pairs_min, excludes,
                                         significant, practical, within, verdict])))
     out = pd.DataFrame(rows, columns=cols)
-    out.attrs.update(practical_pct=float(practical_pct), min_pairs=int(min_pairs))
+    out.attrs.update(practical_pct=float(practical_pct), min_pairs=int(min_pairs),
+                     posterior=bool(metrics.attrs.get("posterior", False)))
     return out
 
 

@@ -64,7 +64,8 @@ def warn_if_unfinished(out_dir: Path) -> None:
 
 
 def write_report(out_dir: Path, reference: str | None = None, n_boot: int = 2000,
-                 practical_pct: float = PRACTICAL_PCT, beside=(), all_runs: str = "median") -> Path:
+                 practical_pct: float = PRACTICAL_PCT, beside=(), all_runs: str = "median",
+                 consistent_share: float | None = None) -> Path:
     """Write ``out_dir/report.md`` and its figures; return the report path.
 
     ``reference`` is the mc report's reference filter and the sweep report's baseline (it does
@@ -72,7 +73,9 @@ def write_report(out_dir: Path, reference: str | None = None, n_boot: int = 2000
     smallest |improvement| the verdict calls practically meaningful. The bootstrap seed is 0.
     ``beside``: other Monte Carlo folders set beside an mc folder's numbers. ``all_runs``: with
     ``median`` (default), where a run was lost, the comparison over every run with lost runs ranked
-    worst (:mod:`nespm_cli.reports.all_runs`); ``none`` leaves it out.
+    worst (:mod:`nespm_cli.reports.all_runs`); ``none`` leaves it out. ``consistent_share``: the least
+    share of epochs inside the bounds for a block or sensor to be consistent (an mc folder's report;
+    default :data:`~nespm_cli.reports.block_consistency.CONSISTENT_SHARE`).
     """
     if all_runs not in ALL_RUNS:
         raise NespmError(f"--all-runs: choose {' or '.join(ALL_RUNS)}, got {all_runs!r}")
@@ -84,6 +87,9 @@ def write_report(out_dir: Path, reference: str | None = None, n_boot: int = 2000
         check_figures_dir(out_dir)  # never drawn through an OUT/figures link
     warn_if_unfinished(out_dir)
     kind = experiment_of(out_dir)
+    if consistent_share is not None and kind != "mc":
+        raise NespmError(f"--consistent-share: the report of a {kind} folder judges no per-block consistency; "
+                         "leave the option out")
     if kind == "gp-ukf":
         return write_gp_report(out_dir, n_boot=n_boot)  # --baseline does not apply
     if kind == "sweep":
@@ -91,5 +97,6 @@ def write_report(out_dir: Path, reference: str | None = None, n_boot: int = 2000
     for b in beside:
         if experiment_of(Path(b)) != "mc":
             raise NespmError(f"--beside {b}: not a folder written by 'nespm mc'")
+    share = {} if consistent_share is None else {"consistent_share": consistent_share}
     return write_mc_report(out_dir, reference, n_boot=n_boot, practical_pct=practical_pct, beside=beside,
-                           all_runs=all_runs)
+                           all_runs=all_runs, **share)

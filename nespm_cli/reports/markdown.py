@@ -108,8 +108,37 @@ def inputs_text(manifest: dict) -> str:
     return f" ({len(inputs)} input files; sha256 of their hashes {digest[:12]}, per file in manifest.json)"
 
 
+def layout_text(manifest: dict) -> str:
+    """The error-state layout the filters ran with (``--state``): the manifest's option, else its
+    ``filter_config`` cells' ``state`` (several joined), else — (a folder written before it)."""
+    options = manifest.get("options") or {}
+    if options.get("state"):
+        return str(options["state"])
+    cells = manifest.get("filter_config") or {}
+    states = [str(c["state"]) for c in cells.values() if isinstance(c, dict) and c.get("state")]
+    return ", ".join(dict.fromkeys(states)) or DASH
+
+
+def sensors_text(manifest: dict) -> str:
+    """The sensors of the study (``--sensors``) in update order with their source (``dvl (recorded)``),
+    from the manifest's options and ``sensors`` cells; — when it records none."""
+    names = list((manifest.get("options") or {}).get("sensors") or [])
+    cells = [c for c in (manifest.get("sensors") or {}).values() if isinstance(c, dict)]
+    for c in cells:
+        names += [n for n in c if n not in names]
+    if not names:
+        return DASH
+
+    def source(n: str) -> str:
+        got = {str(c[n].get("source")) for c in cells if isinstance(c.get(n), dict) and c[n].get("source")}
+        return f" ({', '.join(sorted(got))})" if got else ""
+
+    return ", ".join(n + source(n) for n in names)
+
+
 def header_line(metrics: pd.DataFrame, manifest: dict) -> str:
-    """The run summary line: tracks, runs per track, filters, scenario, schedule, seed, data, time."""
+    """The run summary line: tracks, runs per track, filters, error-state layout, sensors, IMU, scenario,
+    schedule, seed, data, time."""
     options = manifest.get("options") or {}
 
     def field(col: str) -> str:
@@ -125,6 +154,9 @@ def header_line(metrics: pd.DataFrame, manifest: dict) -> str:
         f"tracks {', '.join(str(t) for t in sorted(pd.unique(metrics['track'])))}",
         f"runs per track {runs_per_track(metrics)}",
         f"filters {', '.join(filters_in_order(metrics))}",
+        f"error state {layout_text(manifest)}",
+        f"sensors {sensors_text(manifest)}",
+        f"imu {options.get('imu', DASH)}",
         f"scenario {field('scenario')}",
         f"schedule {field('schedule')}",
         f"seed {seed_text}",

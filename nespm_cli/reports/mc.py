@@ -15,6 +15,7 @@ from typing import Sequence
 
 from nespm_cli.data.atomic import write_text_atomic
 from nespm_cli.experiments.progress import phase
+from nespm_cli.reports.block_consistency import CONSISTENT_SHARE, block_consistency, check_share
 from nespm_cli.reports.comparisons import compare_filters
 from nespm_cli.reports.mc_figures import figure_notes, plot_track_figures
 from nespm_cli.reports.pcrb import pcrb_md
@@ -51,7 +52,8 @@ __all__ = [
 
 
 def write_mc_report(out_dir: Path, reference: str | None = None, n_boot: int = 2000,
-                    practical_pct: float = PRACTICAL_PCT, beside: Sequence[Path] = (), all_runs: str = "median") -> Path:
+                    practical_pct: float = PRACTICAL_PCT, beside: Sequence[Path] = (), all_runs: str = "median",
+                    consistent_share: float = CONSISTENT_SHARE) -> Path:
     """Write ``out_dir/report.md`` and ``out_dir/figures/*.png`` of a Monte Carlo folder; return the
     report path.
 
@@ -60,7 +62,10 @@ def write_mc_report(out_dir: Path, reference: str | None = None, n_boot: int = 2
     ``practical_pct`` [%] (default :data:`PRACTICAL_PCT`) is the smallest |improvement| the
     verdict calls practically meaningful. ``beside``: other Monte Carlo folders whose numbers
     are set beside this one's (:func:`beside_md`), e.g. the synthetic-IMU run of a recorded one.
+    ``consistent_share``: the least share of epochs inside the bounds for a block to be consistent
+    (:mod:`~nespm_cli.reports.block_consistency`).
     """
+    check_share(consistent_share)
     check_practical_pct(practical_pct)
     out_dir = Path(out_dir)
     phase("reading the results")
@@ -81,7 +86,11 @@ def write_mc_report(out_dir: Path, reference: str | None = None, n_boot: int = 2
     phase("verdict and report.md")
     text = render_report(metrics, manifest, table, tt, figures, out_dir, n_boot, seed,
                          practical_pct=practical_pct, beside=beside_text, all_runs=all_runs,
-                         notes=figure_notes(epochs, metrics, manifest), pcrb=pcrb_md(epochs, manifest))
+                         notes=figure_notes(epochs, metrics, manifest),
+                         consistency=block_consistency(epochs, manifest, share=consistent_share),
+                         consistency_by_track=block_consistency(epochs, manifest, by_track=True,
+                                                                share=consistent_share),
+                         pcrb=pcrb_md(epochs, manifest))
     path = out_dir / "report.md"
     write_text_atomic(path, text)
     return path

@@ -26,7 +26,8 @@ from nespm_cli.reports.markdown import (
 from nespm_cli.reports.mc_figures import figures_md
 from nespm_cli.reports.pcrb import SECTION as PCRB_SECTION
 from nespm_cli.reports.published import PUBLISHED, published_tables
-from nespm_cli.reports.results import filters_in_order, scenario_of, smoother_label
+from nespm_cli.reports.block_consistency import consistency_md, consistency_words
+from nespm_cli.reports.results import filters_in_order, is_smoother, scenario_of, sensor_dims, smoother_label
 from nespm_cli.reports.stats import (
     METRICS,
     MIN_PAIRED_RUNS,
@@ -38,6 +39,8 @@ from nespm_cli.reports.stats import (
     paired_improvement,
     paired_run_counts,
     percentile_ci,
+    lost_by_any,
+    track_average,
 )
 from nespm_cli.reports.tables import filter_table, horizontal_table
 from nespm_cli.reports.verdict import verdict_table
@@ -45,14 +48,33 @@ from nespm_cli.reports.verdict_markdown import pairwise_md, verdict_intro, verdi
 
 __all__ = ["beside_md", "folder_label", "render_report"]
 
+#: the caption of the papers' tables: the t = 0 rule (docs/report.md)
+TABLE_CAPTION = ("VRMSE and MRMSE as in the papers' tables: eq 50 of `anukf.md` (Levy and Klein, arXiv:2503.05490; "
+                 "docs/references.md) over every GT epoch including t = 0 (the initial "
+                 "error, the same for every filter), so they compare with the published numbers; the improvement "
+                 "columns are the papers' \"Imprv.\" of the reference over the row. {verdict} RTS-smoother floors stand "
+                 "in their own rows, without an improvement.")
+#: what the caption says of the verdict's errors, with the posterior sums and for a folder without them
+VERDICT_EPOCHS = {True: ("The verdict and the pairwise comparisons use the errors after t = 0, which are not diluted "
+                         "by the initial error (docs/report.md, \"The t = 0 rule\")."),
+                  False: "The verdict's line above says which errors it uses."}  # the fallback is said once, there
+PAIRWISE_CAPTION = ("The best filter of each metric against every other filter: its improvement [95 % CI] over the "
+                    "runs both kept, the errors as in the verdict.")
+CONSISTENCY_CAPTION = (" Consistency: judged per block and sensor from the share of epochs inside the 95 % bounds "
+                       "(section \"Consistency per block and sensor\"), not from the mean NEES.")
+
+
 def _nees_cells(nees: float, lo: float, hi: float, word: str) -> list[str]:
     band = DASH if not np.isfinite(lo) else f"[{lo:.2f}, {hi:.2f}]"
     return [fmt(nees, ".2f"), band, word]
 
 
-def _main_table(table: pd.DataFrame) -> str:
-    """Markdown of :func:`filter_table`."""
+def _main_table(table: pd.DataFrame, words: dict | None = None) -> str:
+    """Markdown of :func:`filter_table`: the causal filters, then the RTS-smoother floors in their own rows
+    (their value only: a floor is no improvement). ``words``: per filter the consistency judged per block
+    (:func:`block_consistency.consistency_words`), else the mean NEES's band word."""
     ref = table.attrs["reference"]
+    words = words or {}
     min_pairs = table.attrs.get("min_pairs", MIN_PAIRED_RUNS)
     headers = [
         "Method", "VRMSE [m/s]", f"{ref} Imprv.", "95 % CI [%]",
@@ -60,26 +82,30 @@ def _main_table(table: pd.DataFrame) -> str:
         "diverged",
     ]
     rows = []
-    for r in table.itertuples(index=False):
+    floor = table["filter"].map(is_smoother).to_numpy(bool)
+    for r in pd.concat([table[~floor], table[floor]]).itertuples(index=False):
         cells = [smoother_label(r.filter) + (" (reference)" if r.is_reference else "")]
         for key in METRICS:
             mark = interval_mark(getattr(r, f"{key}_ci_excludes_0"), r.pairs_min, min_pairs)
             cells += [fmt(getattr(r, key)),
-                      *imprv_cells(getattr(r, f"{key}_imprv"), getattr(r, f"{key}_ci_lo"),
-                                    getattr(r, f"{key}_ci_hi"), mark)]
-        cells += _nees_cells(r.nees, r.nees_lo, r.nees_hi, r.consistency)
+                      *((DASH, DASH) if is_smoother(r.filter) else
+                        imprv_cells(getattr(r, f"{key}_imprv"), getattr(r, f"{key}_ci_lo"),
+                                    getattr(r, f"{key}_ci_hi"), mark))]
+        cells += _nees_cells(r.nees, r.nees_lo, r.nees_hi, words.get(r.filter, r.consistency))
         cells.append(f"{r.diverged} / {r.runs}")
         rows.append(cells)
     return md_table(headers, rows)
 
 
-def _track_md(tt: pd.DataFrame) -> str:
-    """Markdown of :func:`track_table`."""
+def _track_md(tt: pd.DataFrame, words: dict | None = None) -> str:
+    """Markdown of :func:`track_table`; ``words`` per ``(track, filter)`` as in :func:`_main_table`."""
+    words = words or {}
     headers = ["Track", "Method", "VRMSE [m/s]", "MRMSE [rad]", "mean NEES", "95 % NEES band",
                "consistency", "diverged"]
     rows = [
         [str(r.track), smoother_label(r.filter), fmt(r.vrmse), fmt(r.mrmse),
-         *_nees_cells(r.nees, r.nees_lo, r.nees_hi, r.consistency), f"{r.diverged} / {r.runs}"]
+         *_nees_cells(r.nees, r.nees_lo, r.nees_hi, words.get((r.track, r.filter), r.consistency)),
+         f"{r.diverged} / {r.runs}"]
         for r in tt.itertuples(index=False)
     ]
     return md_table(headers, rows)
@@ -92,19 +118,57 @@ def _horizontal_md(metrics: pd.DataFrame) -> str:
         return ("No horizontal-position columns (`hpe_final`, `hpe_rms`, `hpe_final_pct`, ...) in "
                 "`metrics.parquet`: the folder was written by an older nespm; re-run `nespm mc` into a "
                 "new folder to get them.")
+    vert = vertical_rms(metrics)
     headers = ["Track", "Method", "distance [m]", "final HPE [m]", "RMS HPE [m]",
-               "final HPE [% of distance]", "CEP50 [m]", "R95 [m]", "diverged"]
+               "final HPE [% of distance]", "CEP50 [m]", "R95 [m]", *(["vertical RMS [m]"] if vert else []),
+               "diverged"]
     rows = [
         ["average" if r.track is None else str(r.track),
          smoother_label(r.filter), fmt(r.distance, ".1f"), fmt(r.hpe_final, ".4g"), fmt(r.hpe_rms, ".4g"),
-         fmt(r.hpe_final_pct, ".3g"), fmt(r.cep50, ".3g"), fmt(r.r95, ".3g"), f"{r.diverged} / {r.runs}"]
+         fmt(r.hpe_final_pct, ".3g"), fmt(r.cep50, ".3g"), fmt(r.r95, ".3g"),
+         *([fmt(vert.get((r.track, r.filter)), ".3g")] if vert else []), f"{r.diverged} / {r.runs}"]
         for r in ht.itertuples(index=False)
     ]
     return ("Final HPE and its % of distance: mean over the runs no filter lost (per track), then over "
             "tracks; RMS HPE: eq 50 with `sse_hpe` per track and eq 51 over tracks; CEP50 and R95: the "
             "radii holding 50 % and 95 % of those runs' final horizontal errors (per track; mean over "
-            "tracks on the average rows); distance: the truth's horizontal distance travelled.\n\n"
+            "tracks on the average rows); distance: the truth's horizontal distance travelled"
+            + ("; vertical RMS: the RMS over those runs and the epochs of the vertical error (eq 51 over tracks)"
+               if vert else "") + ".\n\n"
             + md_table(headers, rows))
+
+
+def nis_md(metrics: pd.DataFrame, manifest: dict) -> str:
+    """Without the per-epoch series: per filter and sensor the mean over the common survivors of each run's NIS
+    (``nis_<sensor>`` of metrics.parquet) beside its expectation, the sensor's measurement size; not judged
+    (a mean is no per-epoch test). Empty without a NIS column."""
+    cols = [c for c in metrics.columns if c.startswith("nis_") and np.isfinite(metrics[c].to_numpy(float)).any()]
+    if not cols:
+        return ""
+    dims = sensor_dims(manifest, [c[4:] for c in cols])
+    kept = metrics[~lost_by_any(metrics)]
+    rows = [[smoother_label(f), c[4:], fmt(float(kept.loc[kept["filter"] == f, c].mean()), ".3g"),
+             str(dims.get(c[4:]) or DASH)]
+            for f in filters_in_order(metrics) for c in cols if kept.loc[kept["filter"] == f, c].notna().any()]
+    return ("No per-epoch series (`epochs.parquet`), so no per-epoch consistency test: the mean over the runs no "
+            "filter lost of each run's mean NIS, beside its expectation (the measurement size).\n\n"
+            + md_table(["Method", "sensor", "mean NIS", "expected"], rows))
+
+
+def vertical_rms(metrics: pd.DataFrame) -> dict:
+    """``{(track or None, filter): vertical RMS [m]}`` over the runs no filter lost: per track the RMS over the
+    runs of each run's ``vert_rms`` (all runs have the same epochs), over tracks eq 51 (key track None); empty
+    when no filter has a finite ``vert_rms`` (a folder written before the column)."""
+    if "vert_rms" not in metrics.columns or not np.isfinite(metrics["vert_rms"].to_numpy(float)).any():
+        return {}
+    kept = metrics[~lost_by_any(metrics)]
+    per = kept.groupby(["track", "filter"], sort=False)["vert_rms"].apply(
+        lambda x: float(np.sqrt(np.mean(np.square(x.to_numpy(float))))))
+    out = {(t, f): v for (t, f), v in per.items()}
+    for f in filters_in_order(metrics):
+        vals = [v for (t, g), v in out.items() if g == f]
+        out[(None, f)] = track_average(vals) if vals else float("nan")
+    return out
 
 
 def _published_note(filters: Sequence[str], scenario: str | None, shown: Sequence[dict]) -> str:
@@ -116,7 +180,8 @@ def _published_note(filters: Sequence[str], scenario: str | None, shown: Sequenc
                       for e in missing)
     lead = ("No published table has rows for at least two of the filters run "
             if not shown else "Not shown (fewer than two of their filters run, or another scenario) ")
-    return f"{lead}({', '.join(filters)}; scenario `{scenario}`): {needs}."
+    return (f"{lead}({', '.join(filters)}; scenario `{scenario}`): {needs}. The papers' bibliographic references: "
+            "docs/references.md.")
 
 
 def _published_md(metrics: pd.DataFrame, table: pd.DataFrame, scenario: str | None, n_boot: int,
@@ -137,7 +202,10 @@ def _published_md(metrics: pd.DataFrame, table: pd.DataFrame, scenario: str | No
         "or with a synthesized IMU, are not expected to match them closely. Methods we did not "
         f"run show \"{DASH}\". Imprv. is the improvement of the table's proposed method over the "
         "row, 100 (row - proposed) / row, with our paired bootstrap 95 % interval "
-        f"({SIG_MARK} = excludes 0, {SMALL_MARK} = too few paired runs to judge)."
+        f"({SIG_MARK} = excludes 0, {SMALL_MARK} = too few paired runs to judge). The papers: `anukf.md` = Levy and "
+        "Klein, \"Adaptive Neural Unscented Kalman Filter\", arXiv:2503.05490 (2025); `ukf-nespm.md` = Levy and Klein, "
+        "\"Unscented Kalman Filter with a Nonlinear Propagation Model for Navigation Applications\", arXiv:2507.10082 "
+        "(2025); docs/references.md."
     )
     parts = [intro]
     ours = {r.filter: r for r in table.itertuples(index=False)}
@@ -233,6 +301,8 @@ def render_report(
     beside: str = "",
     notes: Sequence[str] = (),
     all_runs: str = "median",
+    consistency: pd.DataFrame | None = None,
+    consistency_by_track: pd.DataFrame | None = None,
     pcrb: str = "",
 ) -> str:
     """The full markdown text of ``report.md``: header, the link to docs/report.md, the Verdict
@@ -245,23 +315,33 @@ def render_report(
     comps = compare_filters(metrics, n_boot=n_boot, seed=seed, practical_pct=practical_pct,
                             min_pairs=min_pairs)
     vt = verdict_table(metrics, ref, n_boot=n_boot, seed=seed, practical_pct=practical_pct,
-                       min_pairs=min_pairs, comps=comps)
+                       min_pairs=min_pairs, comps=comps, consistency=consistency)
+    has_blocks = consistency is not None and not consistency.empty
+    posterior = bool(vt.attrs["posterior"])
+    words = consistency_words(consistency, shares=False) if has_blocks else {}
+    track_words = consistency_words(consistency_by_track, shares=False) if consistency_by_track is not None else {}
     tracks = int(metrics["track"].nunique())
     return "\n\n".join(
         [
             "# nespm Monte Carlo report",
             header_line(metrics, manifest),
             docs_line(out_dir),
-            "## Verdict\n\n" + verdict_intro(ref, n_boot, seed, practical_pct, vt.attrs["any_lost"]) + "\n\n"
+            "## Verdict\n\n" + verdict_intro(ref, n_boot, seed, practical_pct, vt.attrs["any_lost"],
+                                                  posterior=vt.attrs["posterior"],
+                                                  consistency=consistency.attrs.get("share") if has_blocks else None) + "\n\n"
             + verdict_md(vt, comps, tracks),
             *([all_runs_section(metrics, ref, n_boot, seed)] if all_runs == "median" and vt.attrs["any_lost"] else []),
             "## Caveats\n\n" + caveats_md(caveats(metrics, comps, min_pairs, notes)),
-            "## Track-averaged results (eq 51)\n\n" + _main_table(table),
+            "## Track-averaged results (eq 51)\n\n" + TABLE_CAPTION.format(verdict=VERDICT_EPOCHS[posterior]) + (CONSISTENCY_CAPTION if has_blocks else "")
+            + "\n\n" + _main_table(table, words),
+            *(["## Consistency per block and sensor\n\n" + consistency_md(consistency, smoother_label)]
+              if has_blocks else ["## Innovations per sensor\n\n" + nis_md(metrics, manifest)]
+              if nis_md(metrics, manifest) else []),
             "## Figures\n\n" + figures_md(figures, out_dir),
-            "## Per-track results (eqs 50, 52)\n\n" + _track_md(tt),
+            "## Per-track results (eqs 50, 52)\n\n" + _track_md(tt, track_words),
             "## Horizontal position error\n\n" + _horizontal_md(metrics),
             *([PCRB_SECTION + "\n\n" + pcrb] if pcrb else []),
-            "## Pairwise comparisons\n\n" + pairwise_md(comps, min_pairs),
+            "## Pairwise comparisons\n\n" + PAIRWISE_CAPTION + "\n\n" + pairwise_md(comps, min_pairs),
             "## Comparison with the published tables\n\n" + _published_md(metrics, table, scenario, n_boot, seed),
             *(["## Beside other results folders\n\n" + beside] if beside else []),
         ]

@@ -46,6 +46,31 @@ MEAN_METRICS: dict[str, tuple[str, str, str]] = {
 PAIRED_METRICS: dict[str, tuple[str, str, str]] = {**RMS_METRICS, **MEAN_METRICS}
 
 
+def has_posterior(metrics: pd.DataFrame) -> bool:
+    """The folder has the posterior sums (``*_post``, :data:`metrics.POSTERIOR_COLUMNS`) for every row
+    whose papers' sum is finite; folders written before them, or grown from such a folder, have not."""
+    cols = eqs.POSTERIOR_COLUMNS
+    if not all(p in metrics.columns for p in cols.values()):
+        return False
+    return all(bool((np.isfinite(metrics[p].to_numpy(float)) | ~np.isfinite(metrics[c].to_numpy(float))).all())
+               for c, p in cols.items() if c in metrics.columns)
+
+
+def posterior_view(metrics: pd.DataFrame) -> pd.DataFrame:
+    """``metrics`` with the papers' sums (``sse_vel``, ``sse_att``, ``sse_hpe``, ``n_samples``) replaced by
+    their posterior twins, the sums over the epochs after t = 0 (the t = 0 rule, docs/filters.md), so
+    every function here computes the posterior RMSE and its improvements from them; ``attrs["posterior"]``
+    True. A folder without them (:func:`has_posterior`) comes back with the same numbers (``attrs["posterior"]``
+    False): its improvements include the t = 0 error, and the report says so once."""
+    if not has_posterior(metrics):
+        out = metrics.copy(deep=False)  # the caller's frame keeps its attrs
+        out.attrs["posterior"] = False
+        return out
+    out = metrics.assign(**{c: metrics[p] for c, p in eqs.POSTERIOR_COLUMNS.items() if c in metrics.columns})
+    out.attrs["posterior"] = True
+    return out
+
+
 def rmse(sse: Any, n: Any, counts: np.ndarray | None = None) -> Any:
     """Eq 50 (and eq 52 with ``sse_att``): ``sqrt(sum(sse) / sum(n_samples))`` over a set of runs.
 

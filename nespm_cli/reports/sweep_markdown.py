@@ -121,7 +121,8 @@ def render_sweep_report(
         header,
         header_line(metrics, manifest),
         docs_line(out_dir),
-        "## Verdict\n\n" + verdict_intro(base, n_boot, seed, practical_pct, vt.attrs["any_lost"], "baseline")
+        "## Verdict\n\n" + verdict_intro(base, n_boot, seed, practical_pct, vt.attrs["any_lost"], "baseline",
+                                                  posterior=vt.attrs.get("posterior"))
         + " Per swept value.\n\n" + verdict_md(vt, comps, tracks, value_col=label, role="baseline"),
         *([all_runs_section(metrics, base, n_boot, seed, value_label=label)]
           if all_runs == "median" and vt.attrs["any_lost"] else []),
@@ -133,7 +134,8 @@ def render_sweep_report(
         "## Mean NEES (6 DOF)\n\n"
         f"95 % consistency band for {n} runs: **[{blo:.2f}, {bhi:.2f}]** "
         f"(`nees_band(6, {n})`, i.e. χ²₍{NEES_DOF * n}₎ quantiles / {n}): above it overconfident, below "
-        "conservative.\n\n"
+        "conservative. A mean inside it is a lenient test, not the per-block judgment of a Monte Carlo report "
+        "(docs/report.md, \"Consistency\"), which needs the per-epoch series a sweep report does not read.\n\n"
         + _metric_md(table, "nees", filters, label) + fig("sweep_nees"),
         "## Divergences\n\nRate `diverged / runs` [95 % Wilson interval] (count).\n\n"
         + _metric_md(table, "div_rate", filters, label) + "\n\n" + div_text + fig("sweep_divergence"),

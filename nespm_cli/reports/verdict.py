@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from nespm_cli.reports.block_consistency import consistency_words
 from nespm_cli.reports.comparisons import OWN_COLUMN, compare_filters
 from nespm_cli.reports.results import causal_only, check_metrics, filters_in_order, is_smoother
 from nespm_cli.reports.stats import (
@@ -32,6 +33,7 @@ from nespm_cli.reports.stats import (
     paired_run_counts,
     nees_check,
     percentile_ci,
+    posterior_view,
 )
 from nespm_cli.reports.tables import default_reference, filter_table
 
@@ -44,6 +46,7 @@ VERDICT_METRICS: dict[str, tuple[str, str]] = {
     "hpe_final": ("horizontal position error, final", "m"),
     "hpe": ("horizontal position error, RMS", "m"),
     "anees": ("ANEES", "6 dof"),
+    "consistency": ("consistency", "share of epochs inside"),
 }
 
 #: the columns of :func:`verdict_table`; ``s_``: the same over the common survivors
@@ -51,7 +54,7 @@ VERDICT_COLUMNS = (
     "metric", "best", "best_value", "other", "other_value", "other_is_reference", "imprv", "ci_lo", "ci_hi",
     "excludes_0", "significant", "practical", "pairs_min", "pairs", "verdict", "s_best_value", "s_other_value",
     "s_imprv", "s_ci_lo", "s_ci_hi", "s_excludes_0", "s_significant", "s_practical", "s_pairs_min", "s_pairs",
-    "floor", "floor_value",
+    "floor", "floor_value", "best_lost", "other_lost", "runs", "best_item", "other_item", "other_verdict", "epochs",
 )
 
 
@@ -91,11 +94,10 @@ def _error_row(key: str, c: pd.DataFrame, causal: pd.DataFrame, survivors: pd.Da
     if first["best"] is None or first["other"] is None:
         return row
     best = first["best"]
-    if ref != best and ref in set(c["other"]):
-        other = ref
-    else:  # the best is the reference: its closest competitor
-        finite = c[np.isfinite(c["imprv"].to_numpy(float))]
-        other = finite.loc[finite["imprv"].idxmin(), "other"] if len(finite) else c["other"].iloc[0]
+    # always the closest competitor (the runner-up: the smallest improvement of a defined comparison),
+    # whether or not it is the reference, so the column means one thing (the reference is in the tables)
+    finite = c[np.isfinite(c["imprv"].to_numpy(float))]
+    other = finite.loc[finite["imprv"].idxmin(), "other"] if len(finite) else c["other"].iloc[0]
     r = c[c["other"] == other].iloc[0]
     own_value = own[~own["filter"].map(is_smoother)].set_index("filter")[OWN_COLUMN[key]]
     row.update(other=other, other_is_reference=other == ref, other_value=float(own_value[other]),
@@ -112,8 +114,9 @@ def _error_row(key: str, c: pd.DataFrame, causal: pd.DataFrame, survivors: pd.Da
 
 def anees_row(causal: pd.DataFrame, survivors: pd.DataFrame, ref: str) -> dict[str, Any]:
     """The consistency row: the causal filter whose mean NEES over its own kept runs is closest to
-    :data:`stats.NEES_DOF` on a log scale (``|ln(NEES / 6)|``), the reference beside it (the runner-up
-    when the best is the reference); ``pairs`` / ``s_pairs``: the runs averaged; no interval."""
+    :data:`stats.NEES_DOF` on a log scale (``|ln(NEES / 6)|``), the runner-up (the next closest) beside it;
+    ``pairs`` / ``s_pairs``: the runs averaged; no interval. Used for a folder without the per-block NEES
+    (:func:`consistency_row` otherwise)."""
     row: dict[str, Any] = dict.fromkeys(VERDICT_COLUMNS, math.nan)
     row.update(metric="anees", best=None, other=None, other_is_reference=False, excludes_0=False,
                significant=False, practical=False, pairs_min=0, pairs=0, s_excludes_0=False,
@@ -128,7 +131,7 @@ def anees_row(causal: pd.DataFrame, survivors: pd.DataFrame, ref: str) -> dict[s
     order = [f for f in filters_in_order(causal) if f in dist.index]
     ranked = sorted(order, key=lambda f: (dist[f], order.index(f)))
     best = ranked[0]
-    other = ref if ref != best and ref in all_runs.index else (ranked[1] if len(ranked) > 1 else None)
+    other = ranked[1] if len(ranked) > 1 else None  # the runner-up, as in every row
 
     def value(table: pd.DataFrame, f: str | None, col: str = "mean") -> float:
         return float(table.loc[f, col]) if f is not None and f in table.index else math.nan
@@ -143,6 +146,34 @@ def anees_row(causal: pd.DataFrame, survivors: pd.DataFrame, ref: str) -> dict[s
     return row
 
 
+def consistency_row(table: pd.DataFrame, order: list[str]) -> dict[str, Any]:
+    """The consistency row from the per-block table ``table`` (:func:`block_consistency.block_consistency`,
+    pooled over tracks): per causal filter its worst block or sensor (the smallest share of epochs inside the
+    95 % bounds); ``best`` the filter whose worst share is largest, ``other`` the runner-up; ``best_value`` /
+    ``other_value`` those shares, ``verdict`` the best filter's words (:func:`block_consistency.consistency_words`);
+    ``best_item`` / ``other_item`` their worst items' names, ``other_verdict`` the runner-up's words, ``epochs``
+    the epochs judged; no interval."""
+    row: dict[str, Any] = dict.fromkeys(VERDICT_COLUMNS, math.nan)
+    row.update(metric="consistency", best=None, other=None, other_is_reference=False, excludes_0=False,
+               significant=False, practical=False, pairs_min=0, pairs=0, s_excludes_0=False,
+               s_significant=False, s_practical=False, s_pairs_min=0, s_pairs=0, floor=None, verdict="undefined",
+               best_item=None, other_item=None, other_verdict=None)
+    t = table[table["filter"].isin(order) & np.isfinite(table["inside"].to_numpy(float))]
+    if t.empty:
+        return row
+    worst = t.loc[t.groupby("filter", sort=False)["inside"].idxmin()].set_index("filter")
+    ranked = sorted(worst.index, key=lambda f: (-worst.loc[f, "inside"], order.index(f)))
+    words = consistency_words(t)
+    best = ranked[0]
+    other = ranked[1] if len(ranked) > 1 else None
+    row.update(best=best, best_value=float(worst.loc[best, "inside"]), verdict=words[best],
+               best_item=str(worst.loc[best, "name"]), epochs=int(worst.loc[best, "epochs"]))
+    if other is not None:
+        row.update(other=other, other_value=float(worst.loc[other, "inside"]), other_item=str(worst.loc[other, "name"]),
+                   other_verdict=words[other])
+    return row
+
+
 def verdict_table(
     metrics: pd.DataFrame,
     reference: str | None = None,
@@ -151,6 +182,7 @@ def verdict_table(
     practical_pct: float = PRACTICAL_PCT,
     min_pairs: int = MIN_PAIRED_RUNS,
     comps: pd.DataFrame | None = None,
+    consistency: pd.DataFrame | None = None,
 ) -> pd.DataFrame:
     """One row per metric of :data:`VERDICT_METRICS` present (columns :data:`VERDICT_COLUMNS`).
 
@@ -161,10 +193,16 @@ def verdict_table(
     ``practical``, ``pairs_min`` (fewest pairs on a track), ``verdict``: that row of ``comps``;
     ``pairs``: the pairs summed over tracks. ``s_*``: the same comparison over the common survivors.
     ``floor`` / ``floor_value``: the lowest RTS-smoother floor of the metric (None without one).
+    ``best_lost`` / ``other_lost``: the runs each lost (−1: no filter), ``runs``: the best filter's runs.
+    The error metrics are posterior (the t = 0 rule, :func:`stats.posterior_view`) where the folder has
+    those sums (``attrs["posterior"]``). The last row is the consistency row: per block and sensor from
+    the share of epochs inside the bounds (:func:`consistency_row` of ``consistency``, a
+    :func:`block_consistency.block_consistency` table) or, without it, the mean-NEES row (:func:`anees_row`).
     ``attrs``: ``reference``, ``any_lost``, ``practical_pct``, ``min_pairs``, ``n_boot``, ``seed``.
     """
     check_metrics(metrics)
     ref = default_reference(metrics, reference)
+    metrics = posterior_view(metrics)
     if comps is None:
         comps = compare_filters(metrics, n_boot=n_boot, seed=seed, practical_pct=practical_pct, min_pairs=min_pairs)
     causal = causal_only(metrics)
@@ -175,8 +213,16 @@ def verdict_table(
     rows = [_error_row(key, comps[comps["metric"] == key], causal, survivors if any_lost else None, ref, own,
                        n_boot, seed, practical_pct, min_pairs)
             for key in VERDICT_METRICS if key in set(comps["metric"])]
-    rows.append(anees_row(causal, survivors, ref))
+    rows.append(anees_row(causal, survivors, ref) if consistency is None or consistency.empty
+                else consistency_row(consistency, filters_in_order(causal)))
     out = pd.DataFrame(rows, columns=list(VERDICT_COLUMNS))
+    lost = causal.groupby("filter", sort=False)["diverged"].agg(["sum", "size"])
+    count = lambda f: int(lost.loc[f, "sum"]) if isinstance(f, str) and f in lost.index else -1  # noqa: E731
+    out["best_lost"] = out["best"].map(count)
+    out["other_lost"] = out["other"].map(count)
+    out["runs"] = out["best"].map(lambda f: int(lost.loc[f, "size"]) if isinstance(f, str) and f in lost.index
+                                  else int(lost["size"].max()) if len(lost) else 0)
     out.attrs.update(reference=ref, any_lost=any_lost, practical_pct=float(practical_pct),
+                     posterior=bool(metrics.attrs.get("posterior", False)),
                      min_pairs=int(min_pairs), n_boot=int(n_boot), seed=int(seed))
     return out

@@ -52,10 +52,35 @@ def _comparison_cells(r: Any, prefix: str, min_pairs: int, tracks: int) -> list[
             _yes(g("practical")), _pairs_cell(g("pairs"), g("pairs_min"), tracks)]
 
 
-def _anees_cells(r: Any, with_survivors: bool, with_floor: bool, role: str) -> list[str]:
-    """The ANEES row: best and compared filter with their mean NEES, the 95 % band, the words."""
+def _lost_cell(r: Any) -> str:
+    """``best lost / runs, runner-up lost / runs``: each filter's own lost runs (— without the filter)."""
+    runs = int(r.runs) if np.isfinite(r.runs) else 0
+    parts = [f"{int(n)} / {runs}" for n in (r.best_lost, r.other_lost) if np.isfinite(n) and n >= 0]
+    return ", ".join(parts) or DASH
+
+
+def _consistency_cells(r: Any, with_survivors: bool, with_floor: bool, role: str) -> list[str]:
+    """The consistency row: best and runner-up with the share of epochs inside the bounds of their worst block
+    or sensor, the rule, the epochs judged, the best filter's words."""
+    name = "consistency (worst block or sensor: share of epochs inside)"
     if _absent(r.best):
-        cells = ["ANEES (6 dof)", DASH, DASH, DASH, DASH, DASH, DASH, "undefined (no filter has a covariance)"]
+        cells = [name, DASH, DASH, DASH, DASH, DASH, DASH, "undefined (no filter has a covariance)", DASH]
+        return cells + ([DASH] * 4 if with_survivors else []) + ([DASH] if with_floor else [])
+    pct = lambda v: f"{100 * v:.0f} %"  # noqa: E731
+    other = DASH
+    if not _absent(r.other):
+        ref = f" ({role})" if r.other_is_reference else ""
+        other = f"`{r.other}`{ref} {r.other_item} {pct(r.other_value)}"
+    cells = [name, f"`{r.best}` {r.best_item} {pct(r.best_value)}", other, DASH, DASH, DASH, DASH, r.verdict,
+             _lost_cell(r)]
+    return cells + ([DASH] * 4 if with_survivors else []) + ([DASH] if with_floor else [])
+
+
+def _anees_cells(r: Any, with_survivors: bool, with_floor: bool, role: str) -> list[str]:
+    """The ANEES row (a folder without per-epoch block NEES): best and runner-up with their mean NEES, the
+    95 % band, the words."""
+    if _absent(r.best):
+        cells = ["ANEES (6 dof)", DASH, DASH, DASH, DASH, DASH, DASH, "undefined (no filter has a covariance)", DASH]
         return cells + ([DASH] * 4 if with_survivors else []) + ([DASH] if with_floor else [])
     lo, hi, word = nees_check(r.best_value, int(r.pairs))
     other = DASH
@@ -63,8 +88,8 @@ def _anees_cells(r: Any, with_survivors: bool, with_floor: bool, role: str) -> l
         other_word = nees_check(r.other_value, int(r.pairs))[2]
         other = f"`{r.other}`{f' ({role})' if r.other_is_reference else ''} {fmt(r.other_value, '.2f')}: {other_word}"
     cells = ["ANEES (6 dof)", f"`{r.best}` {fmt(r.best_value, '.2f')}", other,
-             f"band [{lo:.2f}, {hi:.2f}]" if np.isfinite(lo) else DASH, DASH, DASH, str(int(r.pairs)),
-             f"closest to 6: {word}"]
+             DASH, DASH, DASH, str(int(r.pairs)),
+             f"closest to 6: {word}" + (f" (band [{lo:.2f}, {hi:.2f}])" if np.isfinite(lo) else ""), _lost_cell(r)]
     if with_survivors:
         cells += [f"`{r.best}` {fmt(r.s_best_value, '.2f')}, `{r.other}` {fmt(r.s_other_value, '.2f')}"
                   if not _absent(r.other) else fmt(r.s_best_value, ".2f"), DASH, DASH, str(int(r.s_pairs))]
@@ -83,8 +108,8 @@ def verdict_md(vt: pd.DataFrame, comps: pd.DataFrame, tracks: int = 1, value_col
     with_surv = bool(vt.attrs.get("any_lost", False))
     with_floor = bool(vt["floor"].map(lambda f: isinstance(f, str)).any())
     headers = ([value_col] if value_col else []) + [
-        "Metric", "Best filter", "compared with", "Improvement [95 % CI]", "statistically (excludes 0)",
-        f"practically (≥ {p})", "pairs", "verdict"]
+        "Metric", "Best filter", "runner-up", "Improvement over the runner-up [95 % CI]",
+        "statistically (excludes 0)", f"practically (≥ {p})", "pairs", "verdict", "lost: best, runner-up"]
     if with_surv:
         headers += ["Common survivors: improvement [95 % CI]", "statistically", "practically", "runs"]
     if with_floor:
@@ -95,8 +120,9 @@ def verdict_md(vt: pd.DataFrame, comps: pd.DataFrame, tracks: int = 1, value_col
     vt = vt.assign(_o=vt["metric"].map(order)).sort_values(sort_cols, kind="stable")
     for r in vt.itertuples(index=False):
         lead = [f"{r.value:g}"] if value_col else []
-        if r.metric == "anees":
-            rows.append(lead + _anees_cells(r, with_surv, with_floor, role))
+        if r.metric in ("anees", "consistency"):
+            cells = _anees_cells if r.metric == "anees" else _consistency_cells
+            rows.append(lead + cells(r, with_surv, with_floor, role))
             continue
         name, unit = VERDICT_METRICS[r.metric]
         c = comps[comps["metric"] == r.metric]
@@ -111,9 +137,10 @@ def verdict_md(vt: pd.DataFrame, comps: pd.DataFrame, tracks: int = 1, value_col
         else:
             words = verdict_headline(c)
         best = DASH if _absent(r.best) else f"`{r.best}` {fmt(r.best_value)}"
-        other = DASH if _absent(r.other) else f"`{r.other}`" + (f" ({role})" if r.other_is_reference else
-                                                                 f" (runner-up; the best is the {role})")
-        cells = lead + [f"{name} [{unit}]", best, other, *_comparison_cells(r, "", min_pairs, tracks), words]
+        other = DASH if _absent(r.other) else f"`{r.other}` {fmt(r.other_value)}" + (
+            f" ({role})" if r.other_is_reference else "")
+        cells = lead + [f"{name} [{unit}]", best, other, *_comparison_cells(r, "", min_pairs, tracks), words,
+                        _lost_cell(r)]
         if with_surv:
             cells += _comparison_cells(r, "s_", min_pairs, tracks)
         if with_floor:
@@ -122,13 +149,31 @@ def verdict_md(vt: pd.DataFrame, comps: pd.DataFrame, tracks: int = 1, value_col
     return md_table(headers, rows)
 
 
+#: the verdict's note on the t = 0 rule: with the posterior sums, and for a folder without them
+POSTERIOR_NOTE = {
+    True: ("Errors are posterior: every RMS here is over the epochs after t = 0, where each filter has had its "
+           "first update (the tables keep the papers' definition over every epoch; docs/report.md, "
+           "\"The t = 0 rule\")."),
+    False: ("This folder has no posterior error sums (`sse_vel_post`, ...; written by an older nespm), so these "
+            "RMS values and improvements include the t = 0 error, which no filter changes, and are diluted "
+            "towards 0 (docs/report.md, \"The t = 0 rule\"); re-run `nespm mc` into a new folder to get them."),
+}
+
+
 def verdict_intro(reference: str, n_boot: int, seed: int, practical_pct: float, any_lost: bool,
-                  role: str = "reference") -> str:
-    """The one line above the verdict table: reference, practical threshold, bootstrap."""
+                  role: str = "reference", posterior: bool | None = None, consistency: float | None = None) -> str:
+    """The lines above the verdict table: reference, practical threshold, bootstrap, and (``posterior``
+    not None) which epochs the errors are over (:data:`POSTERIOR_NOTE`, said once); ``consistency``: the share
+    of epochs of the consistency row's rule, when the verdict has that row."""
     surv = "" if any_lost else " No run was lost, so all runs are the common survivors."
-    return (f"{role.capitalize()} `{reference}`. Improvement of the best filter = 100 · (compared − best) / "
-            f"compared over the runs both kept, paired bootstrap 95 % interval ({n_boot} resamples, seed {seed}); "
-            f"practical threshold {practical_pct:g} %.{surv}")
+    note = "" if posterior is None else " " + POSTERIOR_NOTE[bool(posterior)]
+    note += (f" Consistency row: each filter's worst state block or sensor, its share of the epochs whose ANEES (ANIS) "
+             f"lies inside the 95 % bounds; consistent when every block and sensor has at least "
+             f"{100 * consistency:.0f} %." if consistency else "")
+    return (f"{role.capitalize()} `{reference}`. Improvement of the best filter = 100 · (runner-up − best) / "
+            f"runner-up over the runs both kept (over every other filter in the pairwise comparisons), paired "
+            f"bootstrap 95 % interval ({n_boot} resamples, seed {seed}); "
+            f"practical threshold {practical_pct:g} %.{surv}{note}")
 
 
 def sweep_verdict_frame(parts: Sequence[tuple[float, pd.DataFrame]]) -> pd.DataFrame:

@@ -21,6 +21,10 @@ SHORT_VERDICT = {
 def verdict_headline(comps: pd.DataFrame) -> str:
     """The verdict of one metric's comparisons (its rows of ``compare_filters``) in a few words."""
     best = comps["best"].iloc[0]
+    undefined = [o for o, w in zip(comps["other"], comps["verdict"]) if w == "undefined"]
+    if undefined and len(undefined) < len(comps):  # judged on the comparisons that could be formed
+        words = verdict_headline(comps[comps["verdict"] != "undefined"])
+        return words + f"; against {', '.join(f'`{o}`' for o in undefined)} undefined (no run kept by both)"
     v = set(comps["verdict"])
     if "better" in v:
         tied = [o for o, w in zip(comps["other"], comps["verdict"]) if w == "no practical difference"]
