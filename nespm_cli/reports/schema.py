@@ -22,7 +22,8 @@ METRICS_UNITS = {
     "inconsistent": "", "seconds": "s", "kernels": "", "sse_hpe": "m²", "hpe_final": "m", "hpe_rms": "m",
     "hpe_max": "m", "distance": "m", "north_final": "m", "east_final": "m", "lost_at": "s",
     "vrmse_alive": "m/s", "mrmse_alive": "rad", "hpe_rms_alive": "m", "hpe_final_pct": "%",
-    "drift_m_per_h": "m/h", "vert_rms": "m", "nis_<sensor>": "", "q_factor_acc": "", "q_factor_gyro": "",
+    "drift_m_per_h": "m/h", "vert_rms": "m",
+    "sse_vel_post": "(m/s)²", "sse_att_post": "rad²", "sse_hpe_post": "m²", "n_post": "", "nis_<sensor>": "", "q_factor_acc": "", "q_factor_gyro": "",
 }
 
 EPOCHS_UNITS = {
@@ -33,6 +34,7 @@ EPOCHS_UNITS = {
     **{f"cover{k}_{b}_mean": "" for b in ("vel", "att", "pos", "ba", "bg") for k in (1, 2, 3)},
     "nis_<sensor>_mean": "", "nis_<sensor>_n": "", "north_true": "m", "east_true": "m", "dvl_used": "",
     "n_runs": "", "rms_<label>": "SI", "sig_<label>": "SI", "nci_<block>": "dB",
+    "pcrb_<label>": "SI²",
 }
 
 SERIES_UNITS = {
@@ -73,7 +75,10 @@ def unit_of(table: str, column: str) -> str | None:
         if "<" in name:
             m = _pattern(name).match(column)
             if m:
-                return axis_unit(m.group("label")) if unit == "SI" and "label" in m.groupdict() else unit
+                if unit in ("SI", "SI²") and "label" in m.groupdict():  # a state component's unit (squared)
+                    base = axis_unit(m.group("label"))
+                    return base if unit == "SI" or base is None else (f"({base})²" if "/" in base else f"{base}²")
+                return unit
     return None
 
 
