@@ -49,8 +49,8 @@ from nespm_cli.reports.verdict_markdown import pairwise_md, verdict_intro, verdi
 __all__ = ["beside_md", "folder_label", "render_report"]
 
 #: the caption of the papers' tables: the t = 0 rule (docs/report.md)
-TABLE_CAPTION = ("VRMSE and MRMSE as in the papers' tables: eq 50 of `anukf.md` (Levy and Klein, arXiv:2503.05490; "
-                 "docs/references.md) over every GT epoch including t = 0 (the initial "
+TABLE_CAPTION = ("VRMSE and MRMSE as in the papers' tables: eq 50 of `anukf.md` (Levy and Klein, \"Adaptive Neural Unscented Kalman "
+                 "Filter\"; docs/references.md) over every GT epoch including t = 0 (the initial "
                  "error, the same for every filter), so they compare with the published numbers; the improvement "
                  "columns are the papers' \"Imprv.\" of the reference over the row. {verdict} RTS-smoother floors stand "
                  "in their own rows, without an improvement.")
@@ -203,9 +203,9 @@ def _published_md(metrics: pd.DataFrame, table: pd.DataFrame, scenario: str | No
         f"run show \"{DASH}\". Imprv. is the improvement of the table's proposed method over the "
         "row, 100 (row - proposed) / row, with our paired bootstrap 95 % interval "
         f"({SIG_MARK} = excludes 0, {SMALL_MARK} = too few paired runs to judge). The papers: `anukf.md` = Levy and "
-        "Klein, \"Adaptive Neural Unscented Kalman Filter\", arXiv:2503.05490 (2025); `ukf-nespm.md` = Levy and Klein, "
-        "\"Unscented Kalman Filter with a Nonlinear Propagation Model for Navigation Applications\", arXiv:2507.10082 "
-        "(2025); docs/references.md."
+        "Klein, \"Adaptive Neural Unscented Kalman Filter\"; `ukf-nespm.md` = Levy and Klein, \"Unscented Kalman "
+        "Filter with a Nonlinear Propagation Model for Navigation Applications\" (University of Haifa; "
+        "docs/references.md)."
     )
     parts = [intro]
     ours = {r.filter: r for r in table.itertuples(index=False)}
