@@ -6,7 +6,8 @@ and uses it (:mod:`nespm_cli.filters.adaptive_r`, docs/filters.md "Adaptive R"),
 measurement, batched over the runs:
 
 * ``iae-ekf``: ``R̂ = Ĉ_ν − H P⁻ Hᵀ`` over the last ``window`` seconds of that sensor's
-  innovations (Mohamed & Schwarz 1999), the nominal R until the first window is full;
+  innovations (Mohamed & Schwarz 1999), the nominal R until the first window is full; a given
+  window longer than the track is an error, the default (30 s) is cut to a shorter track's span;
 * ``sh-ekf``: Sage-Husa, ``R_k = (1 − d) R_{k−1} + d (ν νᵀ − H P⁻ Hᵀ)``, ``d = 1 − forgetting``,
   starting at the nominal R;
 * ``vb-ekf``: variational Bayes (Särkkä & Nummenmaa 2009), a diagonal R with inverse-gamma rows,
@@ -101,6 +102,8 @@ class IAEEKF(AdaptiveREKF):
         self.window = float(self.options["window"])
         if not self.window > 0:
             raise NespmError(f"--filter-option {self.name}.window={self.window:g}: must be > 0 s")
+        if self.window > self.span_s and "window" not in dict(cfg.options):  # the default, on a short track
+            self.window = self.span_s
         if self.window > self.span_s:
             raise NespmError(f"--filter-option {self.name}.window={self.window:g}: longer than the track "
                              f"({self.span_s:.1f} s)")
