@@ -1,4 +1,4 @@
-"""Adaptive-R EKFs (issue 32 item 1): ``iae-ekf``, ``sh-ekf``, ``vb-ekf`` (docs/filters.md "Adaptive R").
+"""Adaptive-R EKFs (issue 32 item 1): ``iae-ekf``, ``sh-ekf``, ``vb-ekf`` (docs/filters.md, "Adaptive measurement noise").
 
 Embedded track 5 (400 s, DVL at the 1 Hz GT epochs), synthetic DVL (std 0.02 m/s, told to the
 filters). The injected change: the DVL noise x4 from t = 200 s, made in the test by scaling each

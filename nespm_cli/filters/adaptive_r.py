@@ -1,4 +1,4 @@
-"""Adaptive measurement-noise estimators, batched over runs (docs/filters.md, "Adaptive R").
+"""Adaptive measurement-noise estimators, batched over runs (docs/filters.md, "Adaptive measurement noise").
 
 Each function is one paper's equation, for B runs of one sensor with m rows (shapes below);
 :mod:`nespm_cli.filters.adaptive_ekfs` runs them inside the EKF's measurement update.
@@ -85,7 +85,9 @@ def vb_update(P: np.ndarray, H: np.ndarray, nu: np.ndarray, alpha: np.ndarray, b
 
     Prediction ``α⁻ = ρ α``, ``β⁻ = ρ β``; update ``α = α⁻ + ½``; then ``iterations`` times:
     ``R = diag(β / α)``, the Kalman update ``(x, P⁺)`` with that R (Joseph form), and
-    ``β = β⁻ + ½ (ν − H x)ᵢ² + ½ (H P⁺ Hᵀ)ᵢᵢ``. The last iteration's update is returned.
+    ``β = β⁻ + ½ (ν − H x)ᵢ² + ½ (H P⁺ Hᵀ)ᵢᵢ`` (computed in the m-dimensional measurement space:
+    ``H x = A S⁻¹ ν``, ``H P⁺ Hᵀ = A − A S⁻¹ A`` with ``A = H P Hᵀ``). The last iteration's update
+    (Joseph form) is returned.
 
     Args:
         P: (B, n, n) prior covariance; H: (B, m, n); nu: (B, m) innovation (at x = 0).
@@ -102,14 +104,17 @@ def vb_update(P: np.ndarray, H: np.ndarray, nu: np.ndarray, alpha: np.ndarray, b
     m = nu.shape[-1]
     eye = np.eye(m)
     beta_it = b_pred * (a_new / np.maximum(a_pred, 1e-300))  # first R: the predicted mean β⁻/α⁻
+    A = H @ P @ _t(H)  # (B, m, m): the iterations need only the measurement space
     for _ in range(max(int(iterations), 1)):
         r = np.where(valid, beta_it / a_new, r0)
-        Rm = r[..., :, None] * eye
-        x, P_post, S = joseph_update(P, H, nu, Rm)
-        res = nu - (H @ x[..., None])[..., 0]
-        hph = np.einsum("...ii->...i", H @ P_post @ _t(H))
+        S = A + r[..., :, None] * eye
+        SiA = np.linalg.solve(S, A)  # S⁻¹ H P Hᵀ; H x = A S⁻¹ ν and H P⁺ Hᵀ = A − A S⁻¹ A (optimal gain)
+        res = nu - (_t(SiA) @ nu[..., None])[..., 0]
+        hph = np.einsum("...ii->...i", A - A @ SiA)
         b_new = b_pred + 0.5 * res**2 + 0.5 * hph
         beta_it = b_new
+    Rm = r[..., :, None] * eye
+    x, P_post, S = joseph_update(P, H, nu, Rm)  # the state update with the last iteration's R
     alpha = np.where(valid, a_new, alpha)
     beta = np.where(valid, b_new, beta)
     return x, P_post, S, Rm, alpha, beta
