@@ -118,6 +118,13 @@ def test_bounded_is_positive_definite_between_its_bounds():
     # the round-off of whitening by these random R0 (condition numbers up to ~1e3): measured 5e-7 relative
     assert lam.min() >= 0.01 * (1 - 1e-5) and lam.max() <= 1e4 * (1 + 1e-5)
     np.linalg.cholesky(R)  # raises if any is not PD
+    # a diagonal R0 (every built-in sensor) takes the short path: the same projection
+    d = np.einsum("...ii->...i", R0)[:100]
+    Rd = bounded(R[:100] * 3 - R0[:100], d[..., :, None] * np.eye(m), 0.01, 1e4)
+    s = np.sqrt(d)
+    lam_d = np.linalg.eigvalsh((R[:100] * 3 - R0[:100]) / (s[:, :, None] * s[:, None, :]))
+    lam_p = np.linalg.eigvalsh(Rd / (s[:, :, None] * s[:, None, :]))
+    assert np.allclose(lam_p, np.clip(lam_d, 0.01, 1e4), rtol=1e-9, atol=1e-12)
 
 
 @pytest.fixture(scope="module")

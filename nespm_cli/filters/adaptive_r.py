@@ -42,13 +42,19 @@ def bounded(R_hat: np.ndarray, R0: np.ndarray, floor: float, ceiling: float) -> 
     """``R_hat`` (B, m, m) made symmetric positive definite relative to the nominal ``R0`` (B, m, m):
     with ``L = chol(R0)``, the eigenvalues of ``L⁻¹ R̂ L⁻ᵀ`` are clipped to ``[floor, ceiling]``
     (so ``floor R0 ≤ R ≤ ceiling R0`` in the Loewner order). (B, m, m)."""
-    L = np.linalg.cholesky(R0)
-    Li = np.linalg.inv(L)
-    W = Li @ R_hat @ _t(Li)
+    d = np.einsum("...ii->...i", R0)
+    diagonal = not np.any(R0 - d[..., :, None] * np.eye(R0.shape[-1]))
+    if diagonal:  # every built-in sensor: L = diag(√r)
+        s = np.sqrt(d)
+        W = R_hat / (s[..., :, None] * s[..., None, :])
+    else:
+        L = np.linalg.cholesky(R0)
+        Li = np.linalg.inv(L)
+        W = Li @ R_hat @ _t(Li)
     lam, V = np.linalg.eigh(0.5 * (W + _t(W)))
     lam = np.clip(np.nan_to_num(lam, nan=1.0), floor, ceiling)
     W = (V * lam[..., None, :]) @ _t(V)
-    out = L @ W @ _t(L)
+    out = W * (s[..., :, None] * s[..., None, :]) if diagonal else L @ W @ _t(L)
     return 0.5 * (out + _t(out))
 
 
