@@ -6,7 +6,7 @@ Configuration (all of it determines the numbers):
   (~39 s, written to a temporary A-KIT folder and passed as ``--data-dir``), 4 runs (0-3) in
   chunks of 2, every other option at its default (nominal scenario, constant schedule,
   recorded DVL, synthetic IMU, the packaged ProcessNet weights);
-- all 10 filters of ``nespm_cli.filters.FILTERS`` in one command, with ``--jobs 2`` (worker
+- all 13 filters of ``nespm_cli.filters.FILTERS`` in one command, with ``--jobs 2`` (worker
   processes); then one or two filters each, with ``--jobs 1`` (in-process), for
   ``--schedule dynamic`` (anukf-nespm), ``--scenario outage --outage-start 15
   --outage-length 10`` (ekf), ``--dvl synthetic`` (ukf) and ``--alpha 0.5`` (ukf-nespm and
@@ -18,7 +18,7 @@ metrics.parquet, and the mean over the 4 runs of each (ins has no covariance: Na
 These are regression values of the current implementation, NOT theoretical or published
 values: they only say that the numbers have not changed. First computed at commit 2541d01;
 re-pinned with issue 15 (the compiled time loop) on a machine whose OpenBLAS ran its SkylakeX
-kernels; ``alpha-0.5`` added with issue 21.
+kernels; ``alpha-0.5`` added with issue 21; ``iae-ekf``, ``sh-ekf``, ``vb-ekf`` with issue 32.
 
 Tolerances: how far the CPU and the BLAS build move these numbers, measured. The last bits of
 BLAS/LAPACK (Cholesky, batched products, solves) differ between OpenBLAS's kernels; the filters
@@ -157,6 +157,24 @@ EXPECTED = {
         "mrmse": [0.002385403515105659, 0.001976337385456522, 0.0014027656312922568, 0.0014264681752803282],
         "nees": [5.050160098981666, 2.9319865911023273, 1.2866316729212397, 1.9240270308595744],
         "mean": {"vrmse": 0.055261726400556946, "mrmse": 0.0017977436767836917, "nees": 2.7982013484662023},
+    },
+    ("nominal", "iae-ekf"): {
+        "vrmse": [0.03573635622438623, 0.05484446037502654, 0.08322676645661319, 0.04283374762830222],
+        "mrmse": [0.0022852868262724048, 0.0019482219415315402, 0.001436195484837945, 0.0013679094858779265],
+        "nees": [6.098815726814765, 4.394558935732155, 2.4752694359419705, 3.2387052115452306],
+        "mean": {"vrmse": 0.05416033267108204, "mrmse": 0.001759403434629954, "nees": 4.05183732750853},
+    },
+    ("nominal", "sh-ekf"): {
+        "vrmse": [0.034645008509432855, 0.05379591075169348, 0.08284383034696707, 0.043174620679408554],
+        "mrmse": [0.00229631230311855, 0.0019099717604919087, 0.001405963997165407, 0.0013653837798466176],
+        "nees": [5.007673468465654, 2.8860192058052903, 1.31994512291231, 1.9034849993967768],
+        "mean": {"vrmse": 0.053614842571875494, "mrmse": 0.0017444079601556207, "nees": 2.779280699145008},
+    },
+    ("nominal", "vb-ekf"): {
+        "vrmse": [0.034561908550165395, 0.053766498424596465, 0.08282833165280393, 0.04303566969093383],
+        "mrmse": [0.002289240371313872, 0.0019035102361853761, 0.001405847563041518, 0.0013606268879107401],
+        "nees": [5.001195751615157, 2.8787619535863285, 1.321437358725622, 1.9035533374859255],
+        "mean": {"vrmse": 0.053548102079624904, "mrmse": 0.0017398062646128765, "nees": 2.7762371003532587},
     },
     ("dynamic", "anukf-nespm"): {
         "vrmse": [0.1219913923667863, 0.1460689501265907, 0.1046332918590896, 0.12940691784893293],

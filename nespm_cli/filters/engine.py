@@ -44,6 +44,7 @@ from nespm_cli.filters import ukf  # noqa: F401
 from nespm_cli.filters import adaptive_filters  # noqa: F401
 from nespm_cli.filters import ckf  # noqa: F401
 from nespm_cli.filters import iekf  # noqa: F401
+from nespm_cli.filters import adaptive_ekfs  # noqa: F401
 from nespm_cli.filters.model import FilterConfig, NavState
 from nespm_cli.filters.protocol import ImuData
 from nespm_cli.filters.registry import filter_names, filter_source, get_filter, is_builtin
