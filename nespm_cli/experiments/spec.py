@@ -28,7 +28,8 @@ from nespm_cli.filters.adaptive import BIAS_MODES
 from nespm_cli.filters.registry import FILTER_REGISTRY, filter_names, get_filter
 from nespm_cli.filters.options import check_filter_options, configure
 from nespm_cli.filters.smoother import smoothed_name
-from nespm_cli.learn.noise_model import WINDOW, load_weights
+from nespm_cli.learn.noise_model import WINDOW
+from nespm_cli.learn.noise_models import load_noise_model
 from nespm_cli.experiments.suite import check_suite, dvl_of, load_sensors
 from nespm_cli.nav.state import parse_layout
 from nespm_cli.nav.synthesis import ImuTruth
@@ -164,7 +165,7 @@ def validate(spec: Spec) -> Spec:
         raise NespmError(f"--q-clip must satisfy 0 < low <= 1 <= high, got {lo:g} {hi:g}")
     adaptive = any(needs_noise_std(f) for f in spec.filters)
     if adaptive:
-        load_weights(spec.weights)  # a missing or foreign file fails now, in one line
+        load_noise_model(spec.weights)  # a missing or foreign file or model fails now, in one line
     elif spec.weights:
         raise NespmError(f"--weights {spec.weights}: only the adaptive filters (anekf, anukf, anukf-nespm) use "
                          "ProcessNet weights, and none is in --filters; drop --weights or add one")

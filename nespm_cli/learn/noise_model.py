@@ -15,7 +15,7 @@ import numpy as np
 from nespm_cli.errors import NespmError
 
 from nespm_cli.learn.processnet import VALIDITY_CLIP
-from nespm_cli.learn.training import load_processnet, predict_noise_std
+from nespm_cli.learn.training import load_processnet
 
 WINDOW = 100  # IMU steps per ProcessNet window (anukf.md: w = 100)
 
@@ -132,7 +132,7 @@ def check_weights(acc_net, gyro_net, name: str) -> None:
                              "(must increase)")
 
 
-def interval_windows(x: np.ndarray, epoch_index: np.ndarray) -> np.ndarray:
+def interval_windows(x: np.ndarray, epoch_index: np.ndarray, window: int = WINDOW) -> np.ndarray:
     """Cut IMU readings into one window per DVL interval: the :data:`WINDOW` steps that end at
     the interval's closing epoch.
 
@@ -156,17 +156,28 @@ def interval_windows(x: np.ndarray, epoch_index: np.ndarray) -> np.ndarray:
         raise NespmError(
             f"adaptive filters need at least {WINDOW} IMU steps per DVL interval; interval {bad} has "
             f"{int(steps[bad]) if len(steps) else 0} (use --imu synthetic)")
-    rows = e[1:, None] - WINDOW + np.arange(WINDOW)  # (N-1, WINDOW)
+    rows = e[1:, None] - window + np.arange(window)  # (N-1, window)
     return x[:, rows]
 
 
 def predict_interval_std(f_meas: np.ndarray, w_meas: np.ndarray, epoch_index: np.ndarray,
                          weights: str | None = None, clip: tuple[float, float] | None = None):
-    """Network noise std for every run and DVL interval.
+    """Noise std of the noise model ``weights`` (``--noise-model``/``--weights``: a ProcessNet
+    .npz, an .onnx or a plugin's file, :mod:`nespm_cli.learn.noise_models`; None: the packaged
+    ProcessNet) for every run and DVL interval, in one batched call.
 
     Returns ``(std_a, std_g)``, each (R, N-1, 3) [m/s², rad/s per IMU sample], unclipped
-    (clipping happens in :func:`adaptive_q`, so the raw prediction can be recorded).
+    (clipping happens in :func:`adaptive_q`, so the raw prediction can be recorded) unless ``clip``
+    (multiples of the nominal std) is given.
     """
-    acc, gyro, _ = load_weights(weights)
-    return predict_noise_std(acc, gyro, interval_windows(f_meas, epoch_index),
-                             interval_windows(w_meas, epoch_index), clip=clip)
+    from nespm_cli.data.corruption import NOMINAL_ACC_NOISE, NOMINAL_GYRO_NOISE
+    from nespm_cli.learn.noise_models import load_noise_model
+
+    model = load_noise_model(weights)
+    std = model.predict(np.concatenate([interval_windows(np.asarray(x, dtype=np.float64), epoch_index, model.window)
+                                        for x in (f_meas, w_meas)], axis=-1))
+    a, g = std[..., :3], std[..., 3:]
+    if clip is not None:
+        a = np.clip(a, clip[0] * NOMINAL_ACC_NOISE, clip[1] * NOMINAL_ACC_NOISE)
+        g = np.clip(g, clip[0] * NOMINAL_GYRO_NOISE, clip[1] * NOMINAL_GYRO_NOISE)
+    return a, g

@@ -1,0 +1,129 @@
+"""Noise models as a plugin kind (docs/learned.md): what maps IMU windows to the process-noise
+std the adaptive filters (anekf, anukf, anukf-nespm) turn into Q (eqs 43-48,
+:mod:`nespm_cli.filters.adaptive`).
+
+A noise model is a small object (:class:`NoiseModel`): a ``name``, the ``window`` length in IMU
+steps, the IMU ``rate_hz`` it was made for, the ``source`` file, and
+``predict(windows) -> std``: raw IMU windows ``(..., window, 6)`` (specific force x, y, z
+[m/s²], then angular rate x, y, z [rad/s], one window per run and DVL interval, batched over
+any leading axes) to the per-axis white-noise std ``(..., 6)`` in the same units per IMU sample,
+unclipped (the filters clip it to ``--q-clip`` x the nominal std). A model that predicts Q scale
+factors instead returns ``nominal · sqrt(scale)`` (see :class:`nespm_cli.learn.onnx_model.OnnxNoiseModel`).
+
+Built in: ProcessNet (a ``.npz`` from ``nespm train``, :class:`ProcessNetModel`) and ONNX
+(a ``.onnx`` run by onnxruntime, :mod:`nespm_cli.learn.onnx_model`). More kinds register by file
+suffix, in code (:func:`register`) or through the ``nespm.noise_models`` entry point whose name
+is the suffix (without the dot) and whose object is a ``load(path) -> NoiseModel``.
+"""
+from __future__ import annotations
+
+from functools import lru_cache
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from nespm_cli.errors import NespmError
+
+#: the entry-point group of noise-model plugins (name: file suffix without the dot)
+ENTRY_POINT_GROUP = "nespm.noise_models"
+#: IMU rate of every experiment [Hz] (the windows the filters cut are 100 steps of 10 ms)
+IMU_RATE_HZ = 100.0
+
+
+class NoiseModel:
+    """The protocol: see the module docstring. Subclasses set the attributes and ``predict``.
+
+    Attributes:
+        name: short kind name ("processnet", "onnx", a plugin's).
+        window: IMU steps per window (100 for every built-in).
+        rate_hz: IMU rate the model expects [Hz].
+        source: the file it was loaded from (None: built in memory).
+    """
+
+    name: str = "noise-model"
+    window: int = 100
+    rate_hz: float = IMU_RATE_HZ
+    source: Path | None = None
+
+    def predict(self, windows: np.ndarray) -> np.ndarray:
+        """``(..., window, 6)`` raw IMU windows -> ``(..., 6)`` std [m/s², rad/s per sample]."""
+        raise NotImplementedError
+
+
+class ProcessNetModel(NoiseModel):
+    """The built-in: the accelerometer and gyro ProcessNets of a ``nespm train`` file (numpy)."""
+
+    name = "processnet"
+
+    def __init__(self, acc_net, gyro_net, source: Path | None = None):
+        self.acc, self.gyro, self.source = acc_net, gyro_net, source
+        self.window = int(acc_net.window)
+
+    def predict(self, windows: np.ndarray) -> np.ndarray:
+        from nespm_cli.learn.training import predict_noise_std
+
+        x = np.asarray(windows, dtype=np.float64)
+        a, g = predict_noise_std(self.acc, self.gyro, x[..., :3], x[..., 3:], clip=None)
+        return np.concatenate([a, g], axis=-1)
+
+
+def _load_processnet(path: Path) -> NoiseModel:
+    from nespm_cli.learn.noise_model import load_weights
+
+    acc, gyro, _ = load_weights(str(path))
+    return ProcessNetModel(acc, gyro, path)
+
+
+def _load_onnx(path: Path) -> NoiseModel:
+    from nespm_cli.learn.onnx_model import OnnxNoiseModel
+
+    return OnnxNoiseModel(path)
+
+
+_LOADERS: dict[str, Callable[[Path], NoiseModel]] = {"npz": _load_processnet, "onnx": _load_onnx}
+
+
+def register(suffix: str, load: Callable[[Path], NoiseModel]) -> None:
+    """Make ``--noise-model FILE.<suffix>`` load with ``load(path) -> NoiseModel``."""
+    _LOADERS[suffix.lower().lstrip(".")] = load
+
+
+def loaders() -> dict[str, Callable[[Path], NoiseModel]]:
+    """Suffix -> loader: the built-ins, then the ``nespm.noise_models`` entry points (which may
+    not replace a built-in)."""
+    from importlib.metadata import entry_points
+
+    out = dict(_LOADERS)
+    for ep in entry_points(group=ENTRY_POINT_GROUP):
+        if ep.name.lower() not in out:
+            out[ep.name.lower()] = ep  # loaded on use only
+    return out
+
+
+@lru_cache(maxsize=8)
+def load_noise_model(path: str | None) -> NoiseModel:
+    """The noise model of ``--noise-model`` (alias ``--weights``) ``path``; None: the packaged
+    ProcessNet. Cached per process; every failure is one NespmError naming the file."""
+    from nespm_cli.learn.noise_model import default_weights
+
+    p = Path(path).expanduser() if path else default_weights()
+    kinds = loaders()
+    suffix = p.suffix.lower().lstrip(".")
+    if suffix not in kinds:
+        raise NespmError(f"--noise-model {p}: unknown model file type {p.suffix or '(none)'!r}; "
+                         f"known: {', '.join('.' + k for k in sorted(kinds))} (docs/learned.md)")
+    load = kinds[suffix]
+    if not callable(load):  # an entry point
+        try:
+            load = load.load()
+        except Exception as exc:
+            raise NespmError(f"--noise-model {p}: plugin {ENTRY_POINT_GROUP}:{suffix} cannot be loaded "
+                             f"({type(exc).__name__}: {exc})") from None
+    model = load(p)
+    if not isinstance(model, NoiseModel):
+        raise NespmError(f"--noise-model {p}: the {suffix} loader returned {type(model).__name__}, not a NoiseModel")
+    if abs(float(model.rate_hz) - IMU_RATE_HZ) > 1e-9:
+        raise NespmError(f"--noise-model {p}: made for a {model.rate_hz:g} Hz IMU; the experiments run at "
+                         f"{IMU_RATE_HZ:g} Hz")
+    return model
