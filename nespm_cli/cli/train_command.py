@@ -89,6 +89,6 @@ def train(
     plot = plot_history(s["history"], Path(s["path"]).with_suffix(".png"), s["test"])
     typer.echo(f"trained in {s['seconds']:.1f} s -> {s['path']} (loss curves {plot})")
     if export == "onnx":
-        from nespm_cli.learn.onnx_model import export_processnet
+        from nespm_cli.learn.noise_models import export_processnet
 
         typer.echo(f"ONNX -> {export_processnet(s['path'], Path(s['path']).with_suffix('.onnx'))}")

@@ -15,7 +15,7 @@ import numpy as np
 from nespm_cli.errors import NespmError
 
 from nespm_cli.learn.processnet import VALIDITY_CLIP
-from nespm_cli.learn.training import load_processnet
+from nespm_cli.learn.training import load_processnet, predict_noise_std
 
 WINDOW = 100  # IMU steps per ProcessNet window (anukf.md: w = 100)
 
@@ -162,22 +162,37 @@ def interval_windows(x: np.ndarray, epoch_index: np.ndarray, window: int = WINDO
 
 def predict_interval_std(f_meas: np.ndarray, w_meas: np.ndarray, epoch_index: np.ndarray,
                          weights: str | None = None, clip: tuple[float, float] | None = None):
-    """Noise std of the noise model ``weights`` (``--noise-model``/``--weights``: a ProcessNet
-    .npz, an .onnx or a plugin's file, :mod:`nespm_cli.learn.noise_models`; None: the packaged
-    ProcessNet) for every run and DVL interval, in one batched call.
+    """ProcessNet noise std for every run and DVL interval (any noise model:
+    :func:`nespm_cli.learn.noise_models.predict_interval_std`).
 
     Returns ``(std_a, std_g)``, each (R, N-1, 3) [m/s², rad/s per IMU sample], unclipped
-    (clipping happens in :func:`adaptive_q`, so the raw prediction can be recorded) unless ``clip``
-    (multiples of the nominal std) is given.
+    (clipping happens in :func:`adaptive_q`, so the raw prediction can be recorded).
     """
-    from nespm_cli.data.corruption import NOMINAL_ACC_NOISE, NOMINAL_GYRO_NOISE
-    from nespm_cli.learn.noise_models import load_noise_model
+    acc, gyro, _ = load_weights(weights)
+    return predict_noise_std(acc, gyro, interval_windows(f_meas, epoch_index),
+                             interval_windows(w_meas, epoch_index), clip=clip)
 
-    model = load_noise_model(weights)
-    std = model.predict(np.concatenate([interval_windows(np.asarray(x, dtype=np.float64), epoch_index, model.window)
-                                        for x in (f_meas, w_meas)], axis=-1))
-    a, g = std[..., :3], std[..., 3:]
-    if clip is not None:
-        a = np.clip(a, clip[0] * NOMINAL_ACC_NOISE, clip[1] * NOMINAL_ACC_NOISE)
-        g = np.clip(g, clip[0] * NOMINAL_GYRO_NOISE, clip[1] * NOMINAL_GYRO_NOISE)
-    return a, g
+
+#: IMU rate of every experiment [Hz] (the windows the filters cut are 100 steps of 10 ms)
+IMU_RATE_HZ = 100.0
+
+
+class NoiseModel:
+    """The noise-model protocol (:mod:`nespm_cli.learn.noise_models`, docs/learned.md).
+
+    Attributes:
+        name: short kind name ("processnet", "onnx", a plugin's).
+        window: IMU steps per window (100 for every built-in).
+        rate_hz: IMU rate the model expects [Hz].
+        source: the file it was loaded from (None: built in memory).
+    """
+
+    name: str = "noise-model"
+    window: int = WINDOW
+    rate_hz: float = IMU_RATE_HZ
+    source: Path | None = None
+
+    def predict(self, windows: np.ndarray) -> np.ndarray:
+        """``(..., window, 6)`` raw IMU windows (specific force [m/s²], angular rate [rad/s]) ->
+        ``(..., 6)`` white-noise std per IMU sample in the same units, unclipped."""
+        raise NotImplementedError

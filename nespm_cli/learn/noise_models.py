@@ -24,31 +24,13 @@ from typing import Callable
 import numpy as np
 
 from nespm_cli.errors import NespmError
+from nespm_cli.learn.noise_model import (IMU_RATE_HZ, NoiseModel, default_weights, interval_windows, load_weights,
+                                         reference_windows)
 
 #: the entry-point group of noise-model plugins (name: file suffix without the dot)
 ENTRY_POINT_GROUP = "nespm.noise_models"
-#: IMU rate of every experiment [Hz] (the windows the filters cut are 100 steps of 10 ms)
-IMU_RATE_HZ = 100.0
-
-
-class NoiseModel:
-    """The protocol: see the module docstring. Subclasses set the attributes and ``predict``.
-
-    Attributes:
-        name: short kind name ("processnet", "onnx", a plugin's).
-        window: IMU steps per window (100 for every built-in).
-        rate_hz: IMU rate the model expects [Hz].
-        source: the file it was loaded from (None: built in memory).
-    """
-
-    name: str = "noise-model"
-    window: int = 100
-    rate_hz: float = IMU_RATE_HZ
-    source: Path | None = None
-
-    def predict(self, windows: np.ndarray) -> np.ndarray:
-        """``(..., window, 6)`` raw IMU windows -> ``(..., 6)`` std [m/s², rad/s per sample]."""
-        raise NotImplementedError
+__all__ = ["NoiseModel", "ProcessNetModel", "IMU_RATE_HZ", "register", "loaders", "load_noise_model",
+           "predict_interval_std", "export_processnet"]
 
 
 class ProcessNetModel(NoiseModel):
@@ -69,8 +51,6 @@ class ProcessNetModel(NoiseModel):
 
 
 def _load_processnet(path: Path) -> NoiseModel:
-    from nespm_cli.learn.noise_model import load_weights
-
     acc, gyro, _ = load_weights(str(path))
     return ProcessNetModel(acc, gyro, path)
 
@@ -78,7 +58,7 @@ def _load_processnet(path: Path) -> NoiseModel:
 def _load_onnx(path: Path) -> NoiseModel:
     from nespm_cli.learn.onnx_model import OnnxNoiseModel
 
-    return OnnxNoiseModel(path)
+    return OnnxNoiseModel(path, reference=np.concatenate(reference_windows(), axis=-1))
 
 
 _LOADERS: dict[str, Callable[[Path], NoiseModel]] = {"npz": _load_processnet, "onnx": _load_onnx}
@@ -105,8 +85,6 @@ def loaders() -> dict[str, Callable[[Path], NoiseModel]]:
 def load_noise_model(path: str | None) -> NoiseModel:
     """The noise model of ``--noise-model`` (alias ``--weights``) ``path``; None: the packaged
     ProcessNet. Cached per process; every failure is one NespmError naming the file."""
-    from nespm_cli.learn.noise_model import default_weights
-
     p = Path(path).expanduser() if path else default_weights()
     kinds = loaders()
     suffix = p.suffix.lower().lstrip(".")
@@ -127,3 +105,42 @@ def load_noise_model(path: str | None) -> NoiseModel:
         raise NespmError(f"--noise-model {p}: made for a {model.rate_hz:g} Hz IMU; the experiments run at "
                          f"{IMU_RATE_HZ:g} Hz")
     return model
+
+
+def predict_interval_std(f_meas: np.ndarray, w_meas: np.ndarray, epoch_index: np.ndarray,
+                         weights: str | None = None, clip: tuple[float, float] | None = None):
+    """Noise std of the noise model ``weights`` (``--noise-model``/``--weights``: a ProcessNet
+    .npz, an .onnx or a plugin's file; None: the packaged ProcessNet) for every run and DVL
+    interval, in one batched call.
+
+    Args:
+        f_meas, w_meas: (R, M, 3) IMU readings [m/s², rad/s]; epoch_index: (N,) IMU sample of each epoch.
+        clip: None (the filters clip) or ``(lo, hi)`` multiples of the nominal std.
+
+    Returns ``(std_a, std_g)``, each (R, N-1, 3) [m/s², rad/s per IMU sample].
+    """
+    from nespm_cli.data.corruption import NOMINAL_ACC_NOISE, NOMINAL_GYRO_NOISE
+
+    model = load_noise_model(weights)
+    std = model.predict(np.concatenate([interval_windows(np.asarray(x, dtype=np.float64), epoch_index, model.window)
+                                        for x in (f_meas, w_meas)], axis=-1))
+    a, g = std[..., :3], std[..., 3:]
+    if clip is not None:
+        a = np.clip(a, clip[0] * NOMINAL_ACC_NOISE, clip[1] * NOMINAL_ACC_NOISE)
+        g = np.clip(g, clip[0] * NOMINAL_GYRO_NOISE, clip[1] * NOMINAL_GYRO_NOISE)
+    return a, g
+
+
+def export_processnet(weights, out) -> Path:
+    """Write the ProcessNet of ``weights`` (a ``nespm train`` .npz; None: the packaged one) as
+    ONNX to ``out`` (:func:`nespm_cli.learn.onnx_model.processnet_onnx`); returns ``out``."""
+    from nespm_cli.learn.onnx_model import processnet_onnx
+
+    acc, gyro, _ = load_weights(str(weights) if weights else None)
+    model = processnet_onnx(acc, gyro, {"weights": Path(weights).name if weights else "packaged"})
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(out.name + ".tmp")
+    tmp.write_bytes(model.SerializeToString())
+    tmp.replace(out)
+    return out

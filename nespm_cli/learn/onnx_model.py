@@ -2,7 +2,7 @@
 
 :class:`OnnxNoiseModel` runs a ``.onnx`` file with onnxruntime (CPU, one thread, batched over
 runs and DVL intervals) after checking its input and output contract;
-:func:`processnet_onnx` / :func:`export_processnet` write the numpy ProcessNet (eqs 34-41 and
+:func:`processnet_onnx` (and :func:`nespm_cli.learn.noise_models.export_processnet`) write the numpy ProcessNet (eqs 34-41 and
 its :class:`~nespm_cli.learn.processnet.Normalizer`) as an ONNX graph built with ``onnx.helper``
 alone. Both need the optional extra ``pip install 'nespm[onnx]'`` (onnx, onnxruntime); its
 absence is one NespmError naming it.
@@ -17,7 +17,7 @@ The contract (checked at load, before any run; every breach is one line naming t
   variance (std = nominal · sqrt(factor)); float32 or float64;
 * optional metadata ``nespm.rate_hz`` (default 100): the IMU rate the model was made for.
 
-A run on 40 deterministic reference windows must give finite values of the declared shape.
+A run on the 40 reference windows of :func:`nespm_cli.learn.noise_model.reference_windows` must give finite values of the declared shape.
 """
 from __future__ import annotations
 
@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from nespm_cli.errors import NespmError
-from nespm_cli.learn.noise_models import IMU_RATE_HZ, NoiseModel
+from nespm_cli.learn.noise_model import IMU_RATE_HZ, NoiseModel
 
 INPUT = "imu"
 OUTPUTS = {"std": 6, "q_scale": 2}
@@ -58,7 +58,7 @@ class OnnxNoiseModel(NoiseModel):
 
     name = "onnx"
 
-    def __init__(self, path, threads: int = 1):
+    def __init__(self, path, threads: int = 1, reference: np.ndarray | None = None):
         p = Path(path).expanduser()
         what = f"--noise-model {p}"
         ort = _import("onnxruntime", what)
@@ -99,15 +99,13 @@ class OnnxNoiseModel(NoiseModel):
             self.rate_hz = float(meta.get("nespm.rate_hz", IMU_RATE_HZ))
         except ValueError:
             raise NespmError(f"{what}: metadata nespm.rate_hz is {meta['nespm.rate_hz']!r}, not a number") from None
-        self._check_run(what)
+        self._check_run(what, reference)
 
-    def _check_run(self, what: str) -> None:
-        from nespm_cli.learn.noise_model import reference_windows
-
-        f, w = reference_windows()  # (L, K, 100, 3) each
-        x = np.concatenate([f, w], axis=-1)[..., -self.window:, :] if self.window <= f.shape[-2] else None
-        if x is None:
-            x = np.zeros((2, 2, self.window, 6))
+    def _check_run(self, what: str, reference: np.ndarray | None) -> None:
+        """Run once on ``reference`` (L, K, >= W, 6) windows (their last W steps; None or too
+        short: zeros (2, 2, W, 6)); the output must have the declared shape and be finite."""
+        ok = reference is not None and reference.shape[-2] >= self.window
+        x = reference[..., -self.window:, :] if ok else np.zeros((2, 2, self.window, 6))
         try:
             raw = self._run(x.reshape((-1,) + x.shape[-2:]))
         except Exception as exc:
@@ -210,18 +208,3 @@ def processnet_onnx(acc_net, gyro_net, meta: dict | None = None):
                                    **{f"nespm.{k}": str(v) for k, v in (meta or {}).items()}})
     onnx.checker.check_model(model)
     return model
-
-
-def export_processnet(weights, out) -> Path:
-    """Write the ProcessNet of ``weights`` (a ``nespm train`` .npz; None: the packaged one) as
-    ONNX to ``out``; returns ``out``."""
-    from nespm_cli.learn.noise_model import load_weights
-
-    acc, gyro, _ = load_weights(str(weights) if weights else None)
-    model = processnet_onnx(acc, gyro, {"weights": Path(weights).name if weights else "packaged"})
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(out.name + ".tmp")
-    tmp.write_bytes(model.SerializeToString())
-    tmp.replace(out)
-    return out
