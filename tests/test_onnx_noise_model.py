@@ -71,14 +71,16 @@ def _onnx_model(path: Path, in_name="imu", in_type=None, in_shape=("N", 100, 6),
 
 
 def test_processnet_onnx_equals_numpy_std_and_q(models):
-    """float64 network: ONNX = numpy to rounding (measured 1.1e-15 in std); the packaged float32
-    network: the two float32 summation orders differ by at most 4.7e-7 in std (measured), so Q
-    (std², clipped) agrees to 1e-6 relative."""
+    """float64 network: ONNX = numpy to rounding (measured 1.1e-15 in std), Q to 1e-6 relative
+    with 1e6 x margin. The packaged float32 network: the two float32 summation orders (OpenBLAS vs
+    MLAS) differ by up to 4.7e-7 in std on these 40 windows and 6.9e-7 on 4000 (measured,
+    benchmarks/bench_onnx_noise_model.py), i.e. 1.4e-6 in Q = std²: asserted at 4e-6 (about 30 x
+    float32's 1.2e-7 epsilon, the 750-term sums' rounding)."""
     from nespm_cli.filters.adaptive import adaptive_q  # noqa: F401  (Q is std² x tau: eqs 44, 46)
 
     f, w = reference_windows()
     x = np.concatenate([f, w], axis=-1)  # (2, 20, 100, 6)
-    for npz, onx, tol in ((models["npz64"], models["onnx64"], 1e-12), (models["npz32"], models["onnx32"], 1e-6)):
+    for npz, onx, tol in ((models["npz64"], models["onnx64"], 1e-12), (models["npz32"], models["onnx32"], 4e-6)):
         a, b = load_noise_model(npz), load_noise_model(onx)
         assert isinstance(a, ProcessNetModel) and b.name == "onnx" and b.window == 100
         sa, sb = a.predict(x), b.predict(x)
@@ -93,7 +95,7 @@ def test_processnet_onnx_equals_numpy_std_and_q(models):
     got = predict_interval_std(fm, wm, e, models["onnx64"], clip=(0.25, 24))
     for r, g in zip(ref, got):
         assert r.shape == (3, 10, 3)
-        np.testing.assert_allclose(g ** 2, r ** 2, rtol=1e-6, atol=0)
+        np.testing.assert_allclose(g ** 2, r ** 2, rtol=1e-6, atol=0)  # float64 pair
 
 
 @pytest.fixture(scope="module")
