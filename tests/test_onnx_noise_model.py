@@ -206,3 +206,48 @@ def test_train_export_onnx_bad_value_is_one_line(capsys, tmp_path):
     rc, so, err = cli(capsys, "train", "--tracks", "1", "--test-tracks", "5", "--runs", "1", "--epochs", "1",
                       "--export", "tflite", "--out", tmp_path / "w.npz", "--no-progress")
     assert_one_error_line(rc, so, err, "--export", "onnx")
+
+
+def test_train_export_onnx_writes_the_same_model(capsys, tmp_path, monkeypatch):
+    """`nespm train --export onnx` writes <out>.onnx beside the weights; it predicts the weights'
+    std (float32 network: Q to 4e-6, see above); without the extra it stops before training."""
+    _need_onnx()
+    out = tmp_path / "w.npz"
+    rc, so, err = cli(capsys, "train", "--tracks", "1", "--test-tracks", "5", "--runs", "2", "--epochs", "1",
+                      "--export", "onnx", "--out", out, "--no-progress")
+    assert rc == 0, err
+    x = np.concatenate(reference_windows(), axis=-1)
+    a, b = load_noise_model(str(out)).predict(x), load_noise_model(str(out.with_suffix(".onnx"))).predict(x)
+    assert np.max(np.abs((b / a) ** 2 - 1)) < 4e-6
+    monkeypatch.setitem(sys.modules, "onnx", None)
+    rc, so, err = cli(capsys, "train", "--tracks", "1", "--test-tracks", "5", "--runs", "2", "--epochs", "1",
+                      "--export", "onnx", "--out", tmp_path / "never.npz", "--no-progress")
+    assert_one_error_line(rc, so, err, "--export onnx", "nespm[onnx]")
+    assert not (tmp_path / "never.npz").exists()
+
+
+def test_q_scale_output_is_nominal_times_sqrt_factor(tmp_path):
+    """Output q_scale (N, 2): factors on the nominal acc / gyro variance -> std per axis."""
+    _need_onnx()
+    import onnx
+    from onnx import TensorProto, helper, numpy_helper
+
+    from nespm_cli.data.corruption import NOMINAL_ACC_NOISE, NOMINAL_GYRO_NOISE
+
+    four = numpy_helper.from_array(np.array([[4.0, 9.0]]), "four")
+    nodes = [helper.make_node("ReduceMean", ["imu"], ["m"], axes=[1, 2], keepdims=0),  # (N,)
+             helper.make_node("Unsqueeze", ["m", "ax"], ["m1"]),
+             helper.make_node("Mul", ["m1", "zero"], ["z"]),
+             helper.make_node("Add", ["z", "four"], ["q_scale"])]
+    g = helper.make_graph(nodes, "q", [helper.make_tensor_value_info("imu", TensorProto.DOUBLE, ["N", 50, 6])],
+                          [helper.make_tensor_value_info("q_scale", TensorProto.DOUBLE, ["N", 2])],
+                          [four, numpy_helper.from_array(np.array([1], dtype=np.int64), "ax"),
+                           numpy_helper.from_array(np.array(0.0), "zero")])
+    m = helper.make_model(g, opset_imports=[helper.make_opsetid("", 17)])
+    m.ir_version = 8
+    onnx.save(m, tmp_path / "q.onnx")
+    model = load_noise_model(str(tmp_path / "q.onnx"))
+    assert model.window == 50
+    std = model.predict(np.ones((2, 3, 50, 6)))
+    assert std.shape == (2, 3, 6)
+    np.testing.assert_allclose(std[0, 0], [2 * NOMINAL_ACC_NOISE] * 3 + [3 * NOMINAL_GYRO_NOISE] * 3, rtol=1e-15)
