@@ -251,3 +251,33 @@ def test_q_scale_output_is_nominal_times_sqrt_factor(tmp_path):
     std = model.predict(np.ones((2, 3, 50, 6)))
     assert std.shape == (2, 3, 6)
     np.testing.assert_allclose(std[0, 0], [2 * NOMINAL_ACC_NOISE] * 3 + [3 * NOMINAL_GYRO_NOISE] * 3, rtol=1e-15)
+
+
+def test_register_a_noise_model_kind(tmp_path):
+    """A kind registered by suffix (what the nespm.noise_models entry point does for a package)
+    is used by --noise-model; a loader that fails is one line naming the file."""
+    from nespm_cli.learn import noise_models as nm
+
+    class Constant(nm.NoiseModel):
+        name = "constant"
+
+        def predict(self, windows):
+            return np.full(np.shape(windows)[:-2] + (6,), 2.0)
+
+    def load(path):
+        if path.read_text() != "ok":
+            raise ValueError("bad header")
+        return Constant()
+
+    nm.register(".const", load)
+    try:
+        good, bad = tmp_path / "a.const", tmp_path / "b.const"
+        good.write_text("ok")
+        bad.write_text("no")
+        e = np.arange(0, 301, 100)
+        sa, sg = nm.predict_interval_std(np.zeros((2, 300, 3)), np.zeros((2, 300, 3)), e, str(good))
+        assert sa.shape == sg.shape == (2, 3, 3) and (sa == 2).all()
+        with pytest.raises(NespmError, match=r"b.const: cannot be loaded as .const \(ValueError: bad header\)"):
+            nm.load_noise_model(str(bad))
+    finally:
+        nm.unregister(".const")

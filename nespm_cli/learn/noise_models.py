@@ -29,7 +29,7 @@ from nespm_cli.learn.noise_model import (IMU_RATE_HZ, NoiseModel, default_weight
 
 #: the entry-point group of noise-model plugins (name: file suffix without the dot)
 ENTRY_POINT_GROUP = "nespm.noise_models"
-__all__ = ["NoiseModel", "ProcessNetModel", "IMU_RATE_HZ", "register", "loaders", "load_noise_model",
+__all__ = ["NoiseModel", "ProcessNetModel", "IMU_RATE_HZ", "register", "unregister", "loaders", "load_noise_model",
            "predict_interval_std", "export_processnet"]
 
 
@@ -69,6 +69,13 @@ def register(suffix: str, load: Callable[[Path], NoiseModel]) -> None:
     _LOADERS[suffix.lower().lstrip(".")] = load
 
 
+def unregister(suffix: str) -> None:
+    """Remove a kind :func:`register` added (the built-ins stay)."""
+    key = suffix.lower().lstrip(".")
+    if key not in ("npz", "onnx"):
+        _LOADERS.pop(key, None)
+
+
 def loaders() -> dict[str, Callable[[Path], NoiseModel]]:
     """Suffix -> loader: the built-ins, then the ``nespm.noise_models`` entry points (which may
     not replace a built-in)."""
@@ -98,7 +105,13 @@ def load_noise_model(path: str | None) -> NoiseModel:
         except Exception as exc:
             raise NespmError(f"--noise-model {p}: plugin {ENTRY_POINT_GROUP}:{suffix} cannot be loaded "
                              f"({type(exc).__name__}: {exc})") from None
-    model = load(p)
+    try:
+        model = load(p)
+    except NespmError:
+        raise
+    except Exception as exc:  # a plugin's loader that fails on this file
+        raise NespmError(f"--noise-model {p}: cannot be loaded as .{suffix} ({type(exc).__name__}: "
+                         f"{str(exc).splitlines()[0][:200] if str(exc) else ''})") from None
     if not isinstance(model, NoiseModel):
         raise NespmError(f"--noise-model {p}: the {suffix} loader returned {type(model).__name__}, not a NoiseModel")
     if abs(float(model.rate_hz) - IMU_RATE_HZ) > 1e-9:
