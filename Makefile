@@ -86,6 +86,7 @@ gp-ukf: setup
 bench: setup
 	$(BIN)/python benchmarks/bench_foundation.py
 	$(BIN)/python benchmarks/bench_mc.py $(DATA_OPT)
+	$(BIN)/python benchmarks/bench_onnx_noise_model.py
 
 clean:
 	rm -rf $(VENV) *.egg-info
