@@ -76,7 +76,10 @@ def test_processnet_onnx_equals_numpy_std_and_q(models):
     MLAS) differ by up to 4.7e-7 in std on these 40 windows and 6.9e-7 on 4000 (measured,
     benchmarks/bench_onnx_noise_model.py), i.e. 1.4e-6 in Q = std²: asserted at 4e-6 (about 30 x
     float32's 1.2e-7 epsilon, the 750-term sums' rounding)."""
-    from nespm_cli.filters.adaptive import adaptive_q  # noqa: F401  (Q is std² x tau: eqs 44, 46)
+    from nespm_cli.filters import FilterConfig
+    from nespm_cli.filters.adaptive import adaptive_q
+
+    cfg = FilterConfig()
 
     f, w = reference_windows()
     x = np.concatenate([f, w], axis=-1)  # (2, 20, 100, 6)
@@ -85,8 +88,11 @@ def test_processnet_onnx_equals_numpy_std_and_q(models):
         assert isinstance(a, ProcessNetModel) and b.name == "onnx" and b.window == 100
         sa, sb = a.predict(x), b.predict(x)
         assert sa.shape == sb.shape == (2, 20, 6)
-        qa, qb = sa ** 2, sb ** 2
-        assert np.max(np.abs(qb / qa - 1)) < tol
+        qa, qb = (adaptive_q(s_[..., :3].reshape(-1, 3), s_[..., 3:].reshape(-1, 3), np.tile(np.eye(3), (40, 1, 1)),
+                             cfg, 0.01, 1.0) for s_ in (sa, sb))  # Q of eqs 43-48, (40, n, n)
+        nz = qa != 0
+        assert nz.any() and np.array_equal(nz, qb != 0)
+        assert np.max(np.abs(qb[nz] / qa[nz] - 1)) < tol
     # the filters' path: one window per run and DVL interval, batched over runs
     rng = np.random.default_rng(1)
     e = np.arange(0, 1001, 100)
