@@ -18,7 +18,7 @@ $(VENV)/.installed: pyproject.toml
 	@echo "setup: creating $(VENV) and installing nespm with its dependencies (numpy, scipy, pandas, pyarrow, matplotlib, numba, scikit-learn, dask, rosbags, pytest): a few minutes the first time"
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
-	$(BIN)/pip install --progress-bar on -e '.[test,dask]'
+	$(BIN)/pip install --progress-bar on -e '.[test,dask,onnx]'
 	@echo "setup: done; the filters' kernels compile on the first run (about a minute, once per machine)"
 	touch $@
 
@@ -90,6 +90,7 @@ gp-ukf: setup
 bench: setup
 	$(BIN)/python benchmarks/bench_foundation.py
 	$(BIN)/python benchmarks/bench_mc.py $(DATA_OPT)
+	$(BIN)/python benchmarks/bench_onnx_noise_model.py
 
 clean:
 	rm -rf $(VENV) *.egg-info

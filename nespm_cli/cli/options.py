@@ -85,7 +85,7 @@ COMMON = [  # the options that define an experiment: the realizations, the data,
     ("gyro_bias_rw", float, default(FilterConfig, "gyro_bias_rw"), "--gyro-bias-rw", "Filter gyro bias random walk [rad/s/sqrt(s)]."),
     ("alpha", float, default(FilterConfig, "alpha"), "--alpha", "UKF sigma-point spread alpha (beta = 2, kappa = 0)."),
     ("filter_plugins", Optional[List[str]], None, "--filter-plugin", "A Python file (or module) defining your own filters with nespm_cli.filters.registry.register; repeatable; then name them in --filters (docs/plugins.md)."),
-    ("weights", Optional[str], default(Spec, "weights"), "--weights", "ProcessNet weights (.npz from 'nespm train') for anekf/anukf/anukf-nespm; default: the packaged ones (embedded tracks 1-4)."),
+    ("weights", Optional[str], default(Spec, "weights"), ("--noise-model", "--weights"), "Noise model of anekf/anukf/anukf-nespm: ProcessNet weights (.npz from 'nespm train'), an ONNX model (.onnx; pip install 'nespm[onnx]') or a plugin's file (docs/learned.md); default: the packaged ProcessNet (embedded tracks 1-4)."),
     ("tau", Optional[float], default(FilterConfig, "tau"), "--tau", "Adaptive Q, eqs 44/46: q = std^2 * tau [s]; default: the IMU step."),
     ("tau_a", Optional[float], default(FilterConfig, "tau_a"), "--tau-a", "Adaptive Q, eq 45: q_v = q_a * tau_a [s]; default: the time-update span."),
     ("tau_g", Optional[float], default(FilterConfig, "tau_g"), "--tau-g", "Adaptive Q, eq 47: q_psi = q_g * tau_g [s]; default: the time-update span."),
@@ -122,7 +122,8 @@ def with_options(*groups):
     def deco(f):
         own = [p for p in inspect.signature(f).parameters.values() if p.kind != p.VAR_KEYWORD]
         extra = [inspect.Parameter(n, inspect.Parameter.KEYWORD_ONLY, annotation=t,
-                                   default=typer.Option(d, flag, help=h, show_default=d is not None))
+                                   default=typer.Option(d, *((flag,) if isinstance(flag, str) else flag), help=h,
+                                                        show_default=d is not None))
                  for group in groups for n, t, d, flag, h in group]
 
         @functools.wraps(f)

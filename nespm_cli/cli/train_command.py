@@ -36,6 +36,7 @@ def train(
     seed: int = typer.Option(0, "--seed", help="Seed of the realizations, the split and the initial weights."),
     data_dir: Optional[str] = DATA_DIR,
     no_progress: bool = typer.Option(False, "--no-progress", help="No progress bar."),
+    export: Optional[str] = typer.Option(None, "--export", help="onnx: also write the trained ProcessNet as ONNX beside --out (<out>.onnx; pip install 'nespm[onnx]'; docs/learned.md)."),
     **kw,
 ) -> None:
     """Train the accelerometer and gyro ProcessNets (anukf.md eqs 34-42) on dynamic-schedule windows."""
@@ -44,6 +45,12 @@ def train(
     train_t, test_t = parse_tracks(tracks_), parse_tracks(test_tracks)
     if not str(out).endswith(".npz"):
         raise NespmError(f"--out {out}: the weights file name must end in .npz")
+    if export is not None:
+        if export != "onnx":
+            raise NespmError(f"--export: choose onnx, got {export!r}")
+        from nespm_cli.learn.onnx_model import require_extra
+
+        require_extra("onnx", "--export onnx")  # before the training, not after
     if runs < 1 or epochs < 1:
         raise NespmError("--runs and --epochs must be at least 1")
     from nespm_cli.data.tracks import available_tracks, resolve_data_dir
@@ -81,3 +88,7 @@ def train(
 
     plot = plot_history(s["history"], Path(s["path"]).with_suffix(".png"), s["test"])
     typer.echo(f"trained in {s['seconds']:.1f} s -> {s['path']} (loss curves {plot})")
+    if export == "onnx":
+        from nespm_cli.learn.noise_models import export_processnet
+
+        typer.echo(f"ONNX -> {export_processnet(s['path'], Path(s['path']).with_suffix('.onnx'))}")

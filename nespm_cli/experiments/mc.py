@@ -40,7 +40,8 @@ from nespm_cli.filters import FilterConfig, initial_nav, run_filter
 from nespm_cli.filters.kernels import kernel_backend
 from nespm_cli.filters.registry import plugin_files
 from nespm_cli.filters.smoother import smoothed_name
-from nespm_cli.learn.noise_model import default_weights, predict_interval_std
+from nespm_cli.learn.noise_model import default_weights
+from nespm_cli.learn.noise_models import predict_interval_std
 from nespm_cli.sensors.channels import build_channel
 from nespm_cli.nav.earth import ned_offset
 

@@ -116,7 +116,8 @@ def validate(spec: Spec) -> Spec:
     from nespm_cli.data.tracks import available_tracks, load_track, resolve_data_dir
     from nespm_cli.experiments.suite import check_suite, load_sensors
     from nespm_cli.filters.registry import filter_names, get_filter
-    from nespm_cli.learn.noise_model import WINDOW, load_weights
+    from nespm_cli.learn.noise_model import WINDOW
+    from nespm_cli.learn.noise_models import load_noise_model
 
     check_domains(spec)
     if spec.chunk_size is not None and spec.chunk_size < 1:
@@ -167,11 +168,12 @@ def validate(spec: Spec) -> Spec:
     if not (np.isfinite(lo) and np.isfinite(hi) and 0 < lo <= 1 <= hi):
         raise NespmError(f"--q-clip must satisfy 0 < low <= 1 <= high, got {lo:g} {hi:g}")
     adaptive = any(needs_noise_std(f) for f in spec.filters)
-    if adaptive:
-        load_weights(spec.weights)  # a missing or foreign file fails now, in one line
+    window = WINDOW
+    if adaptive:  # a missing or foreign file or model fails now, in one line
+        window = load_noise_model(spec.weights).window
     elif spec.weights:
-        raise NespmError(f"--weights {spec.weights}: only the adaptive filters (anekf, anukf, anukf-nespm) use "
-                         "ProcessNet weights, and none is in --filters; drop --weights or add one")
+        raise NespmError(f"--noise-model/--weights {spec.weights}: only the adaptive filters (anekf, anukf, "
+                         "anukf-nespm) use a noise model, and none is in --filters; drop it or add one")
     d = resolve_data_dir(spec.data_dir)
     have = available_tracks(d)
     for n in spec.tracks:
@@ -192,9 +194,9 @@ def validate(spec: Spec) -> Spec:
     if adaptive and spec.imu == "recorded":  # one network window per DVL interval
         for n in spec.tracks:
             steps = np.diff(track_inputs(spec, n)[1].epoch_index)
-            if not np.all(steps >= WINDOW):
+            if not np.all(steps >= window):
                 raise NespmError(f"--imu recorded: track {n} has {int(steps.min())}-{int(steps.max())} IMU steps "
-                                 f"per DVL interval; the adaptive filters need at least {WINDOW}")
+                                 f"per DVL interval; the adaptive filters' noise model needs at least {window}")
     if spec.scenario == "outage":
         if spec.outage_length <= 0 or spec.outage_start <= 0:
             raise NespmError("--outage-start and --outage-length must be positive")

@@ -132,7 +132,7 @@ def check_weights(acc_net, gyro_net, name: str) -> None:
                              "(must increase)")
 
 
-def interval_windows(x: np.ndarray, epoch_index: np.ndarray) -> np.ndarray:
+def interval_windows(x: np.ndarray, epoch_index: np.ndarray, window: int = WINDOW) -> np.ndarray:
     """Cut IMU readings into one window per DVL interval: the :data:`WINDOW` steps that end at
     the interval's closing epoch.
 
@@ -156,13 +156,14 @@ def interval_windows(x: np.ndarray, epoch_index: np.ndarray) -> np.ndarray:
         raise NespmError(
             f"adaptive filters need at least {WINDOW} IMU steps per DVL interval; interval {bad} has "
             f"{int(steps[bad]) if len(steps) else 0} (use --imu synthetic)")
-    rows = e[1:, None] - WINDOW + np.arange(WINDOW)  # (N-1, WINDOW)
+    rows = e[1:, None] - window + np.arange(window)  # (N-1, window)
     return x[:, rows]
 
 
 def predict_interval_std(f_meas: np.ndarray, w_meas: np.ndarray, epoch_index: np.ndarray,
                          weights: str | None = None, clip: tuple[float, float] | None = None):
-    """Network noise std for every run and DVL interval.
+    """ProcessNet noise std for every run and DVL interval (any noise model:
+    :func:`nespm_cli.learn.noise_models.predict_interval_std`).
 
     Returns ``(std_a, std_g)``, each (R, N-1, 3) [m/s², rad/s per IMU sample], unclipped
     (clipping happens in :func:`adaptive_q`, so the raw prediction can be recorded).
@@ -170,3 +171,28 @@ def predict_interval_std(f_meas: np.ndarray, w_meas: np.ndarray, epoch_index: np
     acc, gyro, _ = load_weights(weights)
     return predict_noise_std(acc, gyro, interval_windows(f_meas, epoch_index),
                              interval_windows(w_meas, epoch_index), clip=clip)
+
+
+#: IMU rate of every experiment [Hz] (the windows the filters cut are 100 steps of 10 ms)
+IMU_RATE_HZ = 100.0
+
+
+class NoiseModel:
+    """The noise-model protocol (:mod:`nespm_cli.learn.noise_models`, docs/learned.md).
+
+    Attributes:
+        name: short kind name ("processnet", "onnx", a plugin's).
+        window: IMU steps per window (100 for every built-in).
+        rate_hz: IMU rate the model expects [Hz].
+        source: the file it was loaded from (None: built in memory).
+    """
+
+    name: str = "noise-model"
+    window: int = WINDOW
+    rate_hz: float = IMU_RATE_HZ
+    source: Path | None = None
+
+    def predict(self, windows: np.ndarray) -> np.ndarray:
+        """``(..., window, 6)`` raw IMU windows (specific force [m/s²], angular rate [rad/s]) ->
+        ``(..., 6)`` white-noise std per IMU sample in the same units, unclipped."""
+        raise NotImplementedError
