@@ -68,6 +68,7 @@ class TuneSpec:
     test_tracks: tuple = ()
     test_runs: int = 100
     allow_overlap: bool = False
+    profile: bool = True  # each tuned parameter's score profile at the best setting (tune_profile)
 
 
 def training_seed(seed: int) -> int:
@@ -255,6 +256,29 @@ def best_values(out: Path, filters: tuple, trials: int) -> dict[str, dict]:
     return res
 
 
+def add_profiles(best: dict, out: Path, train: Spec, space: dict, t: TuneSpec) -> None:
+    """Add each filter's ``importance`` and (``t.profile``) ``profile`` to ``best``, reusing those of
+    ``tune.json`` when its best trial is the same (a rerun costs nothing)."""
+    import optuna
+
+    from nespm_cli.experiments.tune_profile import importances, profile
+
+    try:
+        old = json.loads((out / "tune.json").read_text(encoding="utf-8")).get("best", {})
+    except (OSError, ValueError):
+        old = {}
+    store = storage(out)
+    for i, (f, b) in enumerate(best.items()):
+        b["importance"] = importances(optuna.load_study(study_name=f, storage=store))
+        if not t.profile:
+            continue
+        prev = old.get(f, {})
+        if prev.get("trial") == b["trial"] and prev.get("values") == b["values"] and "profile" in prev:
+            b["profile"] = prev["profile"]
+        else:
+            b["profile"] = profile(train, f, space[f], b["values"], t.objective, b["score"])
+
+
 def tuned_toml(best: dict, train: Spec, t: TuneSpec) -> str:
     """``tuned.toml``: a ``[filters.NAME]`` table per filter with its tuned values (exact round trip)."""
     lines = ["# nespm tune: the best settings of every filter, each searched with the same budget",
@@ -294,6 +318,7 @@ def run_tune(t: TuneSpec, out: str | Path, jobs: int = 1, report: Callable[[str,
         table = trials_table(out, train.filters)
         write_parquet_atomic(table, out / "trials.parquet")
         best = best_values(out, train.filters, t.trials)
+        add_profiles(best, out, train, space, t)
         write_text_atomic(out / "tuned.toml", tuned_toml(best, train, t))
         record = {"command": list(argv) if argv is not None else None, "objective": t.objective,
                   "sampler": t.sampler, "trials": t.trials, "jobs": jobs,
