@@ -70,7 +70,7 @@ def test_bad_noise_scale_in_one_line(capsys, option, words):
 def test_reproducible_and_mc_takes_tuned_config(tmp_path, capsys):
     """The same seed and trials give bit-identical trials (one worker); the tuned config runs in
     ``mc`` unchanged and gives the held-out tuned folder's numbers; the first trial is the default."""
-    t = TuneSpec(Spec(**SMALL), trials=12)
+    t = TuneSpec(Spec(**SMALL), trials=12, profile=False)
     a = run_tune(t, tmp_path / "a")
     b = run_tune(t, tmp_path / "b")
     pa, pb = params(tmp_path / "a"), params(tmp_path / "b")
@@ -90,13 +90,14 @@ def test_reproducible_and_mc_takes_tuned_config(tmp_path, capsys):
 
     man = json.loads((tmp_path / "mc" / "manifest.json").read_text())
     got = {k: v for _, k, v in man["options"]["filter_options"]}
+    assert got.pop("tuned_on") == f"seed={training_seed(0)};tracks=5;runs=0-3"
     assert got == a["best"]["ekf"]["values"]  # exact round trip through the TOML text
 
 
 def test_resume_after_a_kill_continues_to_the_same_values(tmp_path):
     """A run killed mid-trial (its trial left RUNNING in study.db) and rerun ends with the values of an
     uninterrupted run; a smaller first budget extended later does too."""
-    whole = TuneSpec(Spec(**SMALL), trials=11)
+    whole = TuneSpec(Spec(**SMALL), trials=11, profile=False)
     run_tune(whole, tmp_path / "whole")
     part = tmp_path / "part"
     run_tune(dataclasses.replace(whole, trials=4), part)

@@ -42,6 +42,7 @@ from nespm_cli.errors import NespmError
 from nespm_cli.experiments.spec import Spec, validate
 from nespm_cli.experiments.tune_objective import OBJECTIVES, score, summary, trial_statistics
 from nespm_cli.experiments.tune_space import Param, apply_ranges, default_space
+from nespm_cli.filters.options import TUNED_ON, tuned_on_text
 from nespm_cli.filters.registry import get_filter
 
 SAMPLERS = ("tpe", "cmaes")
@@ -285,10 +286,11 @@ def tuned_toml(best: dict, train: Spec, t: TuneSpec) -> str:
              f"# ({t.trials} trials, objective {t.objective}) on tracks {' '.join(map(str, train.tracks))}, "
              f"runs 0-{train.runs - 1} of the training seed {train.seed} (tune.json).",
              "# Use: nespm mc --config tuned.toml --tracks ... (with the study's --state and --sensors).", ""]
+    on = tuned_on_text(train.seed, train.tracks, 0, train.runs)
     for f, b in best.items():
         lines.append(f"[filters.{f}]")
         lines += [f"{k} = {float(v)!r}" for k, v in b["values"].items()]
-        lines.append("")
+        lines += [f'{TUNED_ON} = "{on}"', ""]
     return "\n".join(lines)
 
 

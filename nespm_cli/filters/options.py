@@ -13,7 +13,9 @@ A filter takes two kinds of option:
   of its P0 per block (``p0_pos_scale`` ... ``p0_gyro_bias_scale``) or of a sensor's R
   (``r_scale_<sensor>``, ``-`` in the name written ``_``: ``r_scale_dvl``, ``r_scale_dvl_beams``),
   over the study's value (the filter told the truth, ``--filter-acc-noise``, the sensor's
-  ``r_std``); a variance scales by its square. ``nespm tune`` searches these (docs/tuning.md).
+  ``r_std``); a variance scales by its square. ``nespm tune`` searches these (docs/tuning.md);
+* ``tuned_on``: where ``nespm tune`` tuned them (``seed=S;tracks=N,M;runs=A-B``): no effect on the
+  numbers; ``mc`` on those realizations says that its numbers are training numbers.
 
 The options are part of the experiment (``Spec.filter_options``): recorded in the manifest, in
 the experiment's identity (a folder is never resumed with another value) and sweepable
@@ -34,6 +36,41 @@ NOISE_SCALES = {
     "p0_att_scale": "p0_att_deg", "p0_acc_bias_scale": "p0_acc_bias", "p0_gyro_bias_scale": "p0_gyro_bias",
 }
 R_SCALE = "r_scale_"  # + the sensor's name with '-' as '_': a factor on that sensor's R std for this filter
+
+
+TUNED_ON = "tuned_on"  # where a filter's options were tuned: "seed=S;tracks=1,2;runs=0-19" (nespm tune)
+
+
+def tuned_on_text(seed: int, tracks, first: int, end: int) -> str:
+    """The ``tuned_on`` value of tuning realizations: ``seed``, ``tracks``, runs ``first .. end-1``."""
+    return f"seed={int(seed)};tracks={','.join(str(int(n)) for n in tracks)};runs={int(first)}-{int(end) - 1}"
+
+
+def parse_tuned_on(text: str, where: str) -> tuple[int, tuple, int, int]:
+    """``(seed, tracks, first run, last run)`` of a ``tuned_on`` value (one-line error naming ``where``)."""
+    try:
+        kv = dict(part.split("=", 1) for part in str(text).split(";"))
+        first, last = (int(x) for x in kv["runs"].split("-"))
+        return int(kv["seed"]), tuple(int(n) for n in kv["tracks"].split(",")), first, last
+    except (KeyError, ValueError):
+        raise NespmError(f"{where}: expected seed=S;tracks=N,M;runs=A-B (as nespm tune writes it), got "
+                         f"{text!r}") from None
+
+
+def training_overlap(filter_options, seed: int, tracks, runs: int) -> list[str]:
+    """One line per filter whose ``tuned_on`` realizations are among those of a study (``seed``,
+    ``tracks``, runs ``0 .. runs-1``): its numbers there are training numbers, not held-out ones."""
+    lines = []
+    for name, key, value in filter_options:
+        if key != TUNED_ON:
+            continue
+        s, on_tracks, first, last = parse_tuned_on(value, f"--filter-option {name}.{key}")
+        shared = sorted(set(on_tracks) & {int(n) for n in tracks})
+        if s == int(seed) and shared and first < int(runs):
+            lines.append(f"{name}: its settings were tuned on these realizations (seed {s}, track(s) "
+                         f"{' '.join(map(str, shared))}, runs {first}-{min(last, int(runs) - 1)}): its numbers "
+                         "there are training numbers, not held-out ones")
+    return lines
 
 
 def r_scale_key(sensor: str) -> str:
@@ -95,6 +132,10 @@ def check_filter_options(pairs, filters, get_filter, sensors=()) -> tuple:
         cls = get_filter(name)
         own = option_defaults(cls)
         scales = noise_scales(cls, sensors)
+        if key == TUNED_ON and scales:
+            parse_tuned_on(value, where)
+            out[(name, key)] = str(value).strip()
+            continue
         if key not in own and key not in scales:
             takes = ", ".join(sorted(own)) or "no options"
             extra = (f" (of its own; and the noise scales {', '.join(scales)})" if scales else "")
@@ -124,7 +165,8 @@ def configure(cfg: FilterConfig, name: str, cls: type, pairs) -> FilterConfig:
     r_scale = tuple((k[len(R_SCALE):], float(v)) for k, v in mine if k.startswith(R_SCALE))
     if r_scale:
         fields["r_scale"] = r_scale
-    own = tuple((k, v) for k, v in mine if k not in tunable and k not in NOISE_SCALES and not k.startswith(R_SCALE))
+    own = tuple((k, v) for k, v in mine if k not in tunable and k not in NOISE_SCALES and not k.startswith(R_SCALE)
+                and k != TUNED_ON)
     return dataclasses.replace(cfg, **fields, options=own)
 
 
@@ -133,5 +175,5 @@ def option_values(cls: type, cfg: FilterConfig) -> dict:
     return {**dict(getattr(cls, "option_defaults", {}) or {}), **dict(cfg.options)}
 
 
-__all__ = ["NOISE_SCALES", "R_SCALE", "check_filter_options", "configure", "noise_scales", "option_defaults",
+__all__ = ["NOISE_SCALES", "R_SCALE", "TUNED_ON", "check_filter_options", "parse_tuned_on", "training_overlap", "tuned_on_text", "configure", "noise_scales", "option_defaults",
            "option_values", "r_scale_key", "typed"]

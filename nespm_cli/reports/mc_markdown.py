@@ -41,6 +41,7 @@ from nespm_cli.reports.stats import (
 from nespm_cli.reports.tables import filter_table, horizontal_table
 from nespm_cli.reports.verdict import verdict_table
 from nespm_cli.reports.verdict_markdown import pairwise_md, verdict_intro, verdict_md
+from nespm_cli.reports.tune import training_caveats
 
 __all__ = ["beside_md", "folder_label", "render_report"]
 
@@ -253,7 +254,7 @@ def render_report(
             "## Verdict\n\n" + verdict_intro(ref, n_boot, seed, practical_pct, vt.attrs["any_lost"]) + "\n\n"
             + verdict_md(vt, comps, tracks),
             *([all_runs_section(metrics, ref, n_boot, seed)] if all_runs == "median" and vt.attrs["any_lost"] else []),
-            "## Caveats\n\n" + caveats_md(caveats(metrics, comps, min_pairs, notes)),
+            "## Caveats\n\n" + caveats_md(caveats(metrics, comps, min_pairs, [*notes, *training_caveats(manifest)])),
             "## Track-averaged results (eq 51)\n\n" + _main_table(table),
             "## Figures\n\n" + figures_md(figures, out_dir),
             "## Per-track results (eqs 50, 52)\n\n" + _track_md(tt),
