@@ -98,7 +98,8 @@ def check(t: TuneSpec) -> tuple[TuneSpec, Spec, dict[str, list[Param]]]:
         try:
             import cmaes  # noqa: F401
         except ImportError:
-            raise NespmError("--sampler cmaes needs the cmaes package (pip install cmaes); or use --sampler tpe") from None
+            raise NespmError("--sampler cmaes needs the cmaes package (pip install cmaes); "
+                             "or use --sampler tpe") from None
     train = validate(dataclasses.replace(t.spec, seed=training_seed(t.spec.seed), smooth=()))
     if t.test_tracks:
         validate(dataclasses.replace(t.spec, tracks=tuple(t.test_tracks), runs=t.test_runs, smooth=()))

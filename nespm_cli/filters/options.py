@@ -175,5 +175,6 @@ def option_values(cls: type, cfg: FilterConfig) -> dict:
     return {**dict(getattr(cls, "option_defaults", {}) or {}), **dict(cfg.options)}
 
 
-__all__ = ["NOISE_SCALES", "R_SCALE", "TUNED_ON", "check_filter_options", "parse_tuned_on", "training_overlap", "tuned_on_text", "configure", "noise_scales", "option_defaults",
-           "option_values", "r_scale_key", "typed"]
+__all__ = ["NOISE_SCALES", "R_SCALE", "TUNED_ON", "check_filter_options", "configure", "noise_scales",
+           "option_defaults", "option_values", "parse_tuned_on", "r_scale_key", "training_overlap", "tuned_on_text",
+           "typed"]

@@ -167,11 +167,13 @@ def write_tune_report(out_dir: Path, n_boot: int = 2000) -> Path:
     d, t = out_dir / DEFAULT_DIR, out_dir / TUNED_DIR
     if (d / "metrics.parquet").exists() and (t / "metrics.parquet").exists():
         default, tuned = pd.read_parquet(d / "metrics.parquet"), pd.read_parquet(t / "metrics.parquet")
-        lines += [f"## Held out: tracks {' '.join(map(str, test['tracks']))}, {test['runs']} runs (seed {test['seed']})", "",
+        where = f"tracks {' '.join(map(str, test['tracks']))}, {test['runs']} runs (seed {test['seed']})"
+        lines += [f"## Held out: {where}", "",
                   "Default and tuned settings on the same realizations; improvement of the tuned over the default "
                   "velocity RMSE, paired by run, bootstrap 95 % interval; ANEES (6 dof) with its 95 % band.", "",
                   md_table(["filter", "VRMSE default", "ANEES default", "VRMSE tuned", "ANEES tuned",
-                            "tuned vs default (+: tuned better)", "lost default", "lost tuned"], heldout_rows(default, tuned, n_boot)),
+                            "tuned vs default (+: tuned better)", "lost default", "lost tuned"],
+                           heldout_rows(default, tuned, n_boot)),
                   "", "### The tuned filters compared", "",
                   md_table(["filter (tuned)", "VRMSE", "improvement of the best over it"], fair_rows(tuned, n_boot)),
                   ""]
