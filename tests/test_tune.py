@@ -157,3 +157,38 @@ def test_tune_table_in_config(tmp_path, capsys):
     assert "p0_att_scale" not in space and "r_scale_dvl" in space
     with pytest.raises(NespmError, match="expected NAME.KEY=LOW:HIGH"):
         parse_range("acc_noise_scale=1:2")
+
+
+def test_kill_9_during_tune_then_rerun(tmp_path):
+    """``kill -9`` of a real ``nespm tune`` process after a few trials; the rerun ends with the trials of an
+    uninterrupted run (one worker)."""
+    import os
+    import signal
+    import sqlite3
+    import subprocess
+    import sys
+    import time
+
+    out = tmp_path / "killed"
+    args = [sys.executable, "-m", "nespm_cli.cli"] + CLI + ["--trials", "8", "--out", str(out)]
+    proc = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                            env={**os.environ, "PYTHONPATH": os.getcwd()})
+    done, deadline = 0, time.monotonic() + 120
+    while done < 3 and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.2)
+        try:
+            con = sqlite3.connect(f"file:{out / STUDY_FILE}?mode=ro", uri=True, timeout=5)
+            done = con.execute("select count(*) from trials where state = 'COMPLETE'").fetchone()[0]
+            con.close()
+        except sqlite3.Error:
+            pass
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    assert 3 <= done < 8, done  # killed mid-study
+    t = TuneSpec(Spec(**SMALL), trials=8, profile=False)
+    run_tune(t, out)
+    run_tune(t, tmp_path / "whole")
+    pk, pw = params(out), params(tmp_path / "whole")
+    cols = [c for c in pw.columns if c.startswith("p_")] + ["score"]
+    pk = pk[pk["score"].notna()].reset_index(drop=True)
+    pd.testing.assert_frame_equal(pk[cols], pw[cols].reset_index(drop=True))
