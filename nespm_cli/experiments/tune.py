@@ -286,12 +286,16 @@ def tuned_toml(best: dict, train: Spec, t: TuneSpec) -> str:
     lines = ["# nespm tune: the best settings of every filter, each searched with the same budget",
              f"# ({t.trials} trials, objective {t.objective}) on tracks {' '.join(map(str, train.tracks))}, "
              f"runs 0-{train.runs - 1} of the training seed {train.seed} (tune.json).",
-             "# Use: nespm mc --config tuned.toml --tracks ... (with the study's --state and --sensors).", ""]
+             "# Use: nespm mc --config tuned.toml --tracks ... (with the study's other options).", ""]
+    if train.filter_config.state != "12":  # the layout and the sensors the R and P0 scales name
+        lines += [f'state = "{train.filter_config.state}"', ""]
     on = tuned_on_text(train.seed, train.tracks, 0, train.runs)
     for f, b in best.items():
         lines.append(f"[filters.{f}]")
         lines += [f"{k} = {float(v)!r}" for k, v in b["values"].items()]
         lines += [f'{TUNED_ON} = "{on}"', ""]
+    if tuple(train.sensors) != ("dvl",):
+        lines += [f"[sensors.{n}]" for n in train.sensors] + [""]
     return "\n".join(lines)
 
 
