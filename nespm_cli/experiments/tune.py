@@ -241,9 +241,10 @@ def trials_table(out: Path, filters: tuple) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def best_values(out: Path, filters: tuple, trials: int) -> dict[str, dict]:
-    """``{filter: {"trial", "score", "values"}}``: each filter's best of its first ``trials`` completed trials
-    (ties: the earlier trial)."""
+def best_values(out: Path, filters: tuple, trials: int, space: dict | None = None) -> dict[str, dict]:
+    """``{filter: {"trial", "score", "values", "default_score"}}``: each filter's best of its first
+    ``trials`` completed trials (ties: the earlier trial); ``default_score`` that of the first trial
+    at the defaults of ``space`` (None if there is none)."""
     import optuna
     from optuna.trial import TrialState
 
@@ -253,8 +254,11 @@ def best_values(out: Path, filters: tuple, trials: int) -> dict[str, dict]:
         done = optuna.load_study(study_name=f, storage=store).get_trials(deepcopy=False, states=(TrialState.COMPLETE,))
         done = sorted(done, key=lambda tr: tr.number)[:trials]
         best = min(done, key=lambda tr: (tr.value, tr.number))
+        defaults = {p.key: p.default for p in (space or {}).get(f, [])}
+        first = next((tr for tr in done if defaults and tr.params == defaults), None)
         res[f] = {"trial": best.number, "score": best.value, "values": dict(best.params),
-                  "default_score": done[0].value if done[0].number == 0 else None}
+                  "default_score": first.value if first is not None else None,
+                  "default_trial": first.number if first is not None else None}
     return res
 
 
@@ -324,7 +328,7 @@ def run_tune(t: TuneSpec, out: str | Path, jobs: int = 1, report: Callable[[str,
                                                   for w in range(jobs))
         table = trials_table(out, train.filters)
         write_parquet_atomic(table, out / "trials.parquet")
-        best = best_values(out, train.filters, t.trials)
+        best = best_values(out, train.filters, t.trials, space)
         add_profiles(best, out, train, space, t)
         write_text_atomic(out / "tuned.toml", tuned_toml(best, train, t))
         record = {"command": list(argv) if argv is not None else None, "objective": t.objective,

@@ -67,7 +67,7 @@ def score_table(record: dict, trials: pd.DataFrame) -> str:
     rows = []
     for f, b in record["best"].items():
         t = trials[trials["filter"] == f].set_index("trial")
-        d = t.loc[0] if 0 in t.index else None
+        d = t.loc[b["default_trial"]] if b.get("default_trial") is not None else None
         best = t.loc[b["trial"]]
         rows.append([f, fmt(b.get("default_score")), fmt(b["score"]), str(b["trial"]),
                      fmt(d["rmse"]) if d is not None else "—", fmt(best["rmse"]),
