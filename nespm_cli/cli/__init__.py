@@ -18,6 +18,7 @@ from nespm_cli.cli.options import COMMON, CORRUPTION, DATA_DIR, KERNELS, PARALLE
 from nespm_cli.cli.parsing import CORRUPTION_FIELDS, FILTER_FIELDS, build_spec, set_argv
 from nespm_cli.cli.result_commands import compare, export, report
 from nespm_cli.cli.train_command import train
+from nespm_cli.cli.tune_command import tune
 from nespm_cli.errors import NespmError
 
 __all__ = ["app", "main", "one_line", "os_error_line", "MAX_MESSAGE", "default", "DATA_DIR", "CORRUPTION_FIELDS",
@@ -36,7 +37,7 @@ app = typer.Typer(
 )
 
 # the commands, in the order of ``nespm --help``
-for command in (tracks, check, corrupt, run, mc, sweep, report, compare, export, train, simulate):
+for command in (tracks, check, corrupt, run, mc, sweep, tune, report, compare, export, train, simulate):
     app.command()(command)
 app.command("import")(import_cmd)
 app.command("gp-ukf")(gp_ukf_cmd)

@@ -60,6 +60,9 @@ def _config_options(path: Path) -> list[str]:
         if key == "filters" and isinstance(val, dict):
             opts += _filter_tables(path, val)
             continue
+        if key == "tune" and isinstance(val, dict):  # nespm tune's ranges: "NAME.KEY" = [LOW, HIGH] or "off"
+            opts += _tune_table(path, val)
+            continue
         if isinstance(val, dict):
             raise NespmError(f"--config {path}: [{key}] is a table; options are top-level keys (runs = 100)")
         if isinstance(val, bool):
@@ -92,6 +95,19 @@ def _filter_tables(path: Path, tables: dict) -> list[str]:
     ``[sensors.NAME]`` (TOML cannot hold both ``filters = "..."`` and ``[filters.NAME]``; a filter
     without options is an empty table)."""
     return ["--filters", ",".join(tables)] + _option_words(path, "filters", "--filter-option", tables)
+
+
+def _tune_table(path: Path, table: dict) -> list[str]:
+    """A ``[tune]`` table (``"ekf.acc_noise_scale" = [0.5, 2]``, ``"*.p0_att_scale" = "off"``) as ``--tune-range`` words."""
+    words = []
+    for k, v in table.items():
+        if isinstance(v, list) and len(v) == 2 and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v):
+            words += ["--tune-range", f"{k}={v[0]!r}:{v[1]!r}"]
+        elif isinstance(v, str) and v.strip().lower() == "off":
+            words += ["--tune-range", f"{k}=off"]
+        else:
+            raise NespmError(f"--config {path}: tune.{k} must be [LOW, HIGH] or \"off\", got {v!r}")
+    return words
 
 
 def _sensor_tables(path: Path, tables: dict) -> list[str]:

@@ -12,6 +12,7 @@ import dataclasses
 import json
 import os
 import time
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
@@ -38,6 +39,7 @@ from nespm_cli.experiments.store import (GROWABLE, ResultsFolder, Task, chunk_fi
                                         write_parquet_atomic)
 from nespm_cli.filters import FilterConfig, initial_nav, run_filter
 from nespm_cli.filters.kernels import kernel_backend
+from nespm_cli.filters.options import training_overlap
 from nespm_cli.filters.registry import plugin_files
 from nespm_cli.filters.smoother import smoothed_name
 from nespm_cli.learn.noise_model import default_weights
@@ -282,7 +284,13 @@ def run_mc(spec: Spec, out_dir: str | Path, execution: Execution | None = None, 
     arguments are its fields, for scripts written before it)."""
     ex = Execution.of(execution, jobs=jobs, progress=progress, argv=argv, backend=backend, scheduler=scheduler)
     spec = validate(spec)
+    for line in training_overlap(spec.filter_options, spec.seed, spec.tracks, spec.runs):  # nespm tune's
+        warnings.warn(line, TrainingWarning, stacklevel=2)
     return run_cells([Cell(spec)], spec.as_dict(), out_dir, ex)
+
+
+class TrainingWarning(UserWarning):
+    """A filter's tuned settings run on the realizations they were tuned on (one ``nespm: warning:`` line)."""
 
 
 def input_files(spec: Spec, tracks: tuple | None = None) -> list[Path]:

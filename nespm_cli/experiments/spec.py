@@ -108,6 +108,8 @@ class Spec:
         if not self.filter_config.options:
             d["filter_config"].pop("options")
         d.pop("given")  # how the options were given is no part of the experiment
+        if not self.filter_config.r_scale:
+            d["filter_config"].pop("r_scale")
         return json.loads(json.dumps(d, default=list))
 
 
@@ -129,7 +131,8 @@ def validate(spec: Spec) -> Spec:
     if len(set(spec.filters)) != len(spec.filters) or not spec.filters:
         raise NespmError("--filters: give each filter once, at least one")
     layout = parse_layout(spec.filter_config.state)
-    spec = dataclasses.replace(spec, filter_options=check_filter_options(spec.filter_options, spec.filters, get_filter))
+    spec = dataclasses.replace(spec, filter_options=check_filter_options(spec.filter_options, spec.filters,
+                                                                         get_filter, spec.sensors))
     for f in spec.smooth:
         if f not in spec.filters:
             raise NespmError(f"--smooth {f}: not in --filters ({', '.join(spec.filters)}); the smoother runs on a "

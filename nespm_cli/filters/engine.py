@@ -226,6 +226,8 @@ def run_filter(
         nav = call(filt.state, "state")
         ctx = Context(f_meas[:, j_last] - nav.b_a, w_meas[:, j_last] - nav.b_g, ch.track)
         meas = checked_measurement(ch.sensor, z, nav, ctx, layout)  # a plugin's: every call checked
+        if cfg.r_scale and cfg.r_factor(ch.sensor.name) != 1.0:  # this filter's R (--filter-option NAME.r_scale_S)
+            meas.R = np.asarray(meas.R) * cfg.r_factor(ch.sensor.name) ** 2
         if ok.all():
             res = call(filt.update, "update", meas, j_last)
         elif hasattr(filt, "update_where"):

@@ -80,6 +80,11 @@ class FilterConfig:
     state: str = "12"  # error-state layout (nav.state): 12, 15 or a comma list of blocks
     p0_pos: tuple = (POS_STD_FLOOR, POS_STD_FLOOR, POS_STD_FLOOR)  # m, N E D
     options: tuple = ()  # ((key, value), ...): a filter's own options (--filter-option; filters.options)
+    r_scale: tuple = ()  # ((sensor key, factor), ...): this filter's R std of a sensor x factor (filters.options)
+
+    def r_factor(self, sensor: str) -> float:
+        """The factor on sensor ``sensor``'s R std for this filter (1.0: the sensor's own R)."""
+        return float(dict(self.r_scale).get(sensor.replace("-", "_"), 1.0))
 
     @property
     def layout(self) -> StateLayout:

@@ -7,7 +7,15 @@ A filter takes two kinds of option:
   filter reads the values from ``cfg.options`` (:func:`option_values`);
 * **a tuning field of** :class:`~nespm_cli.filters.model.FilterConfig` it declares in ``tunable``
   (the sigma-point filters: ``alpha``, ``beta``, ``kappa``): given for that filter alone, the
-  filter runs with its own FilterConfig (:func:`configure`).
+  filter runs with its own FilterConfig (:func:`configure`);
+* **a noise scale** (every filter with a covariance, :data:`NOISE_SCALES`): a factor on a std of
+  its Q (``acc_noise_scale``, ``gyro_noise_scale``, ``acc_bias_rw_scale``, ``gyro_bias_rw_scale``),
+  of its P0 per block (``p0_pos_scale`` ... ``p0_gyro_bias_scale``) or of a sensor's R
+  (``r_scale_<sensor>``, ``-`` in the name written ``_``: ``r_scale_dvl``, ``r_scale_dvl_beams``),
+  over the study's value (the filter told the truth, ``--filter-acc-noise``, the sensor's
+  ``r_std``); a variance scales by its square. ``nespm tune`` searches these (docs/tuning.md);
+* ``tuned_on``: where ``nespm tune`` tuned them (``seed=S;tracks=N,M;runs=A-B``): no effect on the
+  numbers; ``mc`` on those realizations says that its numbers are training numbers.
 
 The options are part of the experiment (``Spec.filter_options``): recorded in the manifest, in
 the experiment's identity (a folder is never resumed with another value) and sweepable
@@ -19,6 +27,63 @@ import dataclasses
 
 from nespm_cli.errors import NespmError
 from nespm_cli.filters.model import FilterConfig
+
+
+#: noise-scale option -> the FilterConfig field (a std, or a tuple of stds) it multiplies
+NOISE_SCALES = {
+    "acc_noise_scale": "acc_noise", "gyro_noise_scale": "gyro_noise", "acc_bias_rw_scale": "acc_bias_rw",
+    "gyro_bias_rw_scale": "gyro_bias_rw", "p0_pos_scale": "p0_pos", "p0_vel_scale": "p0_vel",
+    "p0_att_scale": "p0_att_deg", "p0_acc_bias_scale": "p0_acc_bias", "p0_gyro_bias_scale": "p0_gyro_bias",
+}
+R_SCALE = "r_scale_"  # + the sensor's name with '-' as '_': a factor on that sensor's R std for this filter
+
+
+TUNED_ON = "tuned_on"  # where a filter's options were tuned: "seed=S;tracks=1,2;runs=0-19" (nespm tune)
+
+
+def tuned_on_text(seed: int, tracks, first: int, end: int) -> str:
+    """The ``tuned_on`` value of tuning realizations: ``seed``, ``tracks``, runs ``first .. end-1``."""
+    return f"seed={int(seed)};tracks={','.join(str(int(n)) for n in tracks)};runs={int(first)}-{int(end) - 1}"
+
+
+def parse_tuned_on(text: str, where: str) -> tuple[int, tuple, int, int]:
+    """``(seed, tracks, first run, last run)`` of a ``tuned_on`` value (one-line error naming ``where``)."""
+    try:
+        kv = dict(part.split("=", 1) for part in str(text).split(";"))
+        first, last = (int(x) for x in kv["runs"].split("-"))
+        return int(kv["seed"]), tuple(int(n) for n in kv["tracks"].split(",")), first, last
+    except (KeyError, ValueError):
+        raise NespmError(f"{where}: expected seed=S;tracks=N,M;runs=A-B (as nespm tune writes it), got "
+                         f"{text!r}") from None
+
+
+def training_overlap(filter_options, seed: int, tracks, runs: int) -> list[str]:
+    """One line per filter whose ``tuned_on`` realizations are among those of a study (``seed``,
+    ``tracks``, runs ``0 .. runs-1``): its numbers there are training numbers, not held-out ones."""
+    lines = []
+    for name, key, value in filter_options:
+        if key != TUNED_ON:
+            continue
+        s, on_tracks, first, last = parse_tuned_on(value, f"--filter-option {name}.{key}")
+        shared = sorted(set(on_tracks) & {int(n) for n in tracks})
+        if s == int(seed) and shared and first < int(runs):
+            lines.append(f"{name}: its settings were tuned on these realizations (seed {s}, track(s) "
+                         f"{' '.join(map(str, shared))}, runs {first}-{min(last, int(runs) - 1)}): its numbers "
+                         "there are training numbers, not held-out ones")
+    return lines
+
+
+def r_scale_key(sensor: str) -> str:
+    """The option that scales ``sensor``'s R std for one filter: ``r_scale_dvl``, ``r_scale_dvl_beams``."""
+    return R_SCALE + sensor.replace("-", "_")
+
+
+def noise_scales(cls: type, sensors=None) -> dict:
+    """``{key: 1.0}`` of the noise scales filter class ``cls`` takes (none without a covariance):
+    :data:`NOISE_SCALES` and ``r_scale_<sensor>`` for each of ``sensors`` (None: no R scale)."""
+    if not getattr(cls, "has_covariance", True):
+        return {}
+    return {**{k: 1.0 for k in NOISE_SCALES}, **{r_scale_key(s): 1.0 for s in (sensors or ())}}
 
 
 def option_defaults(cls: type) -> dict:
@@ -55,20 +120,33 @@ def typed(value, default, where: str):
         raise NespmError(f"{where}: expected a {kind}, got {text!r}") from None
 
 
-def check_filter_options(pairs, filters, get_filter) -> tuple:
+def check_filter_options(pairs, filters, get_filter, sensors=()) -> tuple:
     """Check ``(filter, key, value)`` triples against the study's ``filters`` (the classes from
-    ``get_filter``); return them with typed values, in the given order, the last of a repeated
-    key winning. One-line errors naming ``--filter-option NAME.KEY``."""
+    ``get_filter``) and ``sensors`` (the R scales); return them with typed values, in the given
+    order, the last of a repeated key winning. One-line errors naming ``--filter-option NAME.KEY``."""
     out: dict = {}
     for name, key, value in pairs:
         where = f"--filter-option {name}.{key}"
         if name not in filters:
             raise NespmError(f"{where}: {name} is not in --filters ({', '.join(filters)})")
-        allowed = option_defaults(get_filter(name))
-        if key not in allowed:
-            takes = ", ".join(sorted(allowed)) or "no options"
-            raise NespmError(f"{where}: unknown option; {name} takes {takes}")
-        out[(name, key)] = typed(value, allowed[key], where)
+        cls = get_filter(name)
+        own = option_defaults(cls)
+        scales = noise_scales(cls, sensors)
+        if key == TUNED_ON and scales:
+            parse_tuned_on(value, where)
+            out[(name, key)] = str(value).strip()
+            continue
+        if key not in own and key not in scales:
+            takes = ", ".join(sorted(own)) or "no options"
+            extra = (f" (of its own; and the noise scales {', '.join(scales)})" if scales else "")
+            if key.startswith(R_SCALE) and scales:
+                extra += f"; {key} names no sensor of --sensors ({', '.join(sensors)})"
+            raise NespmError(f"{where}: unknown option; {name} takes {takes}{extra}")
+        default = own.get(key, scales.get(key))
+        v = typed(value, default, where)
+        if key in scales and not (isinstance(v, float) and v > 0):
+            raise NespmError(f"{where}: a noise scale is a factor > 0, got {value!r}")
+        out[(name, key)] = v
     return tuple((n, k, v) for (n, k), v in out.items())
 
 
@@ -80,7 +158,15 @@ def configure(cfg: FilterConfig, name: str, cls: type, pairs) -> FilterConfig:
         return cfg
     tunable = set(getattr(cls, "tunable", ()) or ())
     fields = {k: v for k, v in mine if k in tunable}
-    own = tuple((k, v) for k, v in mine if k not in tunable)
+    for k, v in mine:
+        if k in NOISE_SCALES:
+            old = getattr(cfg, NOISE_SCALES[k])
+            fields[NOISE_SCALES[k]] = tuple(float(x) * v for x in old) if isinstance(old, tuple) else float(old) * v
+    r_scale = tuple((k[len(R_SCALE):], float(v)) for k, v in mine if k.startswith(R_SCALE))
+    if r_scale:
+        fields["r_scale"] = r_scale
+    own = tuple((k, v) for k, v in mine if k not in tunable and k not in NOISE_SCALES and not k.startswith(R_SCALE)
+                and k != TUNED_ON)
     return dataclasses.replace(cfg, **fields, options=own)
 
 
@@ -89,4 +175,6 @@ def option_values(cls: type, cfg: FilterConfig) -> dict:
     return {**dict(getattr(cls, "option_defaults", {}) or {}), **dict(cfg.options)}
 
 
-__all__ = ["check_filter_options", "configure", "option_defaults", "option_values", "typed"]
+__all__ = ["NOISE_SCALES", "R_SCALE", "TUNED_ON", "check_filter_options", "configure", "noise_scales",
+           "option_defaults", "option_values", "parse_tuned_on", "r_scale_key", "training_overlap", "tuned_on_text",
+           "typed"]

@@ -17,6 +17,7 @@ from nespm_cli.reports.all_runs import ALL_RUNS
 from nespm_cli.reports.mc import write_mc_report
 from nespm_cli.reports.stats import PRACTICAL_PCT, check_practical_pct
 from nespm_cli.reports.sweep import write_sweep_report
+from nespm_cli.reports.tune import is_tune_folder, write_tune_report
 
 __all__ = ["PRACTICAL_PCT", "experiment_of", "write_report"]
 
@@ -81,6 +82,8 @@ def write_report(out_dir: Path, reference: str | None = None, n_boot: int = 2000
         raise NespmError(f"--all-runs: choose {' or '.join(ALL_RUNS)}, got {all_runs!r}")
     check_practical_pct(practical_pct)
     out_dir = Path(out_dir)
+    if is_tune_folder(out_dir):  # nespm tune (reports/tune.py)
+        return write_tune_report(out_dir, n_boot=n_boot)
     if out_dir.is_dir():
         from nespm_cli.reports.results import check_figures_dir
 

@@ -45,6 +45,7 @@ from nespm_cli.reports.stats import (
 from nespm_cli.reports.tables import filter_table, horizontal_table
 from nespm_cli.reports.verdict import verdict_table
 from nespm_cli.reports.verdict_markdown import pairwise_md, verdict_intro, verdict_md
+from nespm_cli.reports.tune import training_caveats
 
 __all__ = ["beside_md", "folder_label", "render_report"]
 
@@ -331,7 +332,7 @@ def render_report(
                                                   consistency=consistency.attrs.get("share") if has_blocks else None) + "\n\n"
             + verdict_md(vt, comps, tracks),
             *([all_runs_section(metrics, ref, n_boot, seed)] if all_runs == "median" and vt.attrs["any_lost"] else []),
-            "## Caveats\n\n" + caveats_md(caveats(metrics, comps, min_pairs, notes)),
+            "## Caveats\n\n" + caveats_md(caveats(metrics, comps, min_pairs, [*notes, *training_caveats(manifest)])),
             "## Track-averaged results (eq 51)\n\n" + TABLE_CAPTION.format(verdict=VERDICT_EPOCHS[posterior]) + (CONSISTENCY_CAPTION if has_blocks else "")
             + "\n\n" + _main_table(table, words),
             *(["## Consistency per block and sensor\n\n" + consistency_md(consistency, smoother_label)]

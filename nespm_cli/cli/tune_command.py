@@ -1,0 +1,66 @@
+"""``nespm tune``: every filter's noise parameters searched with the same budget (docs/tuning.md)."""
+from __future__ import annotations
+
+import time
+from typing import List, Optional
+
+import typer
+
+from nespm_cli.cli.options import COMMON, KERNELS, with_options
+from nespm_cli.cli.parsing import ARGV, build_spec, parse_filters, parse_tracks
+
+TUNE = [  # (name, type, default, flag, help)
+    ("tracks_", str, "1 2 3 4", "--tracks", "Tuning (training) tracks: --tracks 1 2 3 4 or 1,2,3,4."),
+    ("runs", int, 20, "--runs", "Training runs per track and trial (the same realizations for every trial and filter)."),
+    ("filters_", str, "ekf,ukf,ukf-nespm", "--filters", "Comma list of the filters to tune, each with the same budget."),
+    ("trials", int, 50, "--trials", "Trials per filter (the budget; a rerun with more continues the studies)."),
+    ("objective", str, "rmse-consistent", "--objective", "rmse-consistent (the most accurate settings whose ANEES lies in its band), rmse, or consistency (every block's ANEES and sensor's ANIS near its expectation)."),
+    ("sampler", str, "tpe", "--sampler", "Optuna sampler: tpe (seeded, multivariate) or cmaes (needs the cmaes package)."),
+    ("tune_range", Optional[List[str]], None, "--tune-range", "NAME.KEY=LOW:HIGH narrows or widens a parameter's range (NAME * for every filter), NAME.KEY=off drops it; repeatable; a [tune] table in a --config file."),
+    ("test_tracks_", str, "", "--test-tracks", "Held-out tracks, run with the default and the tuned settings on --seed's realizations (e.g. --test-tracks 5 6)."),
+    ("test_runs", int, 100, "--test-runs", "Held-out runs per test track."),
+    ("allow_overlap", bool, False, "--allow-overlap", "Allow test tracks among the tuning tracks (the report flags it)."),
+    ("jobs", int, 1, "--jobs", "Worker processes sharing the studies (one worker: bit-identical values run after run)."),
+    ("no_progress", bool, False, "--no-progress", "No line per 10 trials."),
+    ("config", Optional[str], None, "--config", "TOML file of options; [filters.NAME] and [tune] tables (docs/tuning.md)."),
+]
+
+
+@with_options(TUNE, COMMON, [KERNELS])
+def tune(
+    out: str = typer.Option("results/tune", "--out", help="Output folder (study.db, trials.parquet, tuned.toml, tune.json; resumable)."),
+    **kw,
+) -> None:
+    """Tune every filter's noise (Q, R, P0, alpha) with the same budget on training runs; write tuned.toml."""
+    from nespm_cli.experiments.tune import TuneSpec, run_tune
+    from nespm_cli.experiments.tune_heldout import run_heldout
+    from nespm_cli.experiments.tune_space import parse_range
+
+    kw.pop("config")
+    t0 = time.perf_counter()
+    test = kw.pop("test_tracks_").strip()
+    opts = dict(trials=kw.pop("trials"), objective=kw.pop("objective").lower(), sampler=kw.pop("sampler").lower(),
+                ranges=tuple(parse_range(r) for r in kw.pop("tune_range") or ()),
+                test_tracks=parse_tracks(test) if test else (), test_runs=kw.pop("test_runs"),
+                allow_overlap=kw.pop("allow_overlap"))
+    jobs, quiet = kw.pop("jobs"), kw.pop("no_progress")
+    spec = build_spec(tracks=parse_tracks(kw.pop("tracks_")), runs=kw.pop("runs"),
+                      filters=parse_filters(kw.pop("filters_")), **kw)
+    t = TuneSpec(spec, **opts)
+
+    def report(name: str, done: int, best: float) -> None:
+        if not quiet and (done % 10 == 0 or done == t.trials):
+            typer.echo(f"{name}: {done}/{t.trials} trials, best score {best:.6g}", err=True)
+
+    record = run_tune(t, out, jobs=jobs, report=report, argv=("nespm", *ARGV))
+    for f, b in record["best"].items():
+        d = b["default_score"]
+        typer.echo(f"{f}: score {d:.6g} (default) -> {b['score']:.6g} (trial {b['trial']})" if d is not None
+                   else f"{f}: best score {b['score']:.6g} (trial {b['trial']})")
+    if t.test_tracks:
+        if not quiet:
+            typer.echo(f"held out: tracks {' '.join(map(str, t.test_tracks))}, {t.test_runs} runs, default and tuned",
+                       err=True)
+        run_heldout(spec, record, out, jobs=jobs, progress=not quiet)
+    typer.echo(f"{t.trials} trials per filter in {time.perf_counter() - t0:.1f} s -> {out}/tuned.toml; "
+               f"next: nespm mc --config {out}/tuned.toml" + (f"; nespm report {out}" if t.test_tracks else ""))

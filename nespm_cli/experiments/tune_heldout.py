@@ -1,0 +1,47 @@
+"""The held-out evaluation of ``nespm tune``: the test tracks run with the default and with the tuned
+settings of every filter, on the same realizations (``--seed``, runs ``0 .. --test-runs-1``), as two
+``mc`` folders inside the tuning folder: ``OUT/heldout-default`` and ``OUT/heldout-tuned``
+(resumable like any ``mc``; ``nespm compare`` pairs them run by run). The tuned one is exactly
+``nespm mc --config OUT/tuned.toml --tracks TEST --runs N --seed S`` with the study's options.
+"""
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+from nespm_cli.experiments.backend import Execution
+from nespm_cli.experiments.spec import Spec
+from nespm_cli.filters.options import TUNED_ON, tuned_on_text
+
+DEFAULT_DIR, TUNED_DIR = "heldout-default", "heldout-tuned"
+
+
+def tuned_options(spec: Spec, best: dict, tuned_on: str) -> tuple:
+    """``spec.filter_options`` with every filter's tuned values (``best`` of ``tune.json``) and
+    ``tuned_on`` over them: the options ``mc --config tuned.toml`` runs with."""
+    tuned = {(f, k): float(v) for f, b in best.items() for k, v in b["values"].items()}
+    tuned.update({(f, TUNED_ON): tuned_on for f in best})
+    keep = tuple(o for o in spec.filter_options if (o[0], o[1]) not in tuned)
+    return keep + tuple((f, k, v) for (f, k), v in tuned.items())
+
+
+def heldout_specs(spec: Spec, record: dict) -> tuple[Spec, Spec]:
+    """``(default, tuned)``: the held-out study (``record["test"]`` of ``tune.json``) with the study's
+    options, and with the tuned ones."""
+    test, on = record["test"], record["tuned_on"]
+    base = dataclasses.replace(spec, tracks=tuple(test["tracks"]), runs=int(test["runs"]), smooth=())
+    where = tuned_on_text(on["seed"], on["tracks"], on["runs"][0], on["runs"][1])
+    return base, dataclasses.replace(base, filter_options=tuned_options(spec, record["best"], where))
+
+
+def run_heldout(spec: Spec, record: dict, out: str | Path, jobs: int = 1, progress: bool = False) -> dict:
+    """Run both held-out folders (resuming them); return ``{"default": metrics, "tuned": metrics}``."""
+    from nespm_cli.experiments.mc import run_mc
+
+    default, tuned = heldout_specs(spec, record)
+    ex = Execution(jobs=jobs, progress=progress)
+    out = Path(out)
+    return {"default": run_mc(default, out / DEFAULT_DIR, ex), "tuned": run_mc(tuned, out / TUNED_DIR, ex)}
+
+
+__all__ = ["DEFAULT_DIR", "TUNED_DIR", "heldout_specs", "run_heldout", "tuned_options"]

@@ -1,0 +1,149 @@
+"""The objectives of ``nespm tune``: one trial's settings of one filter run on the training
+realizations, scored (lower is better; docs/tuning.md).
+
+A trial runs the library's batched Monte Carlo in-process (:func:`nespm_cli.experiments.mc.simulate`,
+every run of a track in one batch), on the same realizations for every trial and every filter
+(common random numbers). Its statistics, over every run of every tuning track:
+
+* ``rmse``: the velocity RMSE [m/s] (eq 50 over the runs not lost) with the papers' 12 states; with
+  position in the state the horizontal RMS position error [m];
+* ``anees_<block>`` (N,) per epoch, the mean over runs of each block's 3-dof NEES; ``anis_<sensor>``
+  the mean NIS of each sensor (expectation: its dimension m);
+* ``lost``: the fraction of runs lost (:func:`nespm_cli.experiments.metrics.divergence`).
+
+The objectives (:data:`OBJECTIVES`):
+
+* ``rmse``: the RMSE;
+* ``consistency``: the mean over blocks and sensors, and over epochs after the first, of
+  ``log(ANEES / 3)²`` (``log(ANIS / m)²``): 0 for a consistent filter, a factor too large and the
+  same factor too small count alike;
+* ``rmse-consistent`` (the default): the RMSE x ``(1 + 100 d)``, ``d`` the log-distance of the
+  filter's ANEES (the report's: velocity and attitude, 6 dof, over all epochs and runs) outside
+  its 95 % band ``χ²(6R)/R`` (:func:`nespm_cli.experiments.metrics.nees_band`): the most accurate
+  settings whose ANEES lies in its band (1 % outside doubles the score); outside it the penalty
+  grows smoothly, so the search finds the band.
+
+A trial that loses a run scores ``LOST + lost fraction`` (above every trial that loses none: lost
+runs are ranked worst, and fewer lost is better).
+"""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from nespm_cli.data.corruption import true_biases
+from nespm_cli.experiments.metrics import (STAT_BLOCKS, block_statistics, divergence, epoch_nis, nees_band,
+                                          run_metrics)
+from nespm_cli.experiments.spec import Spec
+
+OBJECTIVES = ("rmse-consistent", "rmse", "consistency")
+LOST = 1e6  # the score of a trial that lost runs: LOST + the fraction lost
+BAND_PENALTY = 100.0  # rmse-consistent: x (1 + BAND_PENALTY x the log-distance outside the band)
+
+
+def trial_spec(spec: Spec, name: str, values: dict) -> Spec:
+    """``spec`` running filter ``name`` alone with the options ``values`` ({key: value}) over its own
+    (the study's other options of that filter stay unless a value replaces them)."""
+    keep = tuple(o for o in spec.filter_options if o[0] == name and o[1] not in values)
+    opts = keep + tuple((name, k, float(v)) for k, v in values.items())
+    return dataclasses.replace(spec, filters=(name,), smooth=(), filter_options=opts)
+
+
+def trial_statistics(spec: Spec, name: str, values: dict) -> dict:
+    """Run filter ``name`` with the options ``values`` on every run of every track of ``spec``
+    (validated); return the statistics the objectives use: ``rmse``, ``lost`` (fractions),
+    ``anees`` ({block: (N,) per epoch over every track's epochs}), ``anis`` ({sensor: (N,)}),
+    ``mean_anees`` ({block: float}), ``runs`` (total)."""
+    from nespm_cli.experiments.mc import simulate
+
+    s = trial_spec(spec, name, values)
+    runs = np.arange(spec.runs)
+    sse, n, lost, total = 0.0, 0, 0, 0
+    nees: dict = {b: [] for b in STAT_BLOCKS}
+    nees6 = []  # the report's NEES (velocity and attitude, 6 dof) of the runs kept, per run
+    nis: dict = {}
+    dims: dict = {}
+    for number in spec.tracks:
+        results, truth, real = simulate(s, number, runs, (name,))
+        out, err, _ = results[name]
+        e = truth.epoch_index
+        t_rel = truth.t[e] - truth.t[e[0]]
+        lost_runs, _, _ = divergence(err, out.diverged, t_rel, spec.divergence)
+        m = run_metrics(err, lost_runs)
+        col = "sse_hpe" if spec.filter_config.layout.has("pos") else "sse_vel"
+        ok = ~lost_runs
+        sse += float(np.sum(m[col][ok]))
+        n += int(np.sum(m["n_samples"][ok]))
+        lost += int(lost_runs.sum())
+        total += len(runs)
+        bias = true_biases(real, truth.t[e] - truth.t[0]) if spec.imu == "synthetic" else None
+        stats = block_statistics(out, truth.v_n[e], truth.C_bn[e], truth.pos[e], bias)
+        nees6.append(np.asarray(err.nees, float)[ok])
+        for b in STAT_BLOCKS:
+            nees[b].append(np.where(ok[:, None], stats[f"nees_{b}"], np.nan)[:, 1:])
+        for k, v in epoch_nis(out, t_rel).items():
+            nis.setdefault(k[len("nis_"):], []).append(np.where(ok[:, None], v, np.nan)[:, 1:])
+        for sname, rec in out.sensors.items():
+            dims[sname] = rec.nu.shape[-1]
+    with np.errstate(all="ignore"):
+        anees = {b: np.nanmean(np.concatenate(v, axis=1), axis=0) for b, v in nees.items()
+                 if v and np.isfinite(np.concatenate(v, axis=1)).any()}
+        mean_anees = {b: float(np.nanmean(np.concatenate(nees[b], axis=1))) for b in anees}
+        anis = {k: np.nanmean(np.concatenate(v, axis=1), axis=0) for k, v in nis.items()
+                if np.isfinite(np.concatenate(v, axis=1)).any()}
+    return {"rmse": float(np.sqrt(sse / n)) if n else float("nan"), "lost": lost / max(total, 1), "anees": anees,
+            "mean_anees": mean_anees, "anis": anis, "dims": dims, "runs": total - lost,
+            "runs_per_track": len(runs),
+            "anees6": float(np.nanmean(np.concatenate([x.ravel() for x in nees6]))) if n else float("nan")}
+
+
+def consistency(stats: dict) -> float:
+    """Mean over blocks and sensors, and over their epochs, of ``log(ANEES/3)²`` and ``log(ANIS/m)²``."""
+    parts = []
+    for v in stats["anees"].values():
+        parts.append(np.nanmean(np.log(np.asarray(v) / 3.0) ** 2))
+    for k, v in stats["anis"].items():
+        parts.append(np.nanmean(np.log(np.asarray(v) / stats["dims"][k]) ** 2))
+    parts = [p for p in parts if np.isfinite(p)]
+    return float(np.mean(parts)) if parts else float("inf")
+
+
+def band_distance(stats: dict) -> float:
+    """Log-distance of the 6-dof ANEES (over the runs kept and every epoch) outside its 95 % band (0: inside;
+    inf without a covariance)."""
+    a = stats["anees6"]
+    if not np.isfinite(a):
+        return float("inf")
+    lo, hi = nees_band(6, max(int(stats["runs"]), 1))
+    return float(np.log(a / hi)) if a > hi else float(np.log(lo / a)) if a < lo else 0.0
+
+
+def score(stats: dict, objective: str) -> float:
+    """The trial's score under ``objective`` (:data:`OBJECTIVES`); lower is better."""
+    if stats["lost"] > 0 or not np.isfinite(stats["rmse"]):
+        return LOST + float(stats["lost"])
+    if objective == "rmse":
+        return stats["rmse"]
+    if objective == "consistency":
+        return consistency(stats)
+    return stats["rmse"] * (1.0 + BAND_PENALTY * band_distance(stats))
+
+
+def summary(stats: dict) -> dict:
+    """The trial's numbers kept beside its score (trials.parquet): ``rmse``, ``lost``, ``consistency``,
+    ``band_distance``, ``anees_<block>`` (mean over runs and epochs), ``in_band_<block>`` (the
+    fraction of epochs whose ANEES lies in its per-epoch band χ²(3R)/R), ``anis_<sensor>``."""
+    out = {"rmse": stats["rmse"], "lost": stats["lost"], "consistency": consistency(stats),
+           "anees": stats["anees6"], "band_distance": band_distance(stats)}
+    lo, hi = nees_band(3, max(int(stats["runs_per_track"]), 1))  # each epoch's ANEES: one track's runs
+    for b, v in stats["anees"].items():
+        out[f"anees_{b}"] = stats["mean_anees"][b]
+        out[f"in_band_{b}"] = float(np.mean((v >= lo) & (v <= hi)))
+    for k, v in stats["anis"].items():
+        out[f"anis_{k}"] = float(np.nanmean(v))
+    return {k: float(v) for k, v in out.items()}
+
+
+__all__ = ["BAND_PENALTY", "LOST", "OBJECTIVES", "band_distance", "consistency", "score", "summary",
+           "trial_spec", "trial_statistics"]

@@ -1,0 +1,60 @@
+"""What a tuning can see: each tuned parameter's importance and its score profile at the best setting.
+
+* **Importance** (Optuna's fANOVA, seeded): the share of the score's variance over the completed
+  trials that each parameter explains (they sum to 1). Near 0: the objective does not depend on it.
+* **Profile**: the score at the best setting with one parameter at its tuned value x :data:`FACTOR`
+  and / :data:`FACTOR` (within its range), the others held; the parameter is **flat** (the objective
+  cannot see it: its tuned value means nothing) when neither moves the score by more than
+  :data:`FLAT` (relative). Two trials per parameter, on the same training realizations.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from nespm_cli.experiments.spec import Spec
+from nespm_cli.experiments.tune_objective import score, trial_statistics
+from nespm_cli.experiments.tune_space import Param
+
+FACTOR = 3.0  # the profile's step: x 3 and / 3 (linear ranges: ± a third of the range)
+FLAT = 0.02  # a relative score change below this at both steps: the parameter is not seen
+
+
+def importances(study) -> dict[str, float]:
+    """``{key: share}`` of the study's completed trials (fANOVA, seed 0); ``{}`` with fewer than 3 trials
+    or a constant score."""
+    import optuna
+    from optuna.trial import TrialState
+
+    done = study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,))
+    if len(done) < 3 or len({t.value for t in done}) < 2:
+        return {}
+    try:
+        got = optuna.importance.get_param_importances(
+            study, evaluator=optuna.importance.FanovaImportanceEvaluator(seed=0))
+    except (RuntimeError, ValueError):
+        return {}
+    return {k: float(v) for k, v in got.items()}
+
+
+def steps(p: Param, value: float) -> tuple[float, float]:
+    """The profile's two values of ``p`` around ``value``, clipped to its range."""
+    if p.log:
+        return max(p.low, value / FACTOR), min(p.high, value * FACTOR)
+    span = (p.high - p.low) / FACTOR
+    return max(p.low, value - span), min(p.high, value + span)
+
+
+def profile(train: Spec, name: str, params: list[Param], best: dict, objective: str, best_score: float) -> dict:
+    """``{key: {"low", "high", "score_low", "score_high", "change", "flat"}}`` at the best values ``best``."""
+    out = {}
+    for p in params:
+        v = float(best[p.key])
+        lo, hi = steps(p, v)
+        s = [score(trial_statistics(train, name, {**best, p.key: x}), objective) for x in (lo, hi)]
+        change = float(np.max(np.abs(np.asarray(s) - best_score)) / max(abs(best_score), 1e-300))
+        out[p.key] = {"low": lo, "high": hi, "score_low": float(s[0]), "score_high": float(s[1]),
+                      "change": change, "flat": bool(change < FLAT)}
+    return out
+
+
+__all__ = ["FACTOR", "FLAT", "importances", "profile", "steps"]

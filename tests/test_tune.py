@@ -1,0 +1,194 @@
+"""``nespm tune``: per-filter noise scales, the seeded Optuna studies (reproducible, resumable), the
+tuned config that ``mc`` takes unchanged, and the one-line refusals (docs/tuning.md).
+
+Every study here is small: embedded track 5 cut to its first 60 s (``--window 0:60``), 4 runs per
+trial, the synthetic DVL; a trial of one filter costs ~0.1 s.
+"""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from nespm_cli.cli import main
+from nespm_cli.errors import NespmError
+from nespm_cli.experiments.mc import simulate
+from nespm_cli.experiments.spec import Spec, validate
+from nespm_cli.experiments.tune import STUDY_FILE, TuneSpec, run_tune, storage, training_seed
+from nespm_cli.experiments.tune_space import parse_range
+
+SMALL = dict(tracks=(5,), runs=4, filters=("ekf",), dvl="synthetic", window="0:60")
+CLI = ["tune", "--tracks", "5", "--runs", "4", "--filters", "ekf", "--dvl", "synthetic", "--window", "0:60",
+       "--no-progress"]
+
+
+def params(folder) -> pd.DataFrame:
+    d = pd.read_parquet(folder / "trials.parquet")
+    return d[["filter", "trial", "score"] + [c for c in d.columns if c.startswith("p_")]]
+
+
+def test_noise_scales_per_filter():
+    """A noise scale changes only the filter it names; a scale of 1 is bit-identical to none; the
+    R scale acts like the sensor's r_std (DVL r_std 0.02 x 0.5 = r_std 0.01, to round-off)."""
+    base = validate(Spec(**{**SMALL, "filters": ("ekf", "ukf")}))
+    runs = np.arange(2)
+
+    def vel(spec, name):
+        return simulate(spec, 5, runs, (name,))[0][name][0].v_n
+
+    ref_ekf, ref_ukf = vel(base, "ekf"), vel(base, "ukf")
+    one = validate(dataclasses.replace(base, filter_options=(("ekf", "acc_noise_scale", "1"),
+                                                             ("ekf", "r_scale_dvl", "1.0"))))
+    assert np.array_equal(vel(one, "ekf"), ref_ekf)
+    half = validate(dataclasses.replace(base, filter_options=(("ekf", "r_scale_dvl", "0.5"),)))
+    assert np.array_equal(vel(half, "ukf"), ref_ukf)  # the other filter unchanged
+    got = vel(half, "ekf")
+    assert not np.array_equal(got, ref_ekf)
+    rstd = validate(dataclasses.replace(base, sensor_options=(("dvl", "r_std", "0.01"),)))
+    np.testing.assert_allclose(got, vel(rstd, "ekf"), rtol=0, atol=1e-12)
+    q = validate(dataclasses.replace(base, filter_options=(("ekf", "acc_noise_scale", "3"),)))
+    from nespm_cli.experiments.spec import filter_config_of
+
+    assert filter_config_of(q, "ekf").acc_noise == pytest.approx(3 * filter_config_of(base, "ekf").acc_noise)
+    assert filter_config_of(q, "ukf").acc_noise == filter_config_of(base, "ukf").acc_noise
+
+
+@pytest.mark.parametrize("option, words", [
+    ("ekf.r_scale_depth=2", "names no sensor of --sensors"),
+    ("ekf.acc_noise_scale=0", "a noise scale is a factor > 0"),
+    ("ins.acc_noise_scale=2", "ins takes no options"),
+])
+def test_bad_noise_scale_in_one_line(capsys, option, words):
+    rc = main(["mc", "--filters", "ekf,ins", "--tracks", "5", "--runs", "1", "--filter-option", option,
+               "--out", "/nonexistent/never"])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and words in err and len(err.splitlines()) == 1
+
+
+def test_reproducible_and_mc_takes_tuned_config(tmp_path, capsys):
+    """The same seed and trials give bit-identical trials (one worker); the tuned config runs in
+    ``mc`` unchanged and gives the held-out tuned folder's numbers; the first trial is the default."""
+    t = TuneSpec(Spec(**SMALL), trials=12, profile=False)
+    a = run_tune(t, tmp_path / "a")
+    b = run_tune(t, tmp_path / "b")
+    pa, pb = params(tmp_path / "a"), params(tmp_path / "b")
+    pd.testing.assert_frame_equal(pa, pb)
+    assert a["best"] == b["best"]
+    assert len(pa) == 12 and pa["score"].notna().all()
+    assert (pa.iloc[0][[c for c in pa.columns if c.startswith("p_")]] == 1.0).all()  # trial 0: the defaults
+    assert pa["score"].nunique() > 6  # the sampler moved
+    assert a["tuned_on"]["seed"] == training_seed(0) != 0
+    # mc with tuned.toml = the study's filters with the tuned options
+    toml = (tmp_path / "a" / "tuned.toml").read_text()
+    assert "[filters.ekf]" in toml
+    rc = main(["mc", "--config", str(tmp_path / "a" / "tuned.toml"), "--tracks", "5", "--runs", "2", "--dvl",
+               "synthetic", "--window", "0:60", "--jobs", "1", "--no-progress", "--out", str(tmp_path / "mc")])
+    assert rc == 0, capsys.readouterr().err
+    import json
+
+    man = json.loads((tmp_path / "mc" / "manifest.json").read_text())
+    got = {k: v for _, k, v in man["options"]["filter_options"]}
+    assert got.pop("tuned_on") == f"seed={training_seed(0)};tracks=5;runs=0-3"
+    assert got == a["best"]["ekf"]["values"]  # exact round trip through the TOML text
+
+
+def test_resume_after_a_kill_continues_to_the_same_values(tmp_path):
+    """A run killed mid-trial (its trial left RUNNING in study.db) and rerun ends with the values of an
+    uninterrupted run; a smaller first budget extended later does too."""
+    whole = TuneSpec(Spec(**SMALL), trials=11, profile=False)
+    run_tune(whole, tmp_path / "whole")
+    part = tmp_path / "part"
+    run_tune(dataclasses.replace(whole, trials=4), part)
+    import optuna
+
+    study = optuna.load_study(study_name="ekf", storage=storage(part))
+    study.ask()  # a trial the killed process had started: RUNNING forever
+    assert (part / STUDY_FILE).exists()
+    run_tune(whole, part)
+    pw, pp = params(tmp_path / "whole"), params(part)
+    pp = pp[pp["score"].notna()].reset_index(drop=True)
+    pw = pw.reset_index(drop=True)
+    cols = [c for c in pw.columns if c.startswith("p_")] + ["score"]
+    pd.testing.assert_frame_equal(pw[cols], pp[cols])
+    states = pd.read_parquet(part / "trials.parquet")["state"]
+    assert (states == "FAIL").sum() == 1 and (states == "COMPLETE").sum() == 11
+
+
+@pytest.mark.parametrize("extra, words", [
+    (["--trials", "0"], "--trials must be at least 1"),
+    (["--tune-range", "ekf.bogus_scale=1:2"], "unknown parameter"),
+    (["--tune-range", "ekf.acc_noise_scale=2:1"], "empty or inverted range"),
+    (["--tune-range", "ekf.acc_noise_scale=1:1"], "empty or inverted range"),
+    (["--tune-range", "ekf.acc_noise_scale=0:1"], "LOW > 0"),
+    (["--tune-range", "ukf.alpha=0.1:1"], "ukf is not in --filters"),
+    (["--test-tracks", "5"], "also tuning tracks"),
+    (["--objective", "best"], "--objective: choose"),
+])
+def test_bad_tune_input_in_one_line(tmp_path, capsys, extra, words):
+    rc = main(CLI + extra + ["--out", str(tmp_path / "t")])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and words in err and len(err.splitlines()) == 1, err
+    assert not (tmp_path / "t").exists()  # nothing written
+
+
+def test_study_from_another_configuration_refused(tmp_path, capsys):
+    out = str(tmp_path / "t")
+    assert main(CLI + ["--trials", "2", "--out", out]) == 0
+    capsys.readouterr()
+    rc = main(CLI[:4] + ["3"] + CLI[5:] + ["--trials", "2", "--out", out])  # --runs 3 instead of 4
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and "comes from another configuration" in err and len(err.splitlines()) == 1
+    # overlap allowed when asked, and recorded
+    rc = main(CLI + ["--trials", "2", "--test-tracks", "5", "--test-runs", "2", "--allow-overlap", "--out", out])
+    assert rc == 0
+
+
+def test_tune_table_in_config(tmp_path, capsys):
+    cfg = tmp_path / "c.toml"
+    cfg.write_text('trials = 2\n[tune]\n"*.acc_noise_scale" = [0.5, 2]\n"ekf.p0_att_scale" = "off"\n')
+    rc = main(CLI + ["--config", str(cfg), "--out", str(tmp_path / "t")])
+    assert rc == 0, capsys.readouterr().err
+    import json
+
+    space = {p["key"]: p for p in json.loads((tmp_path / "t" / "tune.json").read_text())["space"]["ekf"]}
+    assert (space["acc_noise_scale"]["low"], space["acc_noise_scale"]["high"]) == (0.5, 2.0)
+    assert "p0_att_scale" not in space and "r_scale_dvl" in space
+    with pytest.raises(NespmError, match="expected NAME.KEY=LOW:HIGH"):
+        parse_range("acc_noise_scale=1:2")
+
+
+def test_kill_9_during_tune_then_rerun(tmp_path):
+    """``kill -9`` of a real ``nespm tune`` process after a few trials; the rerun ends with the trials of an
+    uninterrupted run (one worker)."""
+    import os
+    import signal
+    import sqlite3
+    import subprocess
+    import sys
+    import time
+
+    out = tmp_path / "killed"
+    args = [sys.executable, "-m", "nespm_cli.cli"] + CLI + ["--trials", "8", "--out", str(out)]
+    proc = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                            env={**os.environ, "PYTHONPATH": os.getcwd()})
+    done, deadline = 0, time.monotonic() + 120
+    while done < 3 and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.2)
+        try:
+            con = sqlite3.connect(f"file:{out / STUDY_FILE}?mode=ro", uri=True, timeout=5)
+            done = con.execute("select count(*) from trials where state = 'COMPLETE'").fetchone()[0]
+            con.close()
+        except sqlite3.Error:
+            pass
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    assert 3 <= done < 8, done  # killed mid-study
+    t = TuneSpec(Spec(**SMALL), trials=8, profile=False)
+    run_tune(t, out)
+    run_tune(t, tmp_path / "whole")
+    pk, pw = params(out), params(tmp_path / "whole")
+    cols = [c for c in pw.columns if c.startswith("p_")] + ["score"]
+    pk = pk[pk["score"].notna()].reset_index(drop=True)
+    pd.testing.assert_frame_equal(pk[cols], pw[cols].reset_index(drop=True))

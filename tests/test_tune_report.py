@@ -1,0 +1,44 @@
+"""``nespm tune --test-tracks``: the held-out runs with the default and the tuned settings, the
+report of a tuning folder, and ``mc`` on the tuning realizations saying so (docs/tuning.md)."""
+from __future__ import annotations
+
+import json
+
+import pandas as pd
+
+from nespm_cli.cli import main
+from nespm_cli.experiments.tune import training_seed
+
+CLI = ["tune", "--tracks", "5", "--runs", "3", "--filters", "ekf,ukf", "--dvl", "synthetic", "--window", "0:60",
+       "--trials", "4", "--no-progress"]
+
+
+def test_heldout_report_and_training_warning(tmp_path, capsys):
+    out = tmp_path / "t"
+    assert main(CLI + ["--test-tracks", "6", "--test-runs", "3", "--out", str(out)]) == 0
+    capsys.readouterr()
+    # the held-out tuned folder is exactly mc with tuned.toml on the test tracks and --seed
+    assert main(["mc", "--config", str(out / "tuned.toml"), "--tracks", "6", "--runs", "3", "--dvl", "synthetic",
+                 "--window", "0:60", "--jobs", "1", "--no-progress", "--out", str(tmp_path / "mc")]) == 0
+    a = pd.read_parquet(out / "heldout-tuned" / "metrics.parquet").sort_values(["filter", "run"])
+    b = pd.read_parquet(tmp_path / "mc" / "metrics.parquet").sort_values(["filter", "run"])
+    assert a["vrmse"].to_numpy().tolist() == b["vrmse"].to_numpy().tolist()
+    assert "warning" not in capsys.readouterr().err  # held out: no training warning
+    # the report of the tuning folder
+    assert main(["report", str(out)]) == 0
+    text = (out / "report.md").read_text()
+    for words in ("# Tuning report", "## Tuned values beside the defaults", "## Held out: tracks 6",
+                  "### The tuned filters compared", "figures/convergence.png", "| ukf | alpha |"):
+        assert words in text, words
+    assert (out / "figures" / "importance.png").stat().st_size > 1000
+    rec = json.loads((out / "tune.json").read_text())
+    assert set(rec["best"]["ukf"]["profile"]) == {p["key"] for p in rec["space"]["ukf"]}
+    # mc on the tuning realizations: one warning line, and a caveat in its report
+    seed = str(training_seed(0))
+    assert main(["mc", "--config", str(out / "tuned.toml"), "--tracks", "5", "--runs", "2", "--dvl", "synthetic",
+                 "--window", "0:60", "--seed", seed, "--jobs", "1", "--no-progress", "--out",
+                 str(tmp_path / "train")]) == 0
+    err = [line for line in capsys.readouterr().err.splitlines() if "training numbers" in line]
+    assert len(err) == 2 and err[0].startswith("nespm: warning: ekf: its settings were tuned on these realizations")
+    assert main(["report", str(tmp_path / "train")]) == 0
+    assert "Training numbers: ukf" in (tmp_path / "train" / "report.md").read_text()
