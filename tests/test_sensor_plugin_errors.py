@@ -131,7 +131,7 @@ class BadEKF(ErrorStateFilter):
         return self.P
 """
 
-RUN = ["--dvl", "synthetic", "--tracks", "5", "--runs", "2", "--window", "0:30", "--no-progress"]
+RUN = ["--dvl", "synthetic", "--tracks", "5", "--runs", "2", "--chunk-size", "2", "--window", "0:30", "--no-progress"]
 
 
 @pytest.fixture(scope="module")
