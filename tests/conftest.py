@@ -17,7 +17,7 @@ folder: the session fixture ``short_data_dir`` holds embedded tracks 5 and 6 cut
 Helpers (import them with ``from conftest import ...``): ``nespm`` (in-process CLI run ->
 ``(rc, stdout, stderr)``), ``cli`` (the same, for tests that hold ``capsys``),
 ``assert_one_error_line``, ``short_track``, ``write_short_tracks``, ``console_script``,
-``env_without_data_dir``, ``chunk_mtimes``.
+``env_without_data_dir``, ``chunk_mtimes``, ``wait_until`` (event waits with a hang-guard bound).
 """
 from __future__ import annotations
 
@@ -150,6 +150,26 @@ def slow_env() -> dict[str, str]:
     """:func:`env_without_data_dir` with the NumPy reference loop (``NESPM_KERNELS=numpy``): a
     chunk then lasts seconds instead of milliseconds, so a test's signal lands mid-run."""
     return {**env_without_data_dir(), "NESPM_KERNELS": "numpy"}
+
+
+#: Bound of :func:`wait_until` [s]: a hang-guard, far above anything a loaded machine needs.
+WAIT_BOUND = 600.0
+
+
+def wait_until(condition, what: str, proc=None, bound: float = WAIT_BOUND, step: float = 0.05) -> None:
+    """Poll ``condition()`` every ``step`` s until it is true. Fails if ``proc`` (a Popen) ends
+    first (saying ``what`` was awaited, with its output) or after ``bound`` seconds: a guard
+    against a hang, not a verdict on speed (the test proceeds the moment the event happens).
+    Wall-clock speed statements live in benchmarks/, never in tests."""
+    import time
+
+    give_up = time.monotonic() + bound
+    while not condition():
+        if proc is not None and proc.poll() is not None:
+            raise AssertionError(f"the process ended before {what}: {proc.communicate()}")
+        if time.monotonic() > give_up:
+            raise AssertionError(f"hang: still waiting for {what} after {bound:.0f} s")
+        time.sleep(step)
 
 
 def chunk_mtimes(d: Path) -> dict[str, int]:

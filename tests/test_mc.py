@@ -22,14 +22,13 @@ import re
 import shutil
 import signal
 import subprocess
-import time
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pytest
 
-from conftest import (SHORT_EPOCHS, assert_one_error_line, chunk_mtimes, console_script, slow_env,
+from conftest import (SHORT_EPOCHS, assert_one_error_line, chunk_mtimes, console_script, slow_env, wait_until,
                       nespm, short_track)
 from nespm_cli.data.tracks import load_track, write_akit
 
@@ -231,11 +230,7 @@ def test_resume_after_killed_process(mc_b, root, ins):
     proc = subprocess.Popen(console_script() + argv[:], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             env=slow_env())  # the NumPy loop: chunks of seconds, so the kill lands between them
     try:
-        deadline = time.monotonic() + 120
-        while not list((f / "chunks").glob("metrics-*.parquet")):
-            assert proc.poll() is None, f"nespm mc ended before its first chunk: {proc.communicate()}"
-            assert time.monotonic() < deadline, "no chunk file after 120 s"
-            time.sleep(0.05)
+        wait_until(lambda: list((f / "chunks").glob("metrics-*.parquet")), "its first chunk file", proc=proc)
         proc.send_signal(signal.SIGTERM)
         proc.wait(timeout=60)
     finally:
