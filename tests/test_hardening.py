@@ -72,7 +72,7 @@ def test_report_that_cannot_be_written(tmp_path, short_data_dir):
     rc, _, err = nespm("mc", "--data-dir", str(short_data_dir), *EKF, "--out", str(out_dir))
     assert rc == 0, err
     (out_dir / "report.md").mkdir()  # the report's place is taken by a folder
-    rc, out, err = nespm("report", str(out_dir))
+    rc, out, err = nespm("report", str(out_dir), "--n-boot", "50")  # fewer resamples: the same write path
     assert_one_error_line(rc, out, err, "report.md")
 
 
@@ -158,7 +158,7 @@ def test_changed_data_refuses_resume(tmp_path, short_data_dir):
     man = json.loads((out_dir / "manifest.json").read_text())
     dvl = (data / "Trajectory5" / "DVL_trajectory5.csv").resolve()
     assert len(man["inputs"][str(dvl)]) == 64
-    rc, _, err = nespm("report", str(out_dir))
+    rc, _, err = nespm("report", str(out_dir), "--n-boot", "50")
     assert "input files; sha256" in (out_dir / "report.md").read_text()
     df = pd.read_csv(dvl)
     df.iloc[10, 1] += 0.5
@@ -249,8 +249,10 @@ def test_kill_9_leaves_no_workers_and_resume_is_complete(tmp_path, short_data_di
     proc.wait()
     # the workers notice their parent's death and end (a hang-guard bound, not a speed verdict)
     wait_until(lambda: not any(alive(w) for w in workers), "the workers to end after their parent", step=0.1)
+    # resumed in-process (--jobs is not part of the experiment: the same chunks, no worker start-up)
     rc, _, err = nespm("mc", "--data-dir", str(short_data_dir), "--tracks", "5", "6", "--runs", "8",
-                       "--chunk-size", "2", "--filters", "ekf,ukf-nespm", "--out", str(out_dir), "--no-progress")
+                       "--chunk-size", "2", "--filters", "ekf,ukf-nespm", "--out", str(out_dir), "--no-progress",
+                       "--jobs", "1")
     assert rc == 0, err
     man = json.loads((out_dir / "manifest.json").read_text())
     assert len(man["chunk_seconds"]) == 2 * 4 * 2  # tracks x chunks x filters
