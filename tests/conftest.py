@@ -53,6 +53,17 @@ def find_real_data() -> tuple[Path | None, str]:
     return None, f"real Snapir data not found: {env_note}, and {SIBLING_REAL_DATA} does not exist"
 
 
+def pytest_configure(config) -> None:
+    """Under pytest-xdist (``make test`` runs ``-n 2``), compile the numba kernels once in the
+    controller, before the workers start, so that they load them from the on-disk cache instead of
+    each compiling the same kernels at once (a fresh clone's ~6 s, paid once, not per worker)."""
+    if getattr(config, "workerinput", None) is None and getattr(config.option, "numprocesses", None):
+        from nespm_cli.filters.kernels import numba_installed, warm_up
+
+        if numba_installed():
+            warm_up()
+
+
 #: The real data folder, resolved at import time (None: not available), and why it is missing.
 REAL_DATA, REAL_DATA_REASON = find_real_data()
 #: Mark for tests (or ``pytest.param``) that need the real data.
