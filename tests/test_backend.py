@@ -104,6 +104,7 @@ def mc_dask(root, argv, cluster) -> Path:
 
 
 def test_dask_equals_loky_bit_for_bit(mc_dask, mc_loky):
+    """mc on a 2-worker Dask cluster gives the loky backend's metrics and epochs bit for bit."""
     a, b = metrics(mc_dask), metrics(mc_loky)
     assert len(a) == RUNS * len(FILTERS) and not a.duplicated(KEY).any()
     pd.testing.assert_frame_equal(a, b, check_exact=True)

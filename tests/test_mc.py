@@ -114,6 +114,7 @@ def mc_ins(root, ins) -> Path:
 
 
 def test_jobs_do_not_change_results(mc_a, mc_b):
+    """--jobs 2 (two loky workers) and --jobs 1 give the same metrics, epochs and series bit for bit."""
     a, b = metrics(mc_a), metrics(mc_b)
     assert len(a) == 2 * RUNS
     pd.testing.assert_frame_equal(no_seconds(a), no_seconds(b), check_exact=True)
@@ -452,6 +453,7 @@ def test_outage(mc_outage, mc_b):
 
 
 def test_report(mc_b, root):
+    """nespm report of a finished mc folder writes report.md with a table row per filter and names its path."""
     d = root / "R"
     shutil.copytree(mc_b, d)
     rc, out, err = nespm("report", d, "--n-boot", "200")

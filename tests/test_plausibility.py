@@ -46,6 +46,7 @@ def _shift_time(gt: Path, dvl: Path, k: int, dt: float) -> None:
 
 
 def test_clean_embedded_remus_tracks_load_without_findings(tmp_path):
+    """The six embedded tracks and a simulated REMUS 100 track pass the plausibility checks without any warning."""
     from nespm_cli.vehicles import simulate_runs
     from nespm_cli.vehicles.simulate import to_track
 

@@ -366,6 +366,7 @@ def test_folder_with_only_metrics_is_not_overwritten(tmp_path, short_data_dir):
 
 
 def test_report_on_a_folder_being_written_says_so(tmp_path, finished):
+    """report on a folder another process holds (its lock) warns that it is being written; else not."""
     from nespm_cli.experiments.store import FolderLock
 
     out = copy_of(finished, tmp_path / "r")
