@@ -39,8 +39,11 @@ tune-main: setup
 	$(NESPM) mc --config results/tune-main/tuned.toml --tracks 5 6 --runs $(RUNS) --jobs $(JOBS) $(DATA_OPT) --out results/main-tuned
 	$(NESPM) report results/main-tuned
 
+# The suite on two pytest workers (pytest-xdist), one test file per worker at a time (--dist
+# loadfile: a module's shared fixtures are computed once). TEST_WORKERS=0 runs it in one process.
+TEST_WORKERS ?= 2
 test: setup
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile
 
 # A short end-to-end CLI run (about a minute).
 smoke: setup

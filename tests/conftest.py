@@ -17,7 +17,7 @@ folder: the session fixture ``short_data_dir`` holds embedded tracks 5 and 6 cut
 Helpers (import them with ``from conftest import ...``): ``nespm`` (in-process CLI run ->
 ``(rc, stdout, stderr)``), ``cli`` (the same, for tests that hold ``capsys``),
 ``assert_one_error_line``, ``short_track``, ``write_short_tracks``, ``console_script``,
-``env_without_data_dir``, ``chunk_mtimes``.
+``env_without_data_dir``, ``chunk_mtimes``, ``wait_until`` (event waits with a hang-guard bound).
 """
 from __future__ import annotations
 
@@ -51,6 +51,17 @@ def find_real_data() -> tuple[Path | None, str]:
     if SIBLING_REAL_DATA.is_dir():
         return SIBLING_REAL_DATA, ""
     return None, f"real Snapir data not found: {env_note}, and {SIBLING_REAL_DATA} does not exist"
+
+
+def pytest_configure(config) -> None:
+    """Under pytest-xdist (``make test`` runs ``-n 2``), compile the numba kernels once in the
+    controller, before the workers start, so that they load them from the on-disk cache instead of
+    each compiling the same kernels at once (a fresh clone's ~6 s, paid once, not per worker)."""
+    if getattr(config, "workerinput", None) is None and getattr(config.option, "numprocesses", None):
+        from nespm_cli.filters.kernels import numba_installed, warm_up
+
+        if numba_installed():
+            warm_up()
 
 
 #: The real data folder, resolved at import time (None: not available), and why it is missing.
@@ -150,6 +161,26 @@ def slow_env() -> dict[str, str]:
     """:func:`env_without_data_dir` with the NumPy reference loop (``NESPM_KERNELS=numpy``): a
     chunk then lasts seconds instead of milliseconds, so a test's signal lands mid-run."""
     return {**env_without_data_dir(), "NESPM_KERNELS": "numpy"}
+
+
+#: Bound of :func:`wait_until` [s]: a hang-guard, far above anything a loaded machine needs.
+WAIT_BOUND = 600.0
+
+
+def wait_until(condition, what: str, proc=None, bound: float = WAIT_BOUND, step: float = 0.05) -> None:
+    """Poll ``condition()`` every ``step`` s until it is true. Fails if ``proc`` (a Popen) ends
+    first (saying ``what`` was awaited, with its output) or after ``bound`` seconds: a guard
+    against a hang, not a verdict on speed (the test proceeds the moment the event happens).
+    Wall-clock speed statements live in benchmarks/, never in tests."""
+    import time
+
+    give_up = time.monotonic() + bound
+    while not condition():
+        if proc is not None and proc.poll() is not None:
+            raise AssertionError(f"the process ended before {what}: {proc.communicate()}")
+        if time.monotonic() > give_up:
+            raise AssertionError(f"hang: still waiting for {what} after {bound:.0f} s")
+        time.sleep(step)
 
 
 def chunk_mtimes(d: Path) -> dict[str, int]:

@@ -50,9 +50,10 @@ def test_a_filter_never_looks_better_for_losing_runs():
 
 
 def test_report_section_appears_where_runs_were_lost(tmp_path, capsys, no_env_data_dir):
+    """At 60 deg of misalignment runs are lost, and the report then holds the every-run-counted section once."""
     out = tmp_path / "lost"
     rc, _, err = cli(capsys, "mc", "--tracks", "1", "--runs", "6", "--filters", "ekf,ukf-nespm,ins",
-                     "--misalignment-deg", "60", "--dvl", "synthetic", "--no-progress", "--out", out)
+                     "--misalignment-deg", "60", "--dvl", "synthetic", "--no-progress", "--jobs", "1", "--out", out)
     assert rc == 0, err
     rc, _, err = cli(capsys, "report", out, "--n-boot", "100")
     assert rc == 0, err

@@ -6,7 +6,8 @@ the final tables are complete, duplicate-free and unchanged; a chunk left half-w
 (series file without its metrics file, a stale temporary file) is recomputed without
 duplicates; a NespmError raised on a worker (its data folder missing) reaches the client as
 that one-line NespmError; without ``distributed``, an unknown backend, or a bogus or
-silent scheduler address, the command fails at once with one line and exit code 2.
+silent scheduler address, the command fails with one line and exit code 2 (how soon it fails is
+a benchmark, benchmarks/bench_claims.py, not a test).
 
 Cost: the experiments run on a 40 s cut of embedded track 5 (written to a temporary data
 folder, so a fresh clone suffices): one chunk of 2 runs x (ekf, ukf-nespm) is ~2-4 s. The
@@ -27,7 +28,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from conftest import assert_one_error_line, chunk_mtimes, console_script, nespm, write_short_tracks
+from conftest import WAIT_BOUND, assert_one_error_line, chunk_mtimes, console_script, nespm, wait_until, write_short_tracks
 from nespm_cli.experiments.backend import check_backend, parallel_map
 from nespm_cli.errors import NespmError
 from nespm_cli.filters.kernels import numba_installed
@@ -103,6 +104,7 @@ def mc_dask(root, argv, cluster) -> Path:
 
 
 def test_dask_equals_loky_bit_for_bit(mc_dask, mc_loky):
+    """mc on a 2-worker Dask cluster gives the loky backend's metrics and epochs bit for bit."""
     a, b = metrics(mc_dask), metrics(mc_loky)
     assert len(a) == RUNS * len(FILTERS) and not a.duplicated(KEY).any()
     pd.testing.assert_frame_equal(a, b, check_exact=True)
@@ -115,13 +117,10 @@ def test_dask_equals_loky_bit_for_bit(mc_dask, mc_loky):
 
 def test_client_is_closed_after_the_run(mc_dask, cluster):
     lc, client = cluster
-    deadline = time.monotonic() + 10
-    while True:
-        others = set(lc.scheduler.clients) - {"fire-and-forget", client.id}
-        if not others or time.monotonic() > deadline:
-            break
-        time.sleep(0.1)
-    assert not others, "nespm left its client connected"
+    # the scheduler drops a closed client's entry on its own loop: wait for that event (the
+    # bound is a hang-guard; a client left connected never goes and fails it)
+    wait_until(lambda: not set(lc.scheduler.clients) - {"fire-and-forget", client.id},
+               "nespm's client to leave the scheduler (nespm left its client connected?)", bound=120, step=0.1)
 
 
 def test_worker_killed_mid_chunk(root, argv, cluster, mc_dask):
@@ -135,10 +134,10 @@ def test_worker_killed_mid_chunk(root, argv, cluster, mc_dask):
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env, text=True)
     killed = None
     try:
-        deadline = time.monotonic() + 120
+        give_up = time.monotonic() + WAIT_BOUND  # a hang-guard, not a verdict on speed
         while killed is None:
             assert proc.poll() is None, f"nespm mc ended before a worker was killed: {proc.communicate()}"
-            assert time.monotonic() < deadline, "no worker ever ran a chunk"
+            assert time.monotonic() < give_up, "hang: no worker ever ran a chunk"
             if list((out / "chunks").glob("metrics-*.parquet")):  # the first chunk is done
                 busy = client.run(lambda dask_worker: [str(ts.key) for ts in dask_worker.state.executing])
                 pids = client.run(os.getpid)
@@ -150,7 +149,7 @@ def test_worker_killed_mid_chunk(root, argv, cluster, mc_dask):
                         killed_key = [k for k in keys if k.startswith(CHUNK_TASK)][0]
                         break
             time.sleep(0.05)
-        stdout, stderr = proc.communicate(timeout=180)
+        stdout, stderr = proc.communicate(timeout=WAIT_BOUND)
     finally:
         if proc.poll() is None:
             proc.kill()
@@ -196,11 +195,9 @@ def test_worker_without_data_folder(tmp_path, cluster):
     """What a worker lacking --data-dir does: load_track's NespmError, one line, at the client."""
     spec = Spec(tracks=(5,), runs=2, filters=("ekf",), chunk_size=2, data_dir=str(tmp_path / "no-such-data"))
     (tmp_path / "out" / "chunks").mkdir(parents=True)
-    t0 = time.monotonic()
     it = parallel_map(run_chunk, [(Cell(spec), 5, 0, str(tmp_path / "out"))], 1, "dask", cluster[0].scheduler_address)
     with pytest.raises(NespmError) as info:
-        list(it)
-    assert time.monotonic() - t0 < 30
+        list(it)  # how soon: benchmarks/bench_claims.py (dask-worker-error)
     msg = str(info.value)
     assert len(msg.splitlines()) == 1
     assert "no-such-data: data directory not found" in msg and "on Dask worker host" in msg
@@ -265,22 +262,20 @@ def _free_port() -> int:
 
 
 def test_bogus_scheduler_address(tmp_path, argv):
+    """No scheduler at the address: one line naming it, exit 2 (how soon: benchmarks/bench_claims.py)."""
     for address in (f"tcp://127.0.0.1:{_free_port()}", "no-port-here"):
-        t0 = time.monotonic()
         rc, out, err = nespm(*argv, "--backend", "dask", "--scheduler", address, "--out", tmp_path / "X")
         assert_one_error_line(rc, out, err, f"--scheduler {address}")
-        assert time.monotonic() - t0 < 20
+        assert not (tmp_path / "X" / "chunks").exists() or not list((tmp_path / "X" / "chunks").glob("*.parquet"))
 
 
 def test_silent_scheduler_address_times_out(tmp_path, argv, monkeypatch):
-    """A port that accepts connections but never speaks: the connect timeout, not a hang."""
+    """A port that accepts connections but never speaks: the connect timeout (NESPM_DASK_TIMEOUT,
+    named in the message), not a hang. How soon it returns: benchmarks/bench_claims.py."""
     monkeypatch.setenv("NESPM_DASK_TIMEOUT", "2")
     with socket.socket() as srv:
         srv.bind(("127.0.0.1", 0))
         srv.listen(8)
         address = f"tcp://127.0.0.1:{srv.getsockname()[1]}"
-        t0 = time.monotonic()
         rc, out, err = nespm(*argv, "--backend", "dask", "--scheduler", address, "--out", tmp_path / "X")
-        elapsed = time.monotonic() - t0
     assert_one_error_line(rc, out, err, f"--scheduler {address}", "within 2 s")
-    assert elapsed < 20

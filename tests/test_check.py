@@ -47,6 +47,7 @@ def planted(exact_track):
 
 
 def test_exact_imu_is_consistent(exact_result):
+    """The exact (synthesized) IMU of a track is found consistent: identity axes, no offset, no bad window."""
     imu = exact_result["imu"]
     assert imu["axis_mapping"]["axes"] == "x,y,z"
     assert imu["axis_mapping"]["cost"] < 1e-3  # residual energy below 0.1 % of the signal's
@@ -60,6 +61,7 @@ def test_exact_imu_is_consistent(exact_result):
 
 
 def test_planted_defects_are_found(planted):
+    """nespm check finds a planted axis flip, time offset and gyro bias step in an otherwise exact IMU."""
     imu = planted["imu"]
     assert imu["axis_mapping"]["axes"] == "x,-y,z"
     assert imu["axis_mapping"]["identity_cost"] > 5 * imu["axis_mapping"]["cost"]
@@ -198,6 +200,7 @@ def test_real_shared_folder_without_imu(real_data_dir, tmp_path):
 
 
 def test_real_recorded_imu_is_found_flipped(real_data_dir):
+    """On the real recorded IMU of track 5, check finds the y/z flip and the IMU clock's 1/399 drift."""
     imu_dir = real_data_dir.parent / "snapir-akit-imu"
     if not imu_dir.is_dir():
         pytest.skip(f"{imu_dir} does not exist")

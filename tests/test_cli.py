@@ -23,7 +23,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from conftest import (SHORT_EPOCHS, assert_one_error_line, cli, console_script, env_without_data_dir, slow_env,
+from conftest import (SHORT_EPOCHS, assert_one_error_line, cli, console_script, env_without_data_dir, slow_env, wait_until,
                       short_track)
 from nespm_cli.data.corruption import CorruptionConfig, draw, n_segments
 from nespm_cli.data.embedded import embedded_track
@@ -335,16 +335,14 @@ def test_ctrl_c_during_mc_prints_the_resume_hint(tmp_path):
     machine too. The child gets the default SIGINT disposition: a suite started in the
     background of a non-interactive shell ignores SIGINT, and a child would inherit that.)"""
     import signal
-    import time
 
     out = tmp_path / "mc"
     p = subprocess.Popen([sys.executable, "-m", "nespm_cli.cli", "mc", "--tracks", "5", "--runs", "2",
                           "--filters", "ukf-nespm", "--no-progress", "--out", str(out)],
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                          env=slow_env(), preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
-    deadline = time.time() + 60
-    while not (out / "manifest.json").exists() and time.time() < deadline and p.poll() is None:
-        time.sleep(0.05)  # the manifest is written before the first chunk starts
+    # the manifest is written before the first chunk starts
+    wait_until(lambda: (out / "manifest.json").exists(), "the manifest was written", proc=p)
     p.send_signal(signal.SIGINT)
     _, err = p.communicate(timeout=120)
     assert p.returncode == 130

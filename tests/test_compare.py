@@ -26,6 +26,7 @@ def cases(tmp_path_factory):
 
 
 def test_case_table_equals_each_folders_own_report_numbers(cases):
+    """compare's case table holds each folder's own report numbers (VRMSE, RMS HPE, CEP50, NIS of the fixes)."""
     cs = load_cases([cases / "dvl", cases / "fix"])
     table = case_table(cs).set_index(["case", "filter"])
     for c in cs:

@@ -1,8 +1,6 @@
 """Tests of nespm_cli.data.embedded: the deterministic Snapir-like tracks used without a data folder."""
 from __future__ import annotations
 
-import time
-
 import numpy as np
 import pytest
 
@@ -46,14 +44,6 @@ def test_deterministic_and_read_only(number: int) -> None:
 def test_default_load_is_embedded(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.delenv(ENV_DATA_DIR, raising=False)
     assert load_track(4) is embedded_track(4)
-
-
-@ALL
-def test_fast(number: int) -> None:
-    embedded_track.cache_clear()
-    t0 = time.perf_counter()
-    embedded_track(number)
-    assert time.perf_counter() - t0 < 0.2
 
 
 @ALL

@@ -22,14 +22,13 @@ import re
 import shutil
 import signal
 import subprocess
-import time
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pytest
 
-from conftest import (SHORT_EPOCHS, assert_one_error_line, chunk_mtimes, console_script, slow_env,
+from conftest import (SHORT_EPOCHS, assert_one_error_line, chunk_mtimes, console_script, slow_env, wait_until,
                       nespm, short_track)
 from nespm_cli.data.tracks import load_track, write_akit
 
@@ -115,6 +114,7 @@ def mc_ins(root, ins) -> Path:
 
 
 def test_jobs_do_not_change_results(mc_a, mc_b):
+    """--jobs 2 (two loky workers) and --jobs 1 give the same metrics, epochs and series bit for bit."""
     a, b = metrics(mc_a), metrics(mc_b)
     assert len(a) == 2 * RUNS
     pd.testing.assert_frame_equal(no_seconds(a), no_seconds(b), check_exact=True)
@@ -231,11 +231,7 @@ def test_resume_after_killed_process(mc_b, root, ins):
     proc = subprocess.Popen(console_script() + argv[:], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             env=slow_env())  # the NumPy loop: chunks of seconds, so the kill lands between them
     try:
-        deadline = time.monotonic() + 120
-        while not list((f / "chunks").glob("metrics-*.parquet")):
-            assert proc.poll() is None, f"nespm mc ended before its first chunk: {proc.communicate()}"
-            assert time.monotonic() < deadline, "no chunk file after 120 s"
-            time.sleep(0.05)
+        wait_until(lambda: list((f / "chunks").glob("metrics-*.parquet")), "its first chunk file", proc=proc)
         proc.send_signal(signal.SIGTERM)
         proc.wait(timeout=60)
     finally:
@@ -461,6 +457,7 @@ def test_outage(mc_outage, mc_b):
 
 
 def test_report(mc_b, root):
+    """nespm report of a finished mc folder writes report.md with a table row per filter and names its path."""
     d = root / "R"
     shutil.copytree(mc_b, d)
     rc, out, err = nespm("report", d, "--n-boot", "200")

@@ -46,6 +46,7 @@ def _shift_time(gt: Path, dvl: Path, k: int, dt: float) -> None:
 
 
 def test_clean_embedded_remus_tracks_load_without_findings(tmp_path):
+    """The six embedded tracks and a simulated REMUS 100 track pass the plausibility checks without any warning."""
     from nespm_cli.vehicles import simulate_runs
     from nespm_cli.vehicles.simulate import to_track
 
@@ -255,17 +256,13 @@ def test_printable_helper():
     assert s.isprintable() and "\n" not in s
 
 
-def test_findings_are_vectorized_and_fast():
-    """The checks on a 100,000-epoch track take well under a second (no Python loop over epochs)."""
-    import time
-
+def test_findings_on_a_long_track():
+    """A clean 100,000-epoch track gives no error finding (how fast: benchmarks/bench_claims.py)."""
     n = 100_000
     t = np.arange(n) * 0.1
     v = np.column_stack([np.full(n, 1.5), np.zeros(n), np.zeros(n)])
     lat = 0.5 + np.cumsum(np.r_[0.0, np.full(n - 1, 0.15 / 6.36e6)])
     gt = np.column_stack([t, np.full(n, 0.6), lat, np.full(n, -10.0), v, np.zeros((n, 3))])
     dvl = np.column_stack([t, v])
-    t0 = time.perf_counter()
     f = P.check_track_arrays("gt.csv", gt, "dvl.csv", dvl)
-    assert time.perf_counter() - t0 < 1.0
     assert [x for x in f if x.level == "error"] == [], [x.text for x in f]

@@ -5,7 +5,6 @@ noise level from pure white noise.
 from __future__ import annotations
 
 import json
-import time
 
 import numpy as np
 import pytest
@@ -261,13 +260,11 @@ def test_learns_white_noise_level():
     F, T = norm.transform(X, np.float32), norm.encode(y).astype(np.float32)
     net.params["b5"][:] = T.mean()
     opt = Adam(net.params, lr=3e-3)
-    t0 = time.perf_counter()
-    for ep in range(4):
+    for ep in range(4):  # how long this takes: benchmarks/bench_claims.py (processnet-training)
         perm = rng.permutation(len(F))
         for s in range(0, len(F), 32):
             b = perm[s:s + 32]
             opt.step(net.backward(mse_loss(net.forward(F[b]), T[b])[1]))
-    assert time.perf_counter() - t0 < 20
     p = net.predict_std(Xt)
     rho = spearmanr(p.ravel(), yt.ravel()).statistic
     assert rho > 0.95, rho

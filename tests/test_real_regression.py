@@ -36,6 +36,7 @@ TOLERANCE = {"ekf": 1e-9, "ukf": 1e-9, "anekf": 1e-6, "anukf": 1e-6, "ukf-nespm"
 
 @pytest.mark.slow
 def test_real_mc_metrics_unchanged(real_data_dir, tmp_path, no_env_data_dir):
+    """mc on the real tracks 5 and 6 (8 runs, six filters) reproduces the pinned metrics of every run."""
     out = tmp_path / "real8"
     rc, _, stderr = nespm("mc", "--tracks", "5", "6", "--runs", "8", "--seed", "3", "--filters",
                           "ekf,ukf,ukf-nespm,anekf,anukf,anukf-nespm", "--data-dir", real_data_dir,

@@ -649,6 +649,7 @@ def make_hpe_epochs(tracks, filters, n: int = 300) -> pd.DataFrame:
 
 
 def test_report_horizontal_section_and_figure(tmp_path: Path) -> None:
+    """The report's horizontal-position section has its table columns and one HPE figure per track."""
     filters = ("ekf", "ukf")
     m = add_hpe(noisy_metrics(12, {"ekf": 0.12, "ukf": 0.1}))
     m.to_parquet(tmp_path / "metrics.parquet")

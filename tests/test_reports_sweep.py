@@ -180,6 +180,7 @@ def section(text: str, name: str) -> str:
 
 
 def test_filter_identical_to_baseline_interval_contains_zero_no_star(tmp_path: Path) -> None:
+    """A copy of the baseline: improvement 0, an interval containing 0, no star; a better filter starred."""
     m = make_sweep(copy_of={"ukf-nespm": "ekf"})
     imp = improvement_table(m, n_boot=300)
     same = imp[imp["filter"] == "ukf-nespm"]
@@ -237,6 +238,7 @@ def test_wilson_interval_values() -> None:
 
 
 def test_all_diverged_value_gives_nan_and_rate_one(tmp_path: Path) -> None:
+    """A swept value where every run diverged gives NaN errors, a divergence rate of 1 and dashes in the report."""
     every = {(t, r) for t in TRACKS for r in range(RUNS)}
     div = {(30.0, f): every for f in FILTERS}
     div[(1.0, "ukf")] = every  # one filter lost at another value
@@ -288,6 +290,7 @@ MANIFEST = {
 
 
 def test_write_sweep_report(tmp_path: Path) -> None:
+    """The whole sweep report: sections in order, a table row per value, run line, NEES band, five figures."""
     m = make_sweep()
     write_folder(tmp_path, m, MANIFEST)
     path = write_sweep_report(tmp_path, n_boot=300)
@@ -326,6 +329,7 @@ def test_write_sweep_report(tmp_path: Path) -> None:
 
 
 def test_write_report_dispatches_to_sweep(tmp_path: Path) -> None:
+    """nespm report writes the sweep report for a sweep folder and the ordinary report for an mc folder."""
     m = make_sweep(values=(0.5, 2.0), runs=6, param="dvl-noise")
     write_folder(tmp_path, m)
     path = dispatch.write_report(tmp_path, "ukf", n_boot=40)
@@ -370,6 +374,7 @@ def divergent_sweep() -> pd.DataFrame:
 
 
 def test_improvement_table_and_figure_show_the_same_numbers(tmp_path: Path, monkeypatch) -> None:
+    """The improvement figure draws exactly the improvement table's numbers (paired over the runs both filters kept)."""
     from nespm_cli.reports import sweep as sr
     from nespm_cli.reports import sweep_figures
 
@@ -413,6 +418,7 @@ def test_improvement_table_and_figure_show_the_same_numbers(tmp_path: Path, monk
 
 
 def test_sweep_summary_compares_filters_head_to_head(tmp_path: Path) -> None:
+    """The pairwise-comparison and verdict rows of a sweep report carry compare_filters' own numbers."""
     m = divergent_sweep()
     write_folder(tmp_path, m, MANIFEST)
     text = write_sweep_report(tmp_path, n_boot=300).read_text()
@@ -439,6 +445,7 @@ def test_sweep_summary_compares_filters_head_to_head(tmp_path: Path) -> None:
 
 
 def test_sweep_small_sample_not_starred(tmp_path: Path) -> None:
+    """With 5 paired runs an interval excluding 0 is not starred, and the caveat names every value and track once."""
     m = make_sweep(values=(1.0, 30.0), runs=5)
     imp = improvement_table(m, n_boot=200)
     nespm = imp[imp["filter"] == "ukf-nespm"]

@@ -367,6 +367,7 @@ def _diff(name: str, a, b) -> float:
 
 @pytest.mark.parametrize("kind", list(KINDS))
 def test_import_equals_source(imported, kind):
+    """A ROS 1 / ROS 2 / MCAP bag imports to the track it was written from (times, positions, attitude, DVL)."""
     bag, spec, data, number, rc, so, se = imported[kind]
     assert rc == 0, (so, se)
     assert f"track {number}" in so

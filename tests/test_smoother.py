@@ -124,12 +124,16 @@ def test_names():
 
 @pytest.fixture(scope="module")
 def exact_model():
-    """EKF and IEKF with the synthetic DVL (an exact measurement model), 30 runs of embedded track 1."""
+    """EKF and IEKF with the synthetic DVL (an exact measurement model), 8 runs of embedded track 1.
+
+    8 runs, not 30: the smoothed/filtered RMS ratios are 0.64/0.60 (velocity), 0.92/0.89 (attitude),
+    0.88/0.84 (horizontal) for ekf/iekf at 8 runs against 0.63, 0.91, 0.85 at 30 (measured), so the
+    bounds below keep their margins at a quarter of the cost."""
     with pytest.MonkeyPatch.context() as mp:
         mp.delenv("NESPM_DATA_DIR", raising=False)
-        spec = validate(Spec(tracks=(1,), runs=30, filters=("ekf", "iekf"), dvl="synthetic", data_dir=None,
+        spec = validate(Spec(tracks=(1,), runs=8, filters=("ekf", "iekf"), dvl="synthetic", data_dir=None,
                              smooth=("ekf", "iekf")))
-        res, truth, _ = simulate(spec, 1, np.arange(30))
+        res, truth, _ = simulate(spec, 1, np.arange(8))
         clean, _, _ = simulate(spec, 1, np.arange(3), clean=True)
     return res, clean
 

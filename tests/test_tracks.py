@@ -6,7 +6,6 @@ real data); everything else runs on embedded tracks written to temporary A-KIT f
 from __future__ import annotations
 
 import csv
-import time
 from pathlib import Path
 
 import numpy as np
@@ -56,12 +55,6 @@ def test_all_13_real_tracks_load(real_data_dir: Path) -> None:
         s = track_summary(tr)
         assert 1.0 < s["mean_speed"] < 3.0
         assert 0.0 <= s["depth_min"] <= s["depth_max"] <= 36.0
-
-
-def test_real_tracks_load_fast(real_data_dir: Path) -> None:
-    t0 = time.perf_counter()
-    load_tracks(range(1, 14), real_data_dir)
-    assert time.perf_counter() - t0 < 1.0
 
 
 def test_track5_first_epoch_matches_file(real_data_dir: Path) -> None:

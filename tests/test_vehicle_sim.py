@@ -40,6 +40,7 @@ def short_runs():
 
 
 def test_result_layout(helix_runs):
+    """The simulator's outputs have their documented shapes, rates and wrapping (two 200 s helix runs)."""
     r = helix_runs
     N = 200 * 5 + 1  # 5 Hz output
     assert r.t.shape == (N,) and r.t[1] == pytest.approx(0.2) and r.t[-1] == pytest.approx(200.0)
