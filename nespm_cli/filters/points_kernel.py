@@ -55,10 +55,12 @@ def rodrigues_fix(T, S):
 def cycles_soa(T, S, F0, F1, F2, W0, W1, W2, dt):
     """One navigation cycle (nav.kernels.cycle_t: the same operations in the same order) of the S points
     whose states are the columns of ``T`` (46, S): rows 0-24 the 25-tuple of cycle_t, 25-30 the points'
-    ``b_a``, ``b_g``, 31-45 scratch. Loops over the points without calls are vectorised by LLVM (the
-    points in SIMD lanes); the sines and cosines run in scalar loops between them."""
+    ``b_a``, ``b_g``, 31-45 scratch (row 37: sin 2·lat, formed with the new latitude's sine and cosine
+    for the next step). The loops without calls run over all :data:`L` lanes (a constant trip count,
+    vectorised by LLVM: the points in SIMD lanes; the lanes past the S points hold copies of point 0),
+    the sines and cosines over the S points in scalar loops between them."""
     half = 0.5 * dt
-    for s in range(S):  # eq 25 and the series coefficients of exp(w_nb* dt/2)
+    for s in range(L):  # eq 25 and the series coefficients of exp(w_nb* dt/2)
         u0, u1, u2 = T[19 * L + s] + T[22 * L + s], T[20 * L + s] + T[23 * L + s], T[21 * L + s] + T[24 * L + s]
         c00, c01, c02, c10, c11, c12, c20, c21, c22 = (T[6 * L + s], T[7 * L + s], T[8 * L + s], T[9 * L + s], T[10 * L + s], T[11 * L + s],
                                                        T[12 * L + s], T[13 * L + s], T[14 * L + s])
@@ -69,9 +71,7 @@ def cycles_soa(T, S, F0, F1, F2, W0, W1, W2, dt):
         a, b = series_ab(th2)
         T[31 * L + s], T[32 * L + s], T[33 * L + s], T[34 * L + s], T[35 * L + s], T[36 * L + s] = p0, p1, p2, th2, a, b
     rodrigues_fix(T, S)
-    for s in range(S):
-        T[37 * L + s] = math.sin(2.0 * T[0 * L + s])  # gravity_t's sin(2 lat)
-    for s in range(S):  # eqs 24, 26-30
+    for s in range(L):  # eqs 24, 26-30
         lat, h = T[0 * L + s], T[2 * L + s]
         v0, v1, v2 = T[3 * L + s], T[4 * L + s], T[5 * L + s]
         C = (T[6 * L + s], T[7 * L + s], T[8 * L + s], T[9 * L + s], T[10 * L + s], T[11 * L + s], T[12 * L + s], T[13 * L + s], T[14 * L + s])
@@ -95,7 +95,8 @@ def cycles_soa(T, S, F0, F1, F2, W0, W1, W2, dt):
     for s in range(S):
         T[44 * L + s] = math.sin(T[38 * L + s])
         T[45 * L + s] = math.cos(T[38 * L + s])
-    for s in range(S):  # earth_t at the new state, eq 32 and the series coefficients of exp(w_nb dt)
+        T[37 * L + s] = math.sin(2.0 * T[38 * L + s])  # gravity_t's sin(2 lat) of the next step
+    for s in range(L):  # earth_t at the new state, eq 32 and the series coefficients of exp(w_nb dt)
         lat1, h1, n0, n1 = T[38 * L + s], T[39 * L + s], T[40 * L + s], T[41 * L + s]
         sl, cl = T[44 * L + s], T[45 * L + s]
         den = 1.0 - E2 * (sl * sl)
@@ -117,7 +118,7 @@ def cycles_soa(T, S, F0, F1, F2, W0, W1, W2, dt):
         T[15 * L + s], T[16 * L + s], T[17 * L + s], T[18 * L + s] = sl, cl, R_N, R_E
         T[19 * L + s], T[20 * L + s], T[21 * L + s], T[22 * L + s], T[23 * L + s], T[24 * L + s] = e4, e5, e6, e7, e8, e9
     rodrigues_fix(T, S)
-    for s in range(S):  # eq 31: C_{k+1} = C exp(w_nb dt)
+    for s in range(L):  # eq 31: C_{k+1} = C exp(w_nb dt)
         C = (T[6 * L + s], T[7 * L + s], T[8 * L + s], T[9 * L + s], T[10 * L + s], T[11 * L + s], T[12 * L + s], T[13 * L + s], T[14 * L + s])
         E = exp_from(T[31 * L + s], T[32 * L + s], T[33 * L + s], T[34 * L + s], T[35 * L + s], T[36 * L + s])
         c = mul_t(C, E)
@@ -135,8 +136,14 @@ def points_span_soa(pos, v, C, b_a, b_g, X, f, w, dt, j0, j1, pos_o, v_o, C_o, o
         for s in range(S):
             x, ba0, ba1, ba2, bg0, bg1, bg2, _, _, _ = point_start(pos, v, C, b_a, b_g, X, r, s, off)
             for i in range(25):
-                T[(i) * L + s] = x[i]
+                T[i * L + s] = x[i]
             T[25 * L + s], T[26 * L + s], T[27 * L + s], T[28 * L + s], T[29 * L + s], T[30 * L + s] = ba0, ba1, ba2, bg0, bg1, bg2
+        for s in range(L):
+            if s >= S:  # the lanes past the last point: a copy of point 0, finite, never read back
+                for i in range(31):
+                    T[i * L + s] = T[i * L]
+                T[44 * L + s], T[45 * L + s] = T[15 * L], T[16 * L]
+            T[37 * L + s] = math.sin(2.0 * T[s])  # gravity_t's sin(2 lat) of the first step
         for j in range(j0, j1):
             cycles_soa(T, S, f[r, j, 0], f[r, j, 1], f[r, j, 2], w[r, j, 0], w[r, j, 1], w[r, j, 2], dt[j])
         for s in range(S):
