@@ -127,28 +127,45 @@ def cycles_soa(T, S, F0, F1, F2, W0, W1, W2, dt):
 
 
 @njit(cache=True, error_model="numpy")
-def points_span_soa(pos, v, C, b_a, b_g, X, f, w, dt, j0, j1, pos_o, v_o, C_o, off):
-    """transition_kernel.points_span (the same arguments and the same bits) with the points of a run
-    in the columns of a state table, IMU step by IMU step (:func:`cycles_soa`): at most :data:`L` points."""
+def points_span_soa(pos, v, C, b_a, b_g, X, f, w, dt, j0, j1, pos_o, v_o, C_o, dp_o, off):
+    """transition_kernel.points_span, and with a position block (``off[0] >= 0``) points_span_position
+    into ``dp_o`` (R, S, 3) (the same arguments and the same bits; ``dp_o`` untouched without the block),
+    with the points of a run in the columns of a state table, IMU step by IMU step (:func:`cycles_soa`;
+    rows 46-51 the position offsets and the velocity differences from point 0): at most :data:`L` points."""
     S = X.shape[1] + 1
-    T = np.empty(46 * L)
+    position = off[0] >= 0
+    T = np.empty(52 * L)
     for r in range(pos.shape[0]):
         for s in range(S):
-            x, ba0, ba1, ba2, bg0, bg1, bg2, _, _, _ = point_start(pos, v, C, b_a, b_g, X, r, s, off)
+            x, ba0, ba1, ba2, bg0, bg1, bg2, d0, d1, d2 = point_start(pos, v, C, b_a, b_g, X, r, s, off)
             for i in range(25):
                 T[i * L + s] = x[i]
+            T[46 * L + s], T[47 * L + s], T[48 * L + s] = d0, d1, d2
             T[25 * L + s], T[26 * L + s], T[27 * L + s], T[28 * L + s], T[29 * L + s], T[30 * L + s] = ba0, ba1, ba2, bg0, bg1, bg2
         for s in range(L):
             if s >= S:  # the lanes past the last point: a copy of point 0, finite, never read back
                 for i in range(31):
                     T[i * L + s] = T[i * L]
+                T[46 * L + s], T[47 * L + s], T[48 * L + s] = 0.0, 0.0, 0.0
                 T[44 * L + s], T[45 * L + s] = T[15 * L], T[16 * L]
             T[37 * L + s] = math.sin(2.0 * T[s])  # gravity_t's sin(2 lat) of the first step
         for j in range(j0, j1):
+            if position:  # eqs 28-30 in deviation form: the velocity difference from point 0 before the step
+                for s in range(L):
+                    for i in range(3):
+                        T[(49 + i) * L + s] = T[(3 + i) * L + s] - T[(3 + i) * L]
             cycles_soa(T, S, f[r, j, 0], f[r, j, 1], f[r, j, 2], w[r, j, 0], w[r, j, 1], w[r, j, 2], dt[j])
+            if position:  # ... and after it: the trapezoid
+                half = 0.5 * dt[j]
+                for s in range(L):
+                    for i in range(3):
+                        T[(46 + i) * L + s] += (T[(49 + i) * L + s] + (T[(3 + i) * L + s] - T[(3 + i) * L])) * half
         for s in range(S):
             pos_o[r, s, 0], pos_o[r, s, 1], pos_o[r, s, 2] = T[0 * L + s], T[1 * L + s], T[2 * L + s]
             v_o[r, s, 0], v_o[r, s, 1], v_o[r, s, 2] = T[3 * L + s], T[4 * L + s], T[5 * L + s]
             for i in range(3):
                 for k in range(3):
                     C_o[r, s, i, k] = T[(6 + 3 * i + k) * L + s]
+            if position:
+                for i in range(3):
+                    dp_o[r, s, i] = T[(46 + i) * L + s] if s > 0 else 0.0
