@@ -138,16 +138,19 @@ def points_through_cycle(pos, v_n, C_bn, b_a, b_g, X, f, w, dt, j0: int, j1: int
     position offset from point 0, NED [m] (its ``dp`` plus the integral of its velocity offset);
     nothing is modified in place.
     """
+    from nespm_cli.filters import points_kernel as pk
     from nespm_cli.filters import transition_kernel as tk
 
     R, S = X.shape[0], X.shape[1] + 1
     out = np.empty((R, S, 3)), np.empty((R, S, 3)), np.empty((R, S, 3, 3))
     args = (pos, v_n, C_bn, b_a, b_g, np.ascontiguousarray(X, dtype=float), _f64(f), _f64(w), _f64(dt), j0, j1)
-    if not layout.has("pos"):
+    dp = np.zeros((R, S, 3))
+    if S <= pk.L:  # the points in SIMD lanes; the same bits as the scalar kernels below
+        pk.points_span_soa(*args, *out, dp, layout.offsets())
+    elif not layout.has("pos"):
         tk.points_span(*args, *out, layout.offsets())
-        return (*out, np.zeros((R, S, 3)))
-    dp = np.empty((R, S, 3))
-    tk.points_span_position(*args, *out, dp, layout.offsets())
+    else:
+        tk.points_span_position(*args, *out, dp, layout.offsets())
     return (*out, dp)
 
 
