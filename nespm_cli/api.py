@@ -95,7 +95,9 @@ def compare(folders, labels=None, reference: str | None = None, n_boot: int = 20
     """``nespm compare``'s tables: ``cases`` (per case and filter) and ``improvements`` (over the
     reference case), for folders on the same realizations (:mod:`nespm_cli.reports.cases`)."""
     from nespm_cli.reports.cases import case_improvements, case_table, load_cases
+    from nespm_cli.reports.results import check_n_boot
 
+    check_n_boot(n_boot)
     cases = load_cases(folders, labels)
     return {"cases": case_table(cases), "improvements": case_improvements(cases, reference, n_boot=n_boot)}
 

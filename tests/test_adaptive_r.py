@@ -221,7 +221,7 @@ def test_every_layout_and_sensor_suite(monkeypatch, state, sensors, opts):
 
 
 @pytest.mark.parametrize("option, words", [
-    ("iae-ekf.window=60", "iae-ekf.window=60: longer than the track (39.1 s)"),
+    ("iae-ekf.window=60", "iae-ekf.window=60: longer than the track ("),
     ("sh-ekf.forgetting=1", "sh-ekf.forgetting=1: a forgetting factor must lie in (0, 1)"),
     ("sh-ekf.forgetting=0", "sh-ekf.forgetting=0: a forgetting factor must lie in (0, 1)"),
     ("vb-ekf.rho=1.5", "vb-ekf.rho=1.5: a forgetting factor must lie in (0, 1)"),
@@ -232,3 +232,4 @@ def test_bad_options_are_one_line(tmp_path, option, words):
     rc, out, err = nespm("mc", "--tracks", "5", "--runs", "1", "--window", "0:40", "--filters", f,
                          "--filter-option", option, "--no-progress", "--jobs", "1", "--out", tmp_path / "o")
     assert_one_error_line(rc, out, err, words)
+    assert not (tmp_path / "o").exists()  # refused before anything is written

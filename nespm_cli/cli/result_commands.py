@@ -30,9 +30,6 @@ def report(
     no_progress: bool = typer.Option(False, "--no-progress", help="Do not say what is being done (a status on a terminal; nothing off one)."),
 ) -> None:
     """Write DIR/report.md (verdict first, each caveat once, Tables I/II layout, paired 95 % intervals, published values; docs/report.md) and figures."""
-    from nespm_cli.reports.results import check_n_boot
-
-    check_n_boot(n_boot)
     with Status("nespm report", enabled=not no_progress, plain=False) as status:  # phases: experiments.progress.phase
         status("loading the report modules")
         from nespm_cli.reports.dispatch import write_report
@@ -52,9 +49,6 @@ def compare(
     no_progress: bool = typer.Option(False, "--no-progress", help="Do not say what is being done (a status on a terminal; nothing off one)."),
 ) -> None:
     """Compare cases (sensor suites, tunings) run on the same realizations: one table per case and filter, paired improvements over the reference case."""
-    from nespm_cli.reports.results import check_n_boot
-
-    check_n_boot(n_boot)
     names = [x.strip() for x in labels.split(",")] if labels else None
     with Status("nespm compare", enabled=not no_progress, plain=False) as status:
         status("loading the report modules")

@@ -192,6 +192,7 @@ def validate(spec: Spec) -> Spec:
     spec = dataclasses.replace(spec, track_corrections=resolve_corrections(spec))
     durations = {n: track_inputs(spec, n)[0].duration
                  for n in spec.tracks}
+    check_filter_domains(spec, min(durations.values()))
     check_suite(spec, layout, {n: track_inputs(spec, n)[0] for n in spec.tracks},
                 {n: track_inputs(spec, n)[1] for n in spec.tracks})
     if adaptive and spec.imu == "recorded":  # one network window per DVL interval
@@ -320,6 +321,21 @@ def check_effective(spec: Spec) -> None:
                       "sensor's own --sensor-option NAME.KEY=VALUE instead",
                "outage": f"applies with --scenario outage only (the scenario is {spec.scenario})"}[scope]
         raise NespmError(f"{flag}: {why}; the option would change nothing: drop it")
+
+
+def check_filter_domains(spec: Spec, span_s: float) -> None:
+    """Each filter's own option domains before anything is written: a filter class may define
+    ``check_options(name, options, given, span_s)`` (its option values, the keys set explicitly, the
+    shortest track's span [s]) raising one line (e.g. an adaptive filter's window longer than a track)."""
+    from nespm_cli.filters.options import option_values
+    from nespm_cli.filters.registry import get_filter
+
+    for f in spec.filters:
+        cls = get_filter(f)
+        check = getattr(cls, "check_options", None)
+        if check is not None:
+            given = {k for n, k, _ in spec.filter_options if n == f}
+            check(f, option_values(cls, configure(filter_config(spec), f, cls, spec.filter_options)), given, span_s)
 
 
 def load_filters(spec: Spec) -> Spec:

@@ -48,17 +48,21 @@ class AdaptiveREKF(EKF):
         self.span_s = float(self.t_end[-1]) if len(self.t_end) else 0.0
         self.r_est: dict = {}
         self.ok = np.ones(self.R, dtype=bool)
-        o = self.options
-        if "r_floor" in o and not 0.0 < o["r_floor"] <= 1.0 <= o["r_ceiling"]:
-            raise NespmError(f"--filter-option {self.name}.r_floor/r_ceiling: need 0 < r_floor <= 1 <= r_ceiling, "
-                             f"got {o['r_floor']}, {o['r_ceiling']}")
+        self.check_options(self.name, self.options, {k for k, _ in cfg.options}, self.span_s)
 
-    def forgetting_option(self, key: str) -> float:
-        """The option ``key`` checked to lie in (0, 1) (one line naming it otherwise)."""
-        v = float(self.options[key])
-        if not 0.0 < v < 1.0:
-            raise NespmError(f"--filter-option {self.name}.{key}={v:g}: a forgetting factor must lie in (0, 1)")
-        return v
+    @classmethod
+    def check_options(cls, name: str, options: dict, given: set, span_s: float) -> None:
+        """One line naming ``--filter-option NAME.KEY`` for a value outside its domain; ``options`` the
+        filter's values, ``given`` the keys set explicitly, ``span_s`` the (shortest) track's span [s].
+        Called by the experiment's validation before anything is written, and again by the filter."""
+        o = options
+        if "r_floor" in o and not 0.0 < o["r_floor"] <= 1.0 <= o["r_ceiling"]:
+            raise NespmError(f"--filter-option {name}.r_floor/r_ceiling: need 0 < r_floor <= 1 <= r_ceiling, "
+                             f"got {o['r_floor']}, {o['r_ceiling']}")
+        for key in ("forgetting", "rho"):
+            if key in o and not 0.0 < float(o[key]) < 1.0:
+                raise NespmError(f"--filter-option {name}.{key}={float(o[key]):g}: a forgetting factor must lie in "
+                                 "(0, 1)")
 
     def update(self, measurement, j_last: int):
         nav = self.nav
@@ -99,15 +103,17 @@ class IAEEKF(AdaptiveREKF):
 
     def __init__(self, cfg, nav0, imu, noise_std=None):
         super().__init__(cfg, nav0, imu, noise_std)
-        self.window = float(self.options["window"])
-        if not self.window > 0:
-            raise NespmError(f"--filter-option {self.name}.window={self.window:g}: must be > 0 s")
-        if self.window > self.span_s and "window" not in dict(cfg.options):  # the default, on a short track
-            self.window = self.span_s
-        if self.window > self.span_s:
-            raise NespmError(f"--filter-option {self.name}.window={self.window:g}: longer than the track "
-                             f"({self.span_s:.1f} s)")
+        self.window = min(float(self.options["window"]), self.span_s)  # the default, cut to a short track
         self.buf: dict = {}
+
+    @classmethod
+    def check_options(cls, name: str, options: dict, given: set, span_s: float) -> None:
+        super().check_options(name, options, given, span_s)
+        window = float(options["window"])
+        if not window > 0:
+            raise NespmError(f"--filter-option {name}.window={window:g}: must be > 0 s")
+        if window > span_s and "window" in given:  # a default longer than a short track is cut to it
+            raise NespmError(f"--filter-option {name}.window={window:g}: longer than the track ({span_s:.1f} s)")
 
     def adapted_update(self, key, H, nu, R0, valid, t):
         P_prior = self.P
@@ -140,9 +146,13 @@ class SageHusaEKF(AdaptiveREKF):
 
     def __init__(self, cfg, nav0, imu, noise_std=None):
         super().__init__(cfg, nav0, imu, noise_std)
-        self.b = self.forgetting_option("forgetting")
-        if self.options["form"] not in ("residual", "innovation"):
-            raise NespmError(f"--filter-option {self.name}.form={self.options['form']}: choose residual or innovation")
+        self.b = float(self.options["forgetting"])
+
+    @classmethod
+    def check_options(cls, name: str, options: dict, given: set, span_s: float) -> None:
+        super().check_options(name, options, given, span_s)
+        if options["form"] not in ("residual", "innovation"):
+            raise NespmError(f"--filter-option {name}.form={options['form']}: choose residual or innovation")
 
     def adapted_update(self, key, H, nu, R0, valid, t):
         Ht = np.swapaxes(H, -1, -2)
@@ -168,10 +178,14 @@ class VBEKF(AdaptiveREKF):
 
     def __init__(self, cfg, nav0, imu, noise_std=None):
         super().__init__(cfg, nav0, imu, noise_std)
-        self.rho = self.forgetting_option("rho")
-        if int(self.options["iterations"]) < 1:
-            raise NespmError(f"--filter-option {self.name}.iterations={self.options['iterations']}: must be >= 1")
+        self.rho = float(self.options["rho"])
         self.ig: dict = {}
+
+    @classmethod
+    def check_options(cls, name: str, options: dict, given: set, span_s: float) -> None:
+        super().check_options(name, options, given, span_s)
+        if int(options["iterations"]) < 1:
+            raise NespmError(f"--filter-option {name}.iterations={options['iterations']}: must be >= 1")
 
     def adapted_update(self, key, H, nu, R0, valid, t):
         if key not in self.ig:  # prior: the steady-state shape ½ / (1 − ρ), mean the nominal R

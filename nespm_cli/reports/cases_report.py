@@ -87,6 +87,9 @@ def plot_cases(table: pd.DataFrame, imp: pd.DataFrame, path: Path) -> Path:
 def write_compare_report(folders, out: str | Path, labels=None, reference: str | None = None, n_boot: int = 2000,
                          seed: int = 0) -> Path:
     """Write ``out/compare.md`` and ``out/figures/compare.png`` comparing the cases ``folders``."""
+    from nespm_cli.reports.results import check_n_boot
+
+    check_n_boot(n_boot)
     phase("reading the cases")
     cases: list[Case] = load_cases(folders, labels)
     table = case_table(cases)

@@ -81,6 +81,9 @@ def write_report(out_dir: Path, reference: str | None = None, n_boot: int = 2000
     if all_runs not in ALL_RUNS:
         raise NespmError(f"--all-runs: choose {' or '.join(ALL_RUNS)}, got {all_runs!r}")
     check_practical_pct(practical_pct)
+    from nespm_cli.reports.results import check_n_boot
+
+    check_n_boot(n_boot)
     out_dir = Path(out_dir)
     if is_tune_folder(out_dir):  # nespm tune (reports/tune.py)
         return write_tune_report(out_dir, n_boot=n_boot)
