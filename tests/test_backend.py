@@ -22,7 +22,6 @@ import signal
 import socket
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pandas as pd
@@ -132,23 +131,26 @@ def test_worker_killed_mid_chunk(root, argv, cluster, mc_dask):
     env.pop("NESPM_DATA_DIR", None)
     proc = subprocess.Popen(console_script() + argv + ["--backend", "dask", "--out", str(out)],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env, text=True)
-    killed = None
+    killed, killed_key = None, None
+
+    def kill_a_busy_worker() -> bool:
+        """Once the first chunk is done, SIGKILL a worker computing a chunk not yet written."""
+        nonlocal killed, killed_key
+        if not list((out / "chunks").glob("metrics-*.parquet")):  # the first chunk is done
+            return False
+        busy = client.run(lambda dask_worker: [str(ts.key) for ts in dask_worker.state.executing])
+        pids = client.run(os.getpid)
+        for addr, keys in busy.items():
+            firsts = [2 * int(k.split("-")[-2]) for k in keys if k.startswith(CHUNK_TASK)]
+            if firsts and not (out / "chunks" / f"metrics-5-ukf-nespm-{firsts[0]:06d}.parquet").exists():
+                os.kill(pids[addr], signal.SIGKILL)
+                killed = firsts[0]
+                killed_key = [k for k in keys if k.startswith(CHUNK_TASK)][0]
+                return True
+        return False
+
     try:
-        give_up = time.monotonic() + WAIT_BOUND  # a hang-guard, not a verdict on speed
-        while killed is None:
-            assert proc.poll() is None, f"nespm mc ended before a worker was killed: {proc.communicate()}"
-            assert time.monotonic() < give_up, "hang: no worker ever ran a chunk"
-            if list((out / "chunks").glob("metrics-*.parquet")):  # the first chunk is done
-                busy = client.run(lambda dask_worker: [str(ts.key) for ts in dask_worker.state.executing])
-                pids = client.run(os.getpid)
-                for addr, keys in busy.items():
-                    firsts = [2 * int(k.split("-")[-2]) for k in keys if k.startswith(CHUNK_TASK)]
-                    if firsts and not (out / "chunks" / f"metrics-5-ukf-nespm-{firsts[0]:06d}.parquet").exists():
-                        os.kill(pids[addr], signal.SIGKILL)
-                        killed = firsts[0]
-                        killed_key = [k for k in keys if k.startswith(CHUNK_TASK)][0]
-                        break
-            time.sleep(0.05)
+        wait_until(kill_a_busy_worker, "a worker was killed mid-chunk", proc=proc)
         stdout, stderr = proc.communicate(timeout=WAIT_BOUND)
     finally:
         if proc.poll() is None:
@@ -164,7 +166,7 @@ def test_worker_killed_mid_chunk(root, argv, cluster, mc_dask):
                                   check_exact=True)
     starts = [t for t in lc.scheduler.story(killed_key) if t[0] == killed_key and t[2] == "processing"]
     assert len(starts) >= 2, f"chunk {killed} was not re-run after its worker died"
-    client.wait_for_workers(2, timeout=60)  # the nanny restarts the killed worker for the next tests
+    client.wait_for_workers(2, timeout=WAIT_BOUND)  # the nanny restarts the killed worker for the next tests
 
 
 def test_half_written_chunk_is_recomputed_without_duplicates(root, argv, cluster, mc_dask):
@@ -225,9 +227,14 @@ def test_own_local_cluster_is_started_and_closed():
     during = {p.pid for p in me.children(recursive=True)} - before
     assert len(during) >= 2  # the workers (and their nannies' processes) exist before iteration
     assert sorted(it) == [2 ** i for i in range(6)]
-    time.sleep(0.5)
-    left = {p.pid for p in me.children(recursive=True) if p.is_running() and p.status() != psutil.STATUS_ZOMBIE}
-    assert not (left & during), "the local cluster's processes outlived the iterator"
+
+    def left() -> set[int]:
+        return {p.pid for p in me.children(recursive=True) if p.is_running() and p.status() != psutil.STATUS_ZOMBIE}
+
+    # the processes end once the iterator is exhausted (the bound is a hang-guard: a leaked
+    # process never ends and fails it)
+    wait_until(lambda: not (left() & during), "the local cluster's processes to end after the iterator "
+               "(they outlived it?)", bound=120, step=0.1)
 
 
 # --------------------------------------------------------------------------- eager validation
@@ -250,7 +257,7 @@ def test_without_distributed_cli_exits_2(tmp_path, argv):
     code = "import sys; sys.modules['distributed'] = None; from nespm_cli.cli import main; sys.exit(main())"
     env = {k: v for k, v in os.environ.items() if not k.startswith("NESPM_")}
     r = subprocess.run([sys.executable, "-c", code, *argv, "--backend", "dask", "--out", str(tmp_path / "X")],
-                       capture_output=True, text=True, env=env, timeout=120)
+                       capture_output=True, text=True, env=env, timeout=WAIT_BOUND)
     assert_one_error_line(r.returncode, r.stdout, r.stderr, "--backend dask", "pip install 'nespm[dask]'")
     assert not list((tmp_path / "X" / "chunks").glob("*.parquet")), "chunks were computed"
 

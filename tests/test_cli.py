@@ -23,8 +23,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from conftest import (SHORT_EPOCHS, assert_one_error_line, cli, console_script, env_without_data_dir, slow_env, wait_until,
-                      short_track)
+from conftest import (SHORT_EPOCHS, WAIT_BOUND, assert_one_error_line, cli, console_script, env_without_data_dir,
+                      short_track, slow_env, wait_until)
 from nespm_cli.data.corruption import CorruptionConfig, draw, n_segments
 from nespm_cli.data.embedded import embedded_track
 from nespm_cli.data.tracks import load_track, write_akit
@@ -316,14 +316,14 @@ def test_console_script(tmp_path):
     """The installed ``nespm`` entry point: exit codes 0 and 2, JSON on stdout, one error line on stderr."""
     env = env_without_data_dir()
     ok = subprocess.run(console_script() + ["run", "--track", "1", "--filter", "ins", "--clean", "--json"],
-                        capture_output=True, text=True, env=env, timeout=300)
+                        capture_output=True, text=True, env=env, timeout=WAIT_BOUND)
     assert ok.returncode == 0, ok.stderr
     s = json.loads(ok.stdout)
     assert SUMMARY_KEYS <= set(s)
     assert s["track"] == 1 and s["max_vel_err"] < 1e-6 and s["max_att_err"] < 1e-8
 
     bad = subprocess.run(console_script() + ["mc", "--tracks", "9", "--out", str(tmp_path / "o")],
-                         capture_output=True, text=True, env=env, timeout=120)
+                         capture_output=True, text=True, env=env, timeout=WAIT_BOUND)
     assert bad.returncode == 2
     assert bad.stdout == ""
     assert_one_error_line(bad.returncode, bad.stdout, bad.stderr, "--tracks", "9")
@@ -344,7 +344,7 @@ def test_ctrl_c_during_mc_prints_the_resume_hint(tmp_path):
     # the manifest is written before the first chunk starts
     wait_until(lambda: (out / "manifest.json").exists(), "the manifest was written", proc=p)
     p.send_signal(signal.SIGINT)
-    _, err = p.communicate(timeout=120)
+    _, err = p.communicate(timeout=WAIT_BOUND)
     assert p.returncode == 130
     assert err.splitlines() == ["nespm: interrupted; finished chunks are kept, re-run the same command to resume"]
 

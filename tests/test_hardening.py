@@ -14,7 +14,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from conftest import REPO, assert_one_error_line, chunk_mtimes, console_script, env_without_data_dir, nespm, wait_until
+from conftest import (REPO, WAIT_BOUND, assert_one_error_line, chunk_mtimes, console_script, env_without_data_dir, nespm,
+                      wait_until)
 from nespm_cli.cli import one_line
 from nespm_cli.experiments.metrics import DivergenceRule, EpochErrors, divergence
 from nespm_cli.experiments.store import FolderLock
@@ -305,5 +306,5 @@ def test_overflowing_dvl_gives_the_error_line_only(tmp_path, short_data_dir):
     df.iloc[7, 1:4] = 1e308
     df.to_csv(dvl, index=False)
     r = subprocess.run([*console_script(), "mc", "--data-dir", str(data), *EKF, "--out", str(tmp_path / "r")],
-                       capture_output=True, text=True, env=env_without_data_dir(), timeout=120)
+                       capture_output=True, text=True, env=env_without_data_dir(), timeout=WAIT_BOUND)
     assert_one_error_line(r.returncode, r.stdout, r.stderr, str(dvl), "data row 8")  # a real process's stderr

@@ -28,8 +28,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from conftest import (SHORT_EPOCHS, assert_one_error_line, chunk_mtimes, console_script, slow_env, wait_until,
-                      nespm, short_track)
+from conftest import (SHORT_EPOCHS, WAIT_BOUND, assert_one_error_line, chunk_mtimes, console_script, nespm,
+                      short_track, slow_env, wait_until)
 from nespm_cli.data.tracks import load_track, write_akit
 
 SCHEMA_DOC = Path(__file__).resolve().parents[1] / "docs" / "results-schema.md"
@@ -233,7 +233,7 @@ def test_resume_after_killed_process(mc_b, root, ins):
     try:
         wait_until(lambda: list((f / "chunks").glob("metrics-*.parquet")), "its first chunk file", proc=proc)
         proc.send_signal(signal.SIGTERM)
-        proc.wait(timeout=60)
+        proc.wait(timeout=WAIT_BOUND)
     finally:
         if proc.poll() is None:
             proc.kill()
