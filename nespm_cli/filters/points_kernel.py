@@ -18,7 +18,7 @@ import numpy as np
 
 from nespm_cli.filters.transition_kernel import point_start
 from nespm_cli.nav.earth import A, E2, F, GAMMA_E, K_SOMIGLIANA, OMEGA_IE
-from nespm_cli.nav.kernels import GRAV_M, SERIES2, mul_t, njit
+from nespm_cli.nav.kernels import GRAV_M, SERIES2, exp_from, mul_t, njit
 
 L = 32  # the row stride of the points' state table: the most points of one run (12 states: 25, 15: 31)
 
@@ -29,15 +29,6 @@ def series_ab(th2):
     a = 1.0 - th2 / 6.0 * (1.0 - th2 / 20.0 * (1.0 - th2 / 42.0))
     b = 0.5 - th2 / 24.0 * (1.0 - th2 / 30.0 * (1.0 - th2 / 56.0))
     return a, b
-
-
-@njit(cache=True, error_model="numpy", inline="always")
-def exp_from(p0, p1, p2, th2, a, b):
-    """exp_t's 9-tuple from the angle ``p``, its square ``th2`` and the coefficients ``a``, ``b``."""
-    d = 1.0 - b * th2
-    return (b * (p0 * p0) + d, -(p2 * a) + b * (p0 * p1), p1 * a + b * (p0 * p2),
-            p2 * a + b * (p1 * p0), b * (p1 * p1) + d, -(p0 * a) + b * (p1 * p2),
-            -(p1 * a) + b * (p2 * p0), p0 * a + b * (p2 * p1), b * (p2 * p2) + d)
 
 
 @njit(cache=True, error_model="numpy", inline="always")

@@ -78,6 +78,13 @@ def exp_t(p0, p1, p2):
     else:  # also for NaN, as the reference
         a = 1.0 - th2 / 6.0 * (1.0 - th2 / 20.0 * (1.0 - th2 / 42.0))
         b = 0.5 - th2 / 24.0 * (1.0 - th2 / 30.0 * (1.0 - th2 / 56.0))
+    return exp_from(p0, p1, p2, th2, a, b)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def exp_from(p0, p1, p2, th2, a, b):
+    """exp_t's 9-tuple from the angle ``p``, its square ``th2`` and the coefficients ``a`` (sin θ/θ) and
+    ``b`` ((1 − cos θ)/θ²): ``(1 − b θ²) I + a [p×] + b p pᵀ``, in one order (the points kernel's too)."""
     d = 1.0 - b * th2
     return (b * (p0 * p0) + d, -(p2 * a) + b * (p0 * p1), p1 * a + b * (p0 * p2),
             p2 * a + b * (p1 * p0), b * (p1 * p1) + d, -(p0 * a) + b * (p1 * p2),
