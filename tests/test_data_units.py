@@ -220,11 +220,9 @@ def test_accelerometer_in_g_declared_m_per_s2_is_refused(tmp_path, turning):
     assert 94 < float(msg.split("median |specific force| ")[1].split(" ")[0]) < 98
 
 
-def test_the_real_imu_files_pass_the_units_check():
+def test_the_real_imu_files_pass_the_units_check(real_data_dir):
     """The 13 real Snapir IMU files (biases, noise, vibration): ratio and gravity near 1 and 9.8."""
-    folder = Path(__file__).resolve().parents[2] / "shared" / "data" / "snapir-akit-imu"
-    if not folder.is_dir():
-        folder = Path("/work/shared/data/snapir-akit-imu")
+    folder = real_data_dir.parent / "snapir-akit-imu"  # the earlier release with IMU files, beside the data
     if not folder.is_dir():
         pytest.skip(f"real Snapir IMU data not found: {folder} does not exist")
     for n in (6, 11, 12):  # the largest ratios measured (1.021, 1.028) and the slowest turner (0.006 rad/s)
