@@ -79,6 +79,12 @@ def test_consistency_is_judged_per_block_not_from_a_mean():
     # conservative: below the bounds
     ep2 = _epochs({"ekf": {"nees_vel_mean": np.full(N, lo / 2)}})
     assert block_consistency(ep2)["word"].tolist() == ["conservative"]
+    # mixed: 30 % of the epochs above the bounds and 70 % below (a mean would call it either)
+    mix = np.full(N, lo / 2)
+    mix[1:31] = 4 * hi
+    t3 = block_consistency(_epochs({"ekf": {"nees_vel_mean": mix}}))
+    assert t3["word"].tolist() == ["mixed"] and t3["above"].tolist() == [pytest.approx(0.3)]
+    assert consistency_words(t3) == {"ekf": "mixed: velocity 0 %"}
     assert 0.5 < CONSISTENT_SHARE < 0.95
 
 

@@ -9,7 +9,9 @@ sensor's innovation (NIS, m dof) is judged on its own, over the epochs after t =
 * at each epoch the ANEES (ANIS) over the ``n`` runs averaged lies inside, above or below its 95 %
   bounds ``chi2.ppf([0.025, 0.975], dof n) / n`` (:func:`nespm_cli.experiments.metrics.nees_band`);
 * the block is **consistent** when at least :data:`CONSISTENT_SHARE` of its epochs lie inside,
-  else **overconfident** when more of its epochs lie above than below (covariance too small), else
+  else **mixed** when at least :data:`MIXED_SHARE` of its epochs lie above and as many below (too
+  small a covariance at some epochs, too large at others: a mean over them says nothing), else
+  **overconfident** when more of its epochs lie above than below (covariance too small), else
   **conservative**;
 * a filter is consistent when every block and sensor is; otherwise its word names the blocks that
   are not, each with its share inside.
@@ -31,10 +33,12 @@ import pandas as pd
 from nespm_cli.experiments.metrics import nees_band
 from nespm_cli.reports.results import sensor_dims
 
-__all__ = ["BLOCK_NAMES", "CONSISTENT_SHARE", "block_consistency", "consistency_md", "consistency_words", "epoch_shares"]
+__all__ = ["BLOCK_NAMES", "CONSISTENT_SHARE", "MIXED_SHARE", "block_consistency", "consistency_md", "consistency_words", "epoch_shares"]
 
 #: the least share of epochs inside the 95 % bounds for a block or sensor to count as consistent
 CONSISTENT_SHARE = 0.8
+#: the least share of epochs above and, at once, below the bounds for a block or sensor to be called mixed
+MIXED_SHARE = 0.2
 #: block -> name, in the order of the tables
 BLOCK_NAMES = {"vel": "velocity", "att": "attitude", "pos": "position", "ba": "accelerometer bias",
                "bg": "gyro bias"}
@@ -61,6 +65,8 @@ def _word(inside: float, above: float, below: float, share: float = CONSISTENT_S
         return "—"
     if inside >= share:
         return "consistent"
+    if above >= MIXED_SHARE and below >= MIXED_SHARE:
+        return "mixed"
     return "overconfident" if above > below else "conservative"
 
 
@@ -131,7 +137,7 @@ def consistency_words(table: pd.DataFrame, shares: bool = True) -> dict[Any, str
             out[key] = "consistent"
             continue
         parts = []
-        for word in ("overconfident", "conservative"):
+        for word in ("overconfident", "mixed", "conservative"):
             w = bad[bad["word"] == word]
             if len(w):
                 parts.append(f"{word}: " + ", ".join(r.name + (f" {100 * r.inside:.0f} %" if shares else "")
@@ -155,5 +161,7 @@ def consistency_md(table: pd.DataFrame, label=lambda f: f) -> str:
             "average over the runs not lost against its 95 % bounds `chi2.ppf([0.025, 0.975], dof n) / n` (n = the "
             f"runs averaged), every track's epochs pooled. *consistent*: at least "
             f"{100 * table.attrs.get('share', CONSISTENT_SHARE):.0f} % of "
-            "the epochs inside; else *overconfident* (more epochs above: covariance too small) or *conservative* "
+            "the epochs inside; else *mixed* (at least "
+            f"{100 * MIXED_SHARE:.0f} % of the epochs above and as many below: too small a covariance at some epochs, "
+            "too large at others), *overconfident* (more epochs above: covariance too small) or *conservative* "
             "(more below). A filter is consistent when every block and sensor is.\n\n" + md_table(headers, rows))
