@@ -15,11 +15,14 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from nespm_cli.data.atomic import write_text_atomic
 from nespm_cli.errors import NespmError
 from nespm_cli.experiments.tune_heldout import DEFAULT_DIR, TUNED_DIR
 from nespm_cli.filters.options import training_overlap
+from nespm_cli.reports.block_consistency import block_consistency, consistency_words
 from nespm_cli.reports.figures import save_figure, use_agg
 from nespm_cli.reports.markdown import fmt, md_table
+from nespm_cli.reports.results import load_results
 from nespm_cli.reports.stats import nees_check, paired_bootstrap, paired_improvement, percentile_ci
 
 
@@ -97,6 +100,15 @@ def heldout_rows(default: pd.DataFrame, tuned: pd.DataFrame, n_boot: int) -> lis
     return rows
 
 
+def heldout_consistency(folder: Path) -> dict:
+    """Per filter of a held-out mc folder: the per-block consistency words (the mc report's rule: the
+    share of epochs inside the 95 % bounds, docs/report.md "Consistency"); {} without per-epoch columns."""
+    _, epochs, manifest = load_results(folder)
+    if epochs is None:
+        return {}
+    return consistency_words(block_consistency(epochs, manifest))
+
+
 def fair_rows(tuned: pd.DataFrame, n_boot: int) -> list[list[str]]:
     """The tuned filters against the most accurate tuned one (paired)."""
     kept = tuned[~tuned["diverged"]]
@@ -167,6 +179,7 @@ def write_tune_report(out_dir: Path, n_boot: int = 2000) -> Path:
     d, t = out_dir / DEFAULT_DIR, out_dir / TUNED_DIR
     if (d / "metrics.parquet").exists() and (t / "metrics.parquet").exists():
         default, tuned = pd.read_parquet(d / "metrics.parquet"), pd.read_parquet(t / "metrics.parquet")
+        words_d, words_t = heldout_consistency(d), heldout_consistency(t)
         where = f"tracks {' '.join(map(str, test['tracks']))}, {test['runs']} runs (seed {test['seed']})"
         lines += [f"## Held out: {where}", "",
                   "Default and tuned settings on the same realizations; improvement of the tuned over the default "
@@ -174,6 +187,10 @@ def write_tune_report(out_dir: Path, n_boot: int = 2000) -> Path:
                   md_table(["filter", "VRMSE default", "ANEES default", "VRMSE tuned", "ANEES tuned",
                             "tuned vs default (+: tuned better)", "lost default", "lost tuned"],
                            heldout_rows(default, tuned, n_boot)),
+                  "", "Consistency per state block and sensor on the held-out runs (the mc report's rule: the share "
+                  "of epochs inside the 95 % bounds; the mean ANEES above only places the average):", "",
+                  md_table(["filter", "default", "tuned"],
+                           [[f, words_d.get(f, "—"), words_t.get(f, "—")] for f in dict.fromkeys(default["filter"])]),
                   "", "### The tuned filters compared", "",
                   md_table(["filter (tuned)", "VRMSE", "improvement of the best over it"], fair_rows(tuned, n_boot)),
                   ""]
@@ -182,7 +199,7 @@ def write_tune_report(out_dir: Path, n_boot: int = 2000) -> Path:
     names = figures(record, trials, out_dir / "figures")
     lines += ["## Figures", ""] + [f"![{n}](figures/{n})" for n in names] + [""]
     path = out_dir / "report.md"
-    path.write_text("\n".join(lines), encoding="utf-8")
+    write_text_atomic(path, "\n".join(lines))
     return path
 
 
