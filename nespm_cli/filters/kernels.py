@@ -123,8 +123,11 @@ def transition(pos, v_n, C_bn, b_a, b_g, f, w, dt, j0: int, j1: int, invariant: 
         tk.transition_span_invariant_position(pos, v_n, C_bn, b_a, b_g, _f64(f), _f64(w), _f64(dt), j0, j1, Phi,
                                               layout.offsets(), np.ascontiguousarray(origin, dtype=np.float64))
         return Phi
-    tk.transition_span(pos, v_n, C_bn, b_a, b_g, _f64(f), _f64(w), _f64(dt), j0, j1, Phi, bool(invariant),
-                       layout.offsets())
+    off = layout.offsets()
+    if not invariant and off.tolist() == [0, 3, 6, 9, 12]:  # the 15 states: F's zeros skipped
+        tk.transition_span_position(pos, v_n, C_bn, b_a, b_g, _f64(f), _f64(w), _f64(dt), j0, j1, Phi)
+        return Phi
+    tk.transition_span(pos, v_n, C_bn, b_a, b_g, _f64(f), _f64(w), _f64(dt), j0, j1, Phi, bool(invariant), off)
     return Phi
 
 
@@ -170,6 +173,7 @@ def warm_up() -> float:
     strapdown(pos.copy(), v.copy(), C.copy(), b, b, f, w, dt, 0, M)
     for invariant in (False, True):
         transition(pos.copy(), v.copy(), C.copy(), b, b, f, w, dt, 0, M, invariant)
+    transition(pos.copy(), v.copy(), C.copy(), b, b, f, w, dt, 0, M, False, LAYOUT_15)
     transition(pos.copy(), v.copy(), C.copy(), b, b, f, w, dt, 0, M, True, LAYOUT_15, pos)
     for layout in (LAYOUT_12, LAYOUT_15):
         points_through_cycle(pos, v, C, b, b, np.zeros((R, 2 * layout.n, layout.n)), f, w, dt, 0, M, layout)
@@ -191,7 +195,8 @@ def kernels_cached() -> bool | None:
 
     if nk.NO_CACHE:
         return None
-    entries = (nk.strapdown_span, tk.transition_span, tk.transition_span_invariant_position, tk.points_span,
+    entries = (nk.strapdown_span, tk.transition_span, tk.transition_span_position,
+               tk.transition_span_invariant_position, tk.points_span,
                tk.points_span_position)
     try:
         return all(bool(d._cache._cache_file._load_index()) for d in entries)
