@@ -15,6 +15,8 @@ TUNE = [  # (name, type, default, flag, help)
     ("filters_", str, "ekf,ukf,ukf-nespm", "--filters", "Comma list of the filters to tune, each with the same budget."),
     ("trials", int, 50, "--trials", "Trials per filter (the budget; a rerun with more continues the studies)."),
     ("objective", str, "rmse-consistent", "--objective", "rmse-consistent (the most accurate settings whose ANEES lies in its band), rmse, or consistency (every block's ANEES and sensor's ANIS near its expectation)."),
+    ("level", Optional[str], None, "--level", "With rmse-consistent: tracks (default; the common level of Q, R and P0 set in closed form so the geometric mean over the training tracks of each track's ANEES is its expectation, the search sets their ratios) or off (the level searched with the factors, a band penalty on the ANEES)."),
+    ("level_runs", int, 100, "--level-runs", "With --level tracks: training runs per track the best settings' level is fitted on (more runs than the trials' make the level's sampling spread small)."),
     ("sampler", str, "tpe", "--sampler", "Optuna sampler: tpe (seeded, multivariate) or cmaes (needs the cmaes package)."),
     ("tune_range", Optional[List[str]], None, "--tune-range", "NAME.KEY=LOW:HIGH narrows or widens a parameter's range (NAME * for every filter), NAME.KEY=off drops it; repeatable; a [tune] table in a --config file."),
     ("test_tracks_", str, "", "--test-tracks", "Held-out tracks, run with the default and the tuned settings on --seed's realizations (e.g. --test-tracks 5 6)."),
@@ -40,6 +42,7 @@ def tune(
     t0 = time.perf_counter()
     test = kw.pop("test_tracks_").strip()
     opts = dict(trials=kw.pop("trials"), objective=kw.pop("objective").lower(), sampler=kw.pop("sampler").lower(),
+                level=(kw.pop("level") or "").lower() or None, level_runs=kw.pop("level_runs"),
                 ranges=tuple(parse_range(r) for r in kw.pop("tune_range") or ()),
                 test_tracks=parse_tracks(test) if test else (), test_runs=kw.pop("test_runs"),
                 allow_overlap=kw.pop("allow_overlap"))

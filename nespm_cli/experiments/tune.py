@@ -40,7 +40,8 @@ import pandas as pd
 
 from nespm_cli.errors import NespmError
 from nespm_cli.experiments.spec import Spec, validate
-from nespm_cli.experiments.tune_objective import OBJECTIVES, score, summary, trial_statistics
+from nespm_cli.experiments.tune_objective import (LEVELS, OBJECTIVES, fit_level, leveled, score, summary,
+                                                  trial_statistics)
 from nespm_cli.experiments.tune_space import Param, apply_ranges, default_space
 from nespm_cli.filters.options import TUNED_ON, tuned_on_text
 from nespm_cli.filters.registry import get_filter
@@ -57,7 +58,9 @@ class TuneSpec:
     """A tuning: ``spec`` the study (its ``tracks`` and ``runs`` the training realizations; its
     ``seed`` the held-out runs' seed), ``trials`` per filter, the ``objective``
     (:data:`nespm_cli.experiments.tune_objective.OBJECTIVES`), the ``sampler`` (``tpe`` or
-    ``cmaes``), ``ranges`` (``(NAME, KEY, LOW, HIGH)``, :func:`tune_space.apply_ranges`), the
+    ``cmaes``), ``level`` (:data:`nespm_cli.experiments.tune_objective.LEVELS`: how rmse-consistent
+    sets the common level of Q, R and P0; None: its default), ``ranges`` (``(NAME, KEY, LOW, HIGH)``,
+    :func:`tune_space.apply_ranges`), the
     held-out ``test_tracks`` and ``test_runs``, ``allow_overlap`` (test tracks among the tuning
     tracks: flagged instead of refused)."""
 
@@ -70,6 +73,8 @@ class TuneSpec:
     test_runs: int = 100
     allow_overlap: bool = False
     profile: bool = True  # each tuned parameter's score profile at the best setting (tune_profile)
+    level: str | None = None  # LEVELS; None: "tracks" with rmse-consistent, "off" otherwise
+    level_runs: int = 100  # training runs per track the best shape's level is fitted on (at least --runs)
 
 
 def training_seed(seed: int) -> int:
@@ -86,6 +91,15 @@ def check(t: TuneSpec) -> tuple[TuneSpec, Spec, dict[str, list[Param]]]:
         raise NespmError(f"--trials must be at least 1 (the budget per filter), got {t.trials}")
     if t.objective not in OBJECTIVES:
         raise NespmError(f"--objective: choose {', '.join(OBJECTIVES)}, got {t.objective!r}")
+    if t.level is None:
+        t = dataclasses.replace(t, level="tracks" if t.objective == "rmse-consistent" else "off")
+    if t.level not in LEVELS:
+        raise NespmError(f"--level: choose {' or '.join(LEVELS)}, got {t.level!r}")
+    if t.level == "tracks" and t.objective != "rmse-consistent":
+        raise NespmError(f"--level tracks acts on --objective rmse-consistent only (got {t.objective}): "
+                         "drop --level or use --level off")
+    if t.level_runs < 1:
+        raise NespmError(f"--level-runs must be at least 1, got {t.level_runs}")
     if t.sampler not in SAMPLERS:
         raise NespmError(f"--sampler: choose {' or '.join(SAMPLERS)}, got {t.sampler!r}")
     if t.test_runs < 1:
@@ -112,10 +126,23 @@ def check(t: TuneSpec) -> tuple[TuneSpec, Spec, dict[str, list[Param]]]:
     return t, train, apply_ranges(space, t.ranges)
 
 
+def level_bases(train: Spec, name: str) -> dict[str, float]:
+    """``{key: factor}`` of every Q, R and P0 std factor of filter ``name`` in ``train``'s layout and
+    sensors (searched or not): the keys the level scales, each with the value it has when not searched
+    (the study's ``--filter-option``, else 1)."""
+    layout = train.filter_config.layout
+    given = {o[1]: o[2] for o in train.filter_options if o[0] == name}
+    keys = [p.key for p in default_space(name, get_filter(name), layout, train.sensors, train.filter_config.alpha)
+            if p.kind in ("Q", "R", "P0")]
+    return {k: float(given.get(k, 1.0)) for k in keys}
+
+
 def config_digest(train: Spec, name: str, params: list[Param], t: TuneSpec) -> str:
     """The identity of filter ``name``'s study: the training study, the objective, the sampler and the space."""
     d = {"spec": train.as_dict(), "filter": name, "objective": t.objective, "sampler": t.sampler,
          "space": [p.record() for p in params]}
+    if t.level == "tracks":  # "off" keeps the identity of the studies written before the level existed
+        d["level"] = t.level
     return hashlib.sha256(json.dumps(d, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 
@@ -199,7 +226,7 @@ def tune_filter(t: TuneSpec, train: Spec, index: int, params: list[Param], out: 
         trial = study.ask()
         values = {p.key: trial.suggest_float(p.key, p.low, p.high, log=p.log) for p in params}
         stats = trial_statistics(train, name, values)
-        value = score(stats, t.objective)
+        value = score(stats, t.objective, t.level)
         trial.set_user_attr(STATS_ATTR, summary(stats))  # one commit
         study.tell(trial, value)
         if report is not None:
@@ -241,10 +268,13 @@ def trials_table(out: Path, filters: tuple) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def best_values(out: Path, filters: tuple, trials: int, space: dict | None = None) -> dict[str, dict]:
-    """``{filter: {"trial", "score", "values", "default_score"}}``: each filter's best of its first
-    ``trials`` completed trials (ties: the earlier trial); ``default_score`` that of the first trial
-    at the defaults of ``space`` (None if there is none)."""
+def best_values(out: Path, filters: tuple, trials: int, space: dict | None = None,
+                bases: dict | None = None) -> dict[str, dict]:
+    """``{filter: {"trial", "score", "values", "shape", "level", "default_score"}}``: each filter's best
+    of its first ``trials`` completed trials (ties: the earlier trial); ``shape`` its searched values,
+    ``level`` the variance factor fitted to it (``bases`` given: ``{filter: level_bases}``, the fitted
+    level applies; else 1) and ``values`` the shape at that level (what ``tuned.toml`` writes);
+    ``default_score`` that of the first trial at the defaults of ``space`` (None if there is none)."""
     import optuna
     from optuna.trial import TrialState
 
@@ -256,7 +286,10 @@ def best_values(out: Path, filters: tuple, trials: int, space: dict | None = Non
         best = min(done, key=lambda tr: (tr.value, tr.number))
         defaults = {p.key: p.default for p in (space or {}).get(f, [])}
         first = next((tr for tr in done if defaults and tr.params == defaults), None)
-        res[f] = {"trial": best.number, "score": best.value, "values": dict(best.params),
+        c = float(best.user_attrs.get(STATS_ATTR, {}).get("level", 1.0)) if bases else 1.0
+        shape = dict(best.params)
+        res[f] = {"trial": best.number, "score": best.value, "shape": shape, "level": c,
+                  "values": leveled(shape, bases[f], c) if bases else shape,
                   "default_score": first.value if first is not None else None,
                   "default_trial": first.number if first is not None else None}
     return res
@@ -282,7 +315,34 @@ def add_profiles(best: dict, out: Path, train: Spec, space: dict, t: TuneSpec) -
         if prev.get("trial") == b["trial"] and prev.get("values") == b["values"] and "profile" in prev:
             b["profile"] = prev["profile"]
         else:
-            b["profile"] = profile(train, f, space[f], b["values"], t.objective, b["score"])
+            b["profile"] = profile(train, f, space[f], b["shape"], t.objective, b["score"], t.level)
+
+
+def add_leveled(best: dict, out: Path, train: Spec, t: TuneSpec) -> None:
+    """With the fitted level (``t.level == "tracks"``): each filter's best shape run on
+    ``max(--runs, --level-runs)`` training runs per track (the trials' runs first, then more of the
+    same stream), its level fitted on them (``level``, ``values``: a level fitted on few runs carries
+    their sampling spread), and the leveled values run once more on the same runs: ``at_level`` their
+    statistics (:func:`tune_objective.summary`: the ANEES the closed form gives, the RMSE it keeps),
+    ``at_level_tracks`` each track's ANEES (6 dof) there ({track: value}: how far a held-out track may land).
+    Reused from ``tune.json`` when the shape and the runs are the same."""
+    if t.level != "tracks":
+        return
+    try:
+        old = json.loads((out / "tune.json").read_text(encoding="utf-8")).get("best", {})
+    except (OSError, ValueError):
+        old = {}
+    big = dataclasses.replace(train, runs=max(train.runs, t.level_runs))
+    for f, b in best.items():
+        prev = old.get(f, {})
+        if prev.get("shape") == b["shape"] and prev.get("level_runs") == big.runs and "at_level" in prev:
+            b.update({k: prev[k] for k in ("level", "values", "at_level", "at_level_tracks")}, level_runs=big.runs)
+            continue
+        c = fit_level(trial_statistics(big, f, b["shape"]))
+        values = leveled(b["shape"], level_bases(train, f), c)
+        stats = trial_statistics(big, f, values)
+        b.update(level=c, values=values, at_level=summary(stats), level_runs=big.runs,
+                 at_level_tracks={str(n): a for n, a in zip(train.tracks, stats["anees6_tracks"])})
 
 
 def tuned_toml(best: dict, train: Spec, t: TuneSpec) -> str:
@@ -295,6 +355,9 @@ def tuned_toml(best: dict, train: Spec, t: TuneSpec) -> str:
         lines += [f'state = "{train.filter_config.state}"', ""]
     on = tuned_on_text(train.seed, train.tracks, 0, train.runs)
     for f, b in best.items():
+        if b.get("level", 1.0) != 1.0:
+            lines.append(f"# {f}: the searched factors x {np.sqrt(b['level']):.6g} (the level fitted over the "
+                         "tracks: every Q, R and P0 std; docs/tuning.md)")
         lines.append(f"[filters.{f}]")
         lines += [f"{k} = {float(v)!r}" for k, v in b["values"].items()]
         lines += [f'{TUNED_ON} = "{on}"', ""]
@@ -328,10 +391,12 @@ def run_tune(t: TuneSpec, out: str | Path, jobs: int = 1, report: Callable[[str,
                                                   for w in range(jobs))
         table = trials_table(out, train.filters)
         write_parquet_atomic(table, out / "trials.parquet")
-        best = best_values(out, train.filters, t.trials, space)
+        bases = {f: level_bases(train, f) for f in train.filters} if t.level == "tracks" else None
+        best = best_values(out, train.filters, t.trials, space, bases)
+        add_leveled(best, out, train, t)
         add_profiles(best, out, train, space, t)
         write_text_atomic(out / "tuned.toml", tuned_toml(best, train, t))
-        record = {"command": list(argv) if argv is not None else None, "objective": t.objective,
+        record = {"command": list(argv) if argv is not None else None, "objective": t.objective, "level": t.level,
                   "sampler": t.sampler, "trials": t.trials, "jobs": jobs,
                   "tuned_on": {"tracks": list(train.tracks), "runs": [0, train.runs], "seed": train.seed,
                                "seed_of": t.spec.seed},

@@ -23,6 +23,18 @@ The objectives (:data:`OBJECTIVES`):
   settings whose ANEES lies in its band (1 % outside doubles the score); outside it the penalty
   grows smoothly, so the search finds the band.
 
+The level (``--level``, :data:`LEVELS`): scaling every variance of Q, R and P0 by one factor ``c``
+leaves an EKF's gain, estimates and errors unchanged and divides its NEES by ``c`` (the Kalman
+recursion is homogeneous in (P0, Q, R)); a sigma-point filter changes only through its spread
+(``√c`` wider), negligibly at the papers' alpha. So with ``rmse-consistent`` the default ``tracks``
+searches the *shape* of the noise (the ratios of the factors) for accuracy and sets its *level* in
+closed form (:func:`fit_level`): ``c`` puts the geometric mean over the training tracks of each
+track's ANEES (6 dof) at its expectation 6 — every track counts alike, a track a factor too
+overconfident and one the same factor too conservative cancel (the log rule of ``consistency``),
+so a few turn-rich tracks do not set the level for all. The trial's score is then its RMSE, and
+its written values are its factors x ``√c`` (:func:`leveled`). ``off``: the band penalty above on
+the factors as searched.
+
 A trial that loses a run scores ``LOST + lost fraction`` (above every trial that loses none: lost
 runs are ranked worst, and fewer lost is better).
 """
@@ -38,6 +50,7 @@ from nespm_cli.experiments.metrics import (STAT_BLOCKS, block_statistics, diverg
 from nespm_cli.experiments.spec import Spec
 
 OBJECTIVES = ("rmse-consistent", "rmse", "consistency")
+LEVELS = ("tracks", "off")  # rmse-consistent: the level fitted over the tracks (default), or searched as the factors
 LOST = 1e6  # the score of a trial that lost runs: LOST + the fraction lost
 BAND_PENALTY = 100.0  # rmse-consistent: x (1 + BAND_PENALTY x the log-distance outside the band)
 
@@ -62,6 +75,7 @@ def trial_statistics(spec: Spec, name: str, values: dict) -> dict:
     sse, n, lost, total = 0.0, 0, 0, 0
     nees: dict = {b: [] for b in STAT_BLOCKS}
     nees6 = []  # the report's NEES (velocity and attitude, 6 dof) of the runs kept, per run
+    tracks6 = []  # each track's ANEES (6 dof): mean over its runs kept and its epochs
     nis: dict = {}
     dims: dict = {}
     for number in spec.tracks:
@@ -80,6 +94,8 @@ def trial_statistics(spec: Spec, name: str, values: dict) -> dict:
         bias = true_biases(real, truth.t[e] - truth.t[0]) if spec.imu == "synthetic" else None
         stats = block_statistics(out, truth.v_n[e], truth.C_bn[e], truth.pos[e], bias)
         nees6.append(np.asarray(err.nees, float)[ok])
+        with np.errstate(all="ignore"):
+            tracks6.append(float(np.nanmean(nees6[-1])) if nees6[-1].size else float("nan"))
         for b in STAT_BLOCKS:
             nees[b].append(np.where(ok[:, None], stats[f"nees_{b}"], np.nan)[:, 1:])
         for k, v in epoch_nis(out, t_rel).items():
@@ -94,7 +110,7 @@ def trial_statistics(spec: Spec, name: str, values: dict) -> dict:
                 if np.isfinite(np.concatenate(v, axis=1)).any()}
     return {"rmse": float(np.sqrt(sse / n)) if n else float("nan"), "lost": lost / max(total, 1), "anees": anees,
             "mean_anees": mean_anees, "anis": anis, "dims": dims, "runs": total - lost,
-            "runs_per_track": len(runs),
+            "runs_per_track": len(runs), "anees6_tracks": tracks6,
             "anees6": float(np.nanmean(np.concatenate([x.ravel() for x in nees6]))) if n else float("nan")}
 
 
@@ -119,11 +135,32 @@ def band_distance(stats: dict) -> float:
     return float(np.log(a / hi)) if a > hi else float(np.log(lo / a)) if a < lo else 0.0
 
 
-def score(stats: dict, objective: str) -> float:
-    """The trial's score under ``objective`` (:data:`OBJECTIVES`); lower is better."""
+def fit_level(stats: dict) -> float:
+    """The variance factor ``c`` on every Q, R and P0 that puts the geometric mean over the tracks of
+    each track's ANEES (6 dof, ``stats["anees6_tracks"]``) at 6: ``c = (Π aᵢ)^(1/n) / 6``; 1.0 where a
+    track has no finite positive ANEES (no covariance, or every run lost)."""
+    a = np.asarray(stats.get("anees6_tracks", ()), float)
+    if a.size == 0 or not np.all(np.isfinite(a) & (a > 0)):
+        return 1.0
+    return float(np.exp(np.mean(np.log(a))) / 6.0)
+
+
+def leveled(values: dict, bases: dict, c: float) -> dict:
+    """``values`` ({key: std factor}) with every key of ``bases`` ({key: the factor it has when not
+    searched}) multiplied by ``√c`` (a std factor; ``c`` scales the variances); other keys as given."""
+    s = float(np.sqrt(c))
+    out = {k: float(v) for k, v in values.items()}
+    for k, base in bases.items():
+        out[k] = float(out.get(k, base)) * s
+    return out
+
+
+def score(stats: dict, objective: str, level: str = "off") -> float:
+    """The trial's score under ``objective`` (:data:`OBJECTIVES`) and ``level`` (:data:`LEVELS`; it acts
+    on ``rmse-consistent`` only); lower is better."""
     if stats["lost"] > 0 or not np.isfinite(stats["rmse"]):
         return LOST + float(stats["lost"])
-    if objective == "rmse":
+    if objective == "rmse" or (objective == "rmse-consistent" and level == "tracks"):
         return stats["rmse"]
     if objective == "consistency":
         return consistency(stats)
@@ -132,10 +169,10 @@ def score(stats: dict, objective: str) -> float:
 
 def summary(stats: dict) -> dict:
     """The trial's numbers kept beside its score (trials.parquet): ``rmse``, ``lost``, ``consistency``,
-    ``band_distance``, ``anees_<block>`` (mean over runs and epochs), ``in_band_<block>`` (the
+    ``band_distance``, ``level`` (:func:`fit_level`), ``anees_<block>`` (mean over runs and epochs), ``in_band_<block>`` (the
     fraction of epochs whose ANEES lies in its per-epoch band χ²(3R)/R), ``anis_<sensor>``."""
     out = {"rmse": stats["rmse"], "lost": stats["lost"], "consistency": consistency(stats),
-           "anees": stats["anees6"], "band_distance": band_distance(stats)}
+           "anees": stats["anees6"], "band_distance": band_distance(stats), "level": fit_level(stats)}
     lo, hi = nees_band(3, max(int(stats["runs_per_track"]), 1))  # each epoch's ANEES: one track's runs
     for b, v in stats["anees"].items():
         out[f"anees_{b}"] = stats["mean_anees"][b]
@@ -145,5 +182,5 @@ def summary(stats: dict) -> dict:
     return {k: float(v) for k, v in out.items()}
 
 
-__all__ = ["BAND_PENALTY", "LOST", "OBJECTIVES", "band_distance", "consistency", "score", "summary",
-           "trial_spec", "trial_statistics"]
+__all__ = ["BAND_PENALTY", "LEVELS", "LOST", "OBJECTIVES", "band_distance", "consistency", "fit_level", "leveled",
+           "score", "summary", "trial_spec", "trial_statistics"]

@@ -44,13 +44,15 @@ def steps(p: Param, value: float) -> tuple[float, float]:
     return max(p.low, value - span), min(p.high, value + span)
 
 
-def profile(train: Spec, name: str, params: list[Param], best: dict, objective: str, best_score: float) -> dict:
-    """``{key: {"low", "high", "score_low", "score_high", "change", "flat"}}`` at the best values ``best``."""
+def profile(train: Spec, name: str, params: list[Param], best: dict, objective: str, best_score: float,
+            level: str = "off") -> dict:
+    """``{key: {"low", "high", "score_low", "score_high", "change", "flat"}}`` at the best searched values
+    ``best``, scored as the trials were (``objective``, ``level``)."""
     out = {}
     for p in params:
         v = float(best[p.key])
         lo, hi = steps(p, v)
-        s = [score(trial_statistics(train, name, {**best, p.key: x}), objective) for x in (lo, hi)]
+        s = [score(trial_statistics(train, name, {**best, p.key: x}), objective, level) for x in (lo, hi)]
         change = float(np.max(np.abs(np.asarray(s) - best_score)) / max(abs(best_score), 1e-300))
         out[p.key] = {"low": lo, "high": hi, "score_low": float(s[0]), "score_high": float(s[1]),
                       "change": change, "flat": bool(change < FLAT)}

@@ -60,10 +60,28 @@ def values_table(record: dict) -> str:
             k = p["key"]
             pr = prof.get(k)
             seen = "—" if pr is None else ("flat (not seen)" if pr["flat"] else f"{100 * pr['change']:.0f} %")
-            rows.append([f, k, p["kind"], fmt(p["default"]), fmt(b["values"][k]), f"{fmt(p['low'])}–{fmt(p['high'])}",
-                         fmt(imp.get(k, float("nan")), ".2f"), seen])
-    return md_table(["filter", "parameter", "acts on", "default", "tuned", "range", "importance",
+            shape = b.get("shape", b["values"]).get(k, float("nan"))
+            rows.append([f, k, p["kind"], fmt(p["default"]), fmt(shape), fmt(b["values"][k]),
+                         f"{fmt(p['low'])}–{fmt(p['high'])}", fmt(imp.get(k, float("nan")), ".2f"), seen])
+    return md_table(["filter", "parameter", "acts on", "default", "searched", "tuned (written)", "range", "importance",
                      "profile (score change at x3, /3)"], rows)
+
+
+def level_table(record: dict) -> str:
+    """With the fitted level: per filter the level, the training runs it was fitted on, the RMSE and
+    ANEES the tuned values give there, and each training track's ANEES ("" without a level)."""
+    rows = []
+    for f, b in record["best"].items():
+        if "at_level" not in b:
+            continue
+        a = b["at_level"]
+        tracks = ", ".join(f"{n}: {fmt(v, '.3g')}" for n, v in b.get("at_level_tracks", {}).items())
+        rows.append([f, fmt(float(np.sqrt(b["level"])), ".4g"), str(b["level_runs"]), fmt(a["rmse"]),
+                     fmt(a["anees"], ".3g"), tracks])
+    if not rows:
+        return ""
+    return md_table(["filter", "std factor of the level (x every Q, R, P0)", "runs per track", "RMSE",
+                     "ANEES (6 dof)", "ANEES per training track"], rows)
 
 
 def score_table(record: dict, trials: pd.DataFrame) -> str:
@@ -175,7 +193,18 @@ def write_tune_report(out_dir: Path, n_boot: int = 2000) -> Path:
               "## Tuned values beside the defaults", "",
               "A factor multiplies the study's std (the filter told the truth, or your options); a flat profile "
               "(the score moves < 2 % at x3 and /3) marks a parameter this objective cannot see: its tuned "
-              "value means nothing.", "", values_table(record), ""]
+              "value means nothing. *Searched* is the best trial's factor; *tuned* what `tuned.toml` writes "
+              "(with the fitted level: every Q, R and P0 factor times the level's std factor).", "",
+              values_table(record), ""]
+    lt = level_table(record)
+    if lt:
+        lines += ["## The level", "",
+                  "Scaling every variance of Q, R and P0 by one factor leaves an EKF's estimates unchanged and "
+                  "divides its NEES by that factor; the search set the ratios for accuracy, the level was then "
+                  "fitted so the geometric mean of the training tracks' ANEES is 6 (docs/tuning.md, \"The "
+                  "level\"). The tuned values on the training runs, and each training track's ANEES: a held-out "
+                  "track can land anywhere in that spread, so a wide spread says the filter's model misses "
+                  "something the noise cannot cover (e.g. an unmodelled DVL lever arm).", "", lt, ""]
     d, t = out_dir / DEFAULT_DIR, out_dir / TUNED_DIR
     if (d / "metrics.parquet").exists() and (t / "metrics.parquet").exists():
         default, tuned = pd.read_parquet(d / "metrics.parquet"), pd.read_parquet(t / "metrics.parquet")
