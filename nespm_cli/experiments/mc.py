@@ -48,7 +48,7 @@ from nespm_cli.sensors.channels import build_channel
 from nespm_cli.nav.earth import ned_offset
 
 def simulate(spec: Spec, number: int, runs: np.ndarray, filters=None, clean: bool = False,
-             progress: Callable[[int], None] | None = None, smooth=None):
+             progress: Callable[[int], None] | None = None, smooth=None, reuse: dict | None = None):
     """Run ``filters`` on the realizations ``runs`` of track ``number``.
 
     Returns ``({result: (FilterOutput, EpochErrors, seconds)}, truth, realization)``, a result
@@ -58,22 +58,19 @@ def simulate(spec: Spec, number: int, runs: np.ndarray, filters=None, clean: boo
     :func:`nespm_cli.sensors.channels.build_channel`). ``clean``: the error-free IMU, initial
     solution and measurements. ``progress(done)``, if given, is called with the filter-epochs
     done so far (filters run one after the other, each over the track's N-1 epoch intervals).
+    ``reuse``: a dict the caller keeps across calls whose spec differs only in its filters and their
+    options (``nespm tune``'s trials): the realization, IMU, initial solution and sensor channels of
+    ``(number, runs, clean)`` are built once and read from it after (the same arrays: bit-identical).
     """
-    track, truth = track_inputs(spec, number)
-    e = truth.epoch_index
-    t_rel = truth.t[e] - truth.t[e[0]]
-    R = len(runs)
-    real = draw(spec.seed, number, runs, float(t_rel[-1]), spec.corruption)
-    C_t, v_t, p_t = truth.C_bn[e], truth.v_n[e], truth.pos[e]
-    channels = [build_channel(s, track, truth, spec.seed, number, runs, clean) for s in sensor_suite(spec)]
-    if clean:
-        f = np.broadcast_to(truth.f_b, (R,) + truth.f_b.shape)
-        w = np.broadcast_to(truth.w_ib_b, (R,) + truth.w_ib_b.shape)
-        nav0 = initial_nav(p_t[0], v_t[0], C_t[0], np.zeros((R, 3)), np.zeros((R, 3)))
+    key = (number, tuple(int(r) for r in runs), bool(clean))
+    if reuse is not None and key in reuse:
+        track, truth, real, f, w, nav0, channels = reuse[key]
     else:
-        ef, ew = imu_errors(real, truth.t)
-        f, w = truth.f_b + ef, truth.w_ib_b + ew
-        nav0 = initial_nav(p_t[0], v_t[0], C_t[0], real.dv0, real.dpsi0, real.dp0)
+        track, truth, real, f, w, nav0, channels = realization_inputs(spec, number, runs, clean)
+        if reuse is not None:
+            reuse[key] = (track, truth, real, f, w, nav0, channels)
+    e = truth.epoch_index
+    C_t, v_t, p_t = truth.C_bn[e], truth.v_n[e], truth.pos[e]
     cfg = filter_config(spec)
     results = {}
     names = list(filters or spec.filters)
@@ -97,6 +94,27 @@ def simulate(spec: Spec, number: int, runs: np.ndarray, filters=None, clean: boo
             results[smoothed_name(name)] = (out.smoothed, epoch_errors(out.smoothed, v_t, C_t, p_t), secs)
         results[name] = (out, err, secs)
     return results, truth, real
+
+
+def realization_inputs(spec: Spec, number: int, runs: np.ndarray, clean: bool = False) -> tuple:
+    """What every filter of :func:`simulate` sees on track ``number`` in ``runs``: ``(track, truth,
+    realization, f (R, M, 3) [m/s²], w (R, M, 3) [rad/s], nav0, channels)``."""
+    track, truth = track_inputs(spec, number)
+    e = truth.epoch_index
+    t_rel = truth.t[e] - truth.t[e[0]]
+    R = len(runs)
+    real = draw(spec.seed, number, runs, float(t_rel[-1]), spec.corruption)
+    C_t, v_t, p_t = truth.C_bn[e], truth.v_n[e], truth.pos[e]
+    channels = [build_channel(s, track, truth, spec.seed, number, runs, clean) for s in sensor_suite(spec)]
+    if clean:
+        f = np.broadcast_to(truth.f_b, (R,) + truth.f_b.shape)
+        w = np.broadcast_to(truth.w_ib_b, (R,) + truth.w_ib_b.shape)
+        nav0 = initial_nav(p_t[0], v_t[0], C_t[0], np.zeros((R, 3)), np.zeros((R, 3)))
+    else:
+        ef, ew = imu_errors(real, truth.t)
+        f, w = truth.f_b + ef, truth.w_ib_b + ew
+        nav0 = initial_nav(p_t[0], v_t[0], C_t[0], real.dv0, real.dpsi0, real.dp0)
+    return track, truth, real, f, w, nav0, channels
 
 
 def q_factors(noise_std, cfg: FilterConfig, R: int) -> dict:

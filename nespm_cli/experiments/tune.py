@@ -40,8 +40,8 @@ import pandas as pd
 
 from nespm_cli.errors import NespmError
 from nespm_cli.experiments.spec import Spec, validate
-from nespm_cli.experiments.tune_objective import (LEVELS, OBJECTIVES, fit_level, leveled, score, summary,
-                                                  trial_statistics)
+from nespm_cli.experiments.tune_objective import (LEVELS, OBJECTIVES, REUSE_RUNS, fit_level, leveled, score,
+                                                  summary, trial_statistics)
 from nespm_cli.experiments.tune_space import Param, apply_ranges, default_space
 from nespm_cli.filters.options import TUNED_ON, tuned_on_text
 from nespm_cli.filters.registry import get_filter
@@ -214,6 +214,7 @@ def tune_filter(t: TuneSpec, train: Spec, index: int, params: list[Param], out: 
     name = train.filters[index]
     store = storage(out)
     study = open_study(store, name, config_digest(train, name, params, t), out)
+    reuse = {} if train.runs * len(train.tracks) <= REUSE_RUNS else None  # the inputs built once per filter
     while True:
         trials = study.get_trials(deepcopy=False, states=(TrialState.COMPLETE, TrialState.RUNNING))
         done = sum(tr.state == TrialState.COMPLETE for tr in trials)
@@ -225,7 +226,7 @@ def tune_filter(t: TuneSpec, train: Spec, index: int, params: list[Param], out: 
                 study.enqueue_trial({p.key: p.default for p in params}, skip_if_exists=False)
         trial = study.ask()
         values = {p.key: trial.suggest_float(p.key, p.low, p.high, log=p.log) for p in params}
-        stats = trial_statistics(train, name, values)
+        stats = trial_statistics(train, name, values, reuse)
         value = score(stats, t.objective, t.level)
         trial.set_user_attr(STATS_ATTR, summary(stats))  # one commit
         study.tell(trial, value)

@@ -63,11 +63,16 @@ def trial_spec(spec: Spec, name: str, values: dict) -> Spec:
     return dataclasses.replace(spec, filters=(name,), smooth=(), filter_options=opts)
 
 
-def trial_statistics(spec: Spec, name: str, values: dict) -> dict:
+REUSE_RUNS = 200  # trials keep their inputs in memory up to this many runs x tracks (~40 MB per 20 runs of 400 s)
+
+
+def trial_statistics(spec: Spec, name: str, values: dict, reuse: dict | None = None) -> dict:
     """Run filter ``name`` with the options ``values`` on every run of every track of ``spec``
     (validated); return the statistics the objectives use: ``rmse``, ``lost`` (fractions),
     ``anees`` ({block: (N,) per epoch over every track's epochs}), ``anis`` ({sensor: (N,)}),
-    ``mean_anees`` ({block: float}), ``runs`` (total)."""
+    ``mean_anees`` ({block: float}), ``runs`` (total). ``reuse``: a dict kept across the trials of one
+    training spec (:func:`nespm_cli.experiments.mc.simulate`): the realizations are built once, not
+    per trial (the same arrays: bit-identical scores)."""
     from nespm_cli.experiments.mc import simulate
 
     s = trial_spec(spec, name, values)
@@ -79,7 +84,7 @@ def trial_statistics(spec: Spec, name: str, values: dict) -> dict:
     nis: dict = {}
     dims: dict = {}
     for number in spec.tracks:
-        results, truth, real = simulate(s, number, runs, (name,))
+        results, truth, real = simulate(s, number, runs, (name,), reuse=reuse)
         out, err, _ = results[name]
         e = truth.epoch_index
         t_rel = truth.t[e] - truth.t[e[0]]
@@ -182,5 +187,5 @@ def summary(stats: dict) -> dict:
     return {k: float(v) for k, v in out.items()}
 
 
-__all__ = ["BAND_PENALTY", "LEVELS", "LOST", "OBJECTIVES", "band_distance", "consistency", "fit_level", "leveled",
+__all__ = ["BAND_PENALTY", "LEVELS", "LOST", "REUSE_RUNS", "OBJECTIVES", "band_distance", "consistency", "fit_level", "leveled",
            "score", "summary", "trial_spec", "trial_statistics"]
