@@ -35,6 +35,7 @@ def tune(
 ) -> None:
     """Tune every filter's noise (Q, R, P0, alpha) with the same budget on training runs; write tuned.toml."""
     from nespm_cli.experiments.tune import TuneSpec, run_tune
+    from nespm_cli.experiments.tune_progress import echo_progress
     from nespm_cli.experiments.tune_heldout import run_heldout
     from nespm_cli.experiments.tune_space import parse_range
 
@@ -51,11 +52,7 @@ def tune(
                       filters=parse_filters(kw.pop("filters_")), **kw)
     t = TuneSpec(spec, **opts)
 
-    def report(name: str, done: int, best: float) -> None:
-        if not quiet and (done % 10 == 0 or done == t.trials):
-            typer.echo(f"{name}: {done}/{t.trials} trials, best score {best:.6g}", err=True)
-
-    record = run_tune(t, out, jobs=jobs, report=report, argv=("nespm", *ARGV))
+    record = run_tune(t, out, jobs=jobs, report=None if quiet else echo_progress(t.trials), argv=("nespm", *ARGV))
     for f, b in record["best"].items():
         d = b["default_score"]
         typer.echo(f"{f}: score {d:.6g} (default) -> {b['score']:.6g} (trial {b['trial']})" if d is not None

@@ -40,6 +40,7 @@ import pandas as pd
 
 from nespm_cli.errors import NespmError
 from nespm_cli.experiments.spec import Spec, validate
+from nespm_cli.experiments.tune_progress import watch_studies
 from nespm_cli.experiments.tune_objective import (LEVELS, OBJECTIVES, REUSE_RUNS, fit_level, leveled, score,
                                                   summary, trial_statistics)
 from nespm_cli.experiments.tune_space import Param, apply_ranges, default_space
@@ -388,12 +389,23 @@ def run_tune(t: TuneSpec, out: str | Path, jobs: int = 1, report: Callable[[str,
         else:
             from joblib import Parallel, delayed
 
-            Parallel(n_jobs=jobs, backend="loky")(delayed(worker_run)(t, train, space, str(out.resolve()), w)
-                                                  for w in range(jobs))
+            watch = None if report is None else watch_studies(storage(out), train.filters, t.trials, report)
+            try:
+                Parallel(n_jobs=jobs, backend="loky")(delayed(worker_run)(t, train, space, str(out.resolve()), w)
+                                                      for w in range(jobs))
+            finally:
+                if watch is not None:
+                    watch()
         table = trials_table(out, train.filters)
         write_parquet_atomic(table, out / "trials.parquet")
         bases = {f: level_bases(train, f) for f in train.filters} if t.level == "tracks" else None
         best = best_values(out, train.filters, t.trials, space, bases)
+        if report is not None and (t.level == "tracks" or t.profile):
+            import sys
+
+            what = " and ".join(w for w, on in (("fitting each filter's level", t.level == "tracks"),
+                                                ("profiling its best settings", t.profile)) if on)
+            print(f"tune: {what} on the training runs", file=sys.stderr, flush=True)
         add_leveled(best, out, train, t)
         add_profiles(best, out, train, space, t)
         write_text_atomic(out / "tuned.toml", tuned_toml(best, train, t))

@@ -1,0 +1,21 @@
+"""``nespm tune`` reports progress with ``--jobs`` workers too (a thread reading the shared studies):
+a line per 10 completed trials and the last, each with the best score so far."""
+from __future__ import annotations
+
+from nespm_cli.cli import main
+from nespm_cli.experiments.tune_progress import progress_line
+
+
+def test_progress_lines():
+    assert progress_line("ekf", 10, 25, 0.5) == "ekf: 10/25 trials, best score 0.5"
+    assert progress_line("ekf", 11, 25, 0.5) is None
+    assert progress_line("ekf", 25, 25, 0.25) == "ekf: 25/25 trials, best score 0.25"
+
+
+def test_workers_report_progress(tmp_path, capsys):
+    rc = main(["tune", "--tracks", "5", "--runs", "2", "--trials", "10", "--filters", "ekf", "--window", "0:30",
+               "--dvl", "synthetic", "--jobs", "2", "--level-runs", "2", "--out", str(tmp_path / "t")])
+    err = capsys.readouterr().err
+    assert rc == 0, err
+    lines = [x for x in err.splitlines() if x.startswith("ekf: 10/10 trials, best score ")]
+    assert len(lines) == 1, err
