@@ -28,16 +28,22 @@ run: setup
 	$(NESPM) report results/main
 
 # The main job with tuned filters: EKF, UKF and UKF-NESPM each tuned with the same budget on
-# tracks 1-4 (training runs, their own seeds), held out on tracks 5 and 6 (default and tuned
+# tracks 1-4 (1-4 and 7-13 with DATA=; training runs, their own seeds), held out on tracks 5 and 6 (default and tuned
 # settings, results/tune-main/report.md), then the main job re-run with the tuned settings
-# (docs/tuning.md). TUNE_TRIALS and TUNE_RUNS set the budget.
+# (docs/tuning.md). TUNE_TRIALS and TUNE_RUNS set the budget; TUNE_OPTS adds model options to every
+# step (e.g. TUNE_OPTS="--dvl-lever-arm -1.6 0 0" TUNE_OUT=results/tune-lever TUNED_OUT=results/main-tuned-lever:
+# the filters told the DVL lever arm, README "Tune before you compare").
 TUNE_TRIALS ?= 50
 TUNE_RUNS ?= 10
+TUNE_OPTS ?=
+TUNE_OUT ?= results/tune-main
+TUNED_OUT ?= results/main-tuned
+TRAIN_TRACKS := $(if $(DATA),1 2 3 4 7 8 9 10 11 12 13,1 2 3 4)
 tune-main: setup
-	$(NESPM) tune --tracks 1 2 3 4 --runs $(TUNE_RUNS) --trials $(TUNE_TRIALS) --filters ekf,ukf,ukf-nespm --test-tracks 5 6 --test-runs $(RUNS) --jobs $(JOBS) $(DATA_OPT) --out results/tune-main
-	$(NESPM) report results/tune-main
-	$(NESPM) mc --config results/tune-main/tuned.toml --tracks 5 6 --runs $(RUNS) --jobs $(JOBS) $(DATA_OPT) --out results/main-tuned
-	$(NESPM) report results/main-tuned
+	$(NESPM) tune --tracks $(TRAIN_TRACKS) --runs $(TUNE_RUNS) --trials $(TUNE_TRIALS) --filters ekf,ukf,ukf-nespm --test-tracks 5 6 --test-runs $(RUNS) --jobs $(JOBS) $(DATA_OPT) $(TUNE_OPTS) --out $(TUNE_OUT)
+	$(NESPM) report $(TUNE_OUT)
+	$(NESPM) mc --config $(TUNE_OUT)/tuned.toml --tracks 5 6 --runs $(RUNS) --jobs $(JOBS) $(DATA_OPT) $(TUNE_OPTS) --out $(TUNED_OUT)
+	$(NESPM) report $(TUNED_OUT)
 
 # The suite on two pytest workers (pytest-xdist), one test file per worker at a time (--dist
 # loadfile: a module's shared fixtures are computed once). TEST_WORKERS=0 runs it in one process.
