@@ -49,13 +49,13 @@ def _rows(root: Path) -> pd.DataFrame:
 
 def _expected(m: pd.DataFrame, name: str) -> dict:
     """Posterior RMS per track (sum of squares over epochs after t = 0), RMS over tracks; final
-    errors averaged per track, then over tracks (no run is lost here)."""
+    errors and NEES averaged per track, then over tracks (no run is lost here)."""
     g = m[m["filter"] == name].groupby("track")
     per_track = lambda col: np.sqrt(g[col].sum() / g["n_post"].sum())  # noqa: E731
     return {"hpe": float(np.sqrt(np.mean(per_track("sse_hpe_post") ** 2))),
             "vrmse": float(np.sqrt(np.mean(per_track("sse_vel_post") ** 2))),
             "hpe_final": float(g["hpe_final"].mean().mean()),
-            "hpe_final_pct": float(g["hpe_final_pct"].mean().mean())}
+            "hpe_final_pct": float(g["hpe_final_pct"].mean().mean()), "nees": float(g["nees"].mean().mean())}
 
 
 def test_table_numbers_equal_those_recomputed_from_the_parquet_files(folders):
@@ -67,7 +67,7 @@ def test_table_numbers_equal_those_recomputed_from_the_parquet_files(folders):
     ref_default, ref_tuned = exp["default/ekf"]["hpe"], exp["tuned/ekf"]["hpe"]
     for label, name in ROWS:
         got, e = numbers["rows"][label], exp[name]
-        for key in ("hpe", "vrmse", "hpe_final", "hpe_final_pct"):
+        for key in ("hpe", "vrmse", "hpe_final", "hpe_final_pct", "nees"):
             assert got[key] == pytest.approx(e[key], rel=1e-12), (label, key)
         assert (got["counted"], got["lost"]) == (8, 0)
         for ref, gkey in ((ref_default, "over_default"), (ref_tuned, "over_tuned")):
@@ -82,7 +82,8 @@ def test_table_numbers_equal_those_recomputed_from_the_parquet_files(folders):
         cells = [c.strip() for c in line.strip("|").split("|")]
         assert float(cells[1]) == pytest.approx(e["hpe"], abs=5e-4)
         assert float(cells[3]) == pytest.approx(e["vrmse"], abs=5e-5)
-        assert cells[6] == "8 / 0"
+        assert float(cells[4]) == pytest.approx(e["nees"], abs=5e-3)
+        assert cells[7] == "8 / 0"
     s = numbers["summary"]
     learned, default = exp["default/anekf"]["hpe"], ref_default
     assert s["over_ekf"].point == pytest.approx(100 * (default - learned) / default, rel=1e-9)

@@ -90,13 +90,15 @@ def load_metrics(results: Path) -> tuple[pd.DataFrame, dict]:
 def row_values(m: pd.DataFrame, name: str) -> dict:
     """One row's numbers over the runs no row of ``m`` lost: ``hpe`` [m] (eq 50 per track, 51 over
     tracks), ``hpe_final`` [m] and ``hpe_final_pct`` [% of the distance] (mean per track, then over
-    tracks), ``vrmse`` [m/s]; ``counted`` runs and the row's own ``lost`` runs."""
+    tracks), ``vrmse`` [m/s], ``nees`` (mean per-run NEES, 6 dof: mean per track, then over tracks);
+    ``counted`` runs and the row's own ``lost`` runs; ``q_factor_acc``, ``q_factor_gyro`` (an adaptive
+    filter's mean predicted noise std over the nominal, NaN for the others)."""
     kept = m[~lost_by_any(m)]
     mine, own = kept[kept["filter"] == name], m[m["filter"] == name]
     per_track = [g for _, g in mine.groupby("track", sort=True)]
     out = {k: over_tracks([track_value(g, k) for g in per_track], k) for k in KEYS}
-    out["hpe_final_pct"] = (float(np.mean([g["hpe_final_pct"].mean() for g in per_track]))
-                            if per_track else math.nan)
+    for col in ("hpe_final_pct", "nees", "q_factor_acc", "q_factor_gyro"):
+        out[col] = float(np.mean([g[col].mean() for g in per_track])) if per_track else math.nan
     out["counted"], out["lost"] = int(len(mine)), int(own["diverged"].sum())
     return out
 
@@ -124,6 +126,30 @@ def in_kind(g: Gain, published: float) -> str:
     return "no significant gain"
 
 
+def setup_line(results: Path) -> str | None:
+    """Where the learned model and the tuned EKF come from, read from ``processnet.npz`` (its training
+    record) and ``tune/tune.json``; None where either is absent (e.g. folders made by hand)."""
+    import json
+
+    from nespm_cli.learn.processnet import load_nets
+
+    npz, tune = results / "processnet.npz", results / "tune" / "tune.json"
+    if not (npz.is_file() and tune.is_file()):
+        return None
+    try:
+        meta = load_nets(npz)[1]
+        t = json.loads(tune.read_text(encoding="utf-8"))
+        cfg, test, on = meta["config"], meta["test"], t["tuned_on"]
+        tracks = lambda ts: ", ".join(str(x) for x in ts)  # noqa: E731
+        return (f"ProcessNet trained on tracks {tracks(cfg['train_tracks'])} ({cfg['imu']} IMU, {cfg['runs']} "
+                f"realizations per track; Spearman of its std against the injected one on tracks "
+                f"{tracks(cfg['test_tracks'])}: accelerometer {test['acc']['spearman']:.3f}, gyro "
+                f"{test['gyro']['spearman']:.3f}); the EKF tuned by `nespm tune` on tracks {tracks(on['tracks'])} "
+                f"({t['trials']} trials, {on['runs'][1] - on['runs'][0]} runs per track, objective {t['objective']}).")
+    except (KeyError, TypeError, ValueError, OSError) as exc:
+        raise NespmError(f"akit table: {npz} or {tune}: not the record of nespm train / nespm tune ({exc})") from None
+
+
 def table(results: str | Path, n_boot: int = N_BOOT) -> tuple[str, dict]:
     """The markdown of the A-KIT table and its numbers (``rows``: label -> values and gains;
     ``summary``: the gains behind the final lines)."""
@@ -135,7 +161,7 @@ def table(results: str | Path, n_boot: int = N_BOOT) -> tuple[str, dict]:
         v["over_tuned"] = None if name == TUNED_EKF else gain(m, TUNED_EKF, name, n_boot=n_boot)
         rows[label] = v
         cells.append([label, fmt(v["hpe"], ".3f"), f"{fmt(v['hpe_final'], '.2f')} ({fmt(v['hpe_final_pct'], '.2f')} %)",
-                      fmt(v["vrmse"], ".4f"), v["over_default"].text() if v["over_default"] else DASH,
+                      fmt(v["vrmse"], ".4f"), fmt(v["nees"], ".2f"), v["over_default"].text() if v["over_default"] else DASH,
                       v["over_tuned"].text() if v["over_tuned"] else DASH, f"{v['counted']} / {v['lost']}"])
     best_model = min(MODEL_BASED, key=lambda n: row_values(m, n)["hpe"])
     g_ekf, g_model, g_tuned = rows["ANEKF (ProcessNet)"]["over_default"], gain(m, best_model, LEARNED, n_boot=n_boot), \
@@ -151,18 +177,25 @@ def table(results: str | Path, n_boot: int = N_BOOT) -> tuple[str, dict]:
             f"{imu} IMU" + (f" with the corrections of `{Path(corr).name}`" if corr else "") + ", schedule "
             f"{opts.get('corruption', {}).get('schedule', DASH)}; every filter on the same runs "
             f"(`{'`, `'.join(str(Path(results) / s) for s in CASES.values())}`).")
-    headers = ["filter", "HPE RMS [m]", "final HPE [m] (% of distance)", "velocity RMSE [m/s]",
+    headers = ["filter", "HPE RMS [m]", "final HPE [m] (% of distance)", "velocity RMSE [m/s]", "mean NEES",
                "HPE RMS gain over default EKF [95 %]", "over tuned EKF [95 %]", "runs counted / lost"]
-    share_text = (f"{share:.0f} %" if np.isfinite(share) else
-                  "not defined (no gain over the default EKF to keep)")
+    tuning = rows["EKF, tuned"]["over_default"]
+    share_text = (DASH + " (no gain over the default EKF to keep)" if not np.isfinite(share) else
+                  f"{share:.0f} % (more than all of it: the tuned EKF's HPE RMS is {-tuning.point:.1f} % above the "
+                  "default's on these runs)" if share > 100 and tuning.point < 0 else f"{share:.0f} %")
+    learned = rows["ANEKF (ProcessNet)"]
     tail = [
         f"**Published gains in kind?** ANEKF's HPE RMS gain over the default EKF: {g_ekf.text()} (A-KIT: more than "
         f"{PUBLISHED['ekf']} %): {in_kind(g_ekf, PUBLISHED['ekf'])}; over the best model-based adaptive EKF "
         f"({best_model.split(SEP)[1]}): {g_model.text()} (A-KIT: {PUBLISHED['model']} %): "
         f"{in_kind(g_model, PUBLISHED['model'])}. **Left over the tuned EKF:** {g_tuned.text()}; the share of "
         f"the gain over the default EKF that remains: {share_text}.",
+        f"ANEKF's learned noise std, mean over runs and DVL intervals, in multiples of the nominal: "
+        f"accelerometer {fmt(learned['q_factor_acc'], '.2f')}, gyro {fmt(learned['q_factor_gyro'], '.2f')} "
+        f"(the validity clip is 0.25-24). Mean NEES: 6 is consistent.",
     ]
-    text = "\n\n".join([head, md_table(headers, cells), *tail,
+    setup = setup_line(Path(results))
+    text = "\n\n".join([head + (" " + setup if setup else ""), md_table(headers, cells), *tail,
                         "Gains: paired by run, positive = smaller error than the reference, `*` the 95 % "
                         "interval excludes 0, `†` too few runs to judge (docs/report.md)."]) + "\n"
     return text, {"rows": rows, "summary": summary}
@@ -214,7 +247,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 __all__ = ["BEGIN", "CASES", "END", "Gain", "PUBLISHED", "ROWS", "gain", "in_kind", "load_metrics", "main",
-           "replace_between_markers", "row_values", "table", "write"]
+           "replace_between_markers", "row_values", "setup_line", "table", "write"]
 
 if __name__ == "__main__":
     sys.exit(main())
