@@ -122,3 +122,26 @@ def test_readme_has_the_akit_table_between_its_markers():
     assert section.index(BEGIN) < section.index(END)
     table = text[text.index(BEGIN):text.index(END)]
     assert re.search(r"^\| ANEKF \(ProcessNet\) \| \d", table, re.M), "the table the target writes is missing"
+
+
+def test_setup_line_reads_the_training_and_tuning_records(tmp_path):
+    """The training record of the weights (here the packaged ones) and tune.json give the line above the table."""
+    import json
+    import shutil
+
+    from nespm_cli.learn.processnet import load_nets
+
+    assert akit_table.setup_line(tmp_path) is None  # neither record: no line
+    pkg = ROOT / "nespm_cli" / "learn" / "processnet.npz"
+    shutil.copy(pkg, tmp_path / "processnet.npz")
+    (tmp_path / "tune").mkdir()
+    (tmp_path / "tune" / "tune.json").write_text(json.dumps(
+        {"trials": 7, "objective": "rmse", "tuned_on": {"tracks": [1, 2], "runs": [0, 5], "seed": 1}}), encoding="utf-8")
+    meta = load_nets(pkg)[1]
+    line = akit_table.setup_line(tmp_path)
+    assert f"accelerometer {meta['test']['acc']['spearman']:.3f}, gyro {meta['test']['gyro']['spearman']:.3f}" in line
+    assert "ProcessNet trained on tracks 1, 2, 3, 4 (synthetic IMU, 24 realizations" in line
+    assert "tuned by `nespm tune` on tracks 1, 2 (7 trials, 5 runs per track, objective rmse)" in line
+    (tmp_path / "tune" / "tune.json").write_text("{}", encoding="utf-8")
+    with pytest.raises(NespmError, match="not the record of nespm train / nespm tune"):
+        akit_table.setup_line(tmp_path)

@@ -141,8 +141,8 @@ def setup_line(results: Path) -> str | None:
         t = json.loads(tune.read_text(encoding="utf-8"))
         cfg, test, on = meta["config"], meta["test"], t["tuned_on"]
         tracks = lambda ts: ", ".join(str(x) for x in ts)  # noqa: E731
-        return (f"ProcessNet trained on tracks {tracks(cfg['train_tracks'])} ({cfg['imu']} IMU, {cfg['runs']} "
-                f"realizations per track; Spearman of its std against the injected one on tracks "
+        return (f"ProcessNet trained on tracks {tracks(cfg['train_tracks'])} ({cfg.get('imu', 'synthetic')} IMU, "
+                f"{cfg['runs']} realizations per track; Spearman of its std against the injected one on tracks "
                 f"{tracks(cfg['test_tracks'])}: accelerometer {test['acc']['spearman']:.3f}, gyro "
                 f"{test['gyro']['spearman']:.3f}); the EKF tuned by `nespm tune` on tracks {tracks(on['tracks'])} "
                 f"({t['trials']} trials, {on['runs'][1] - on['runs'][0]} runs per track, objective {t['objective']}).")
@@ -161,7 +161,8 @@ def table(results: str | Path, n_boot: int = N_BOOT) -> tuple[str, dict]:
         v["over_tuned"] = None if name == TUNED_EKF else gain(m, TUNED_EKF, name, n_boot=n_boot)
         rows[label] = v
         cells.append([label, fmt(v["hpe"], ".3f"), f"{fmt(v['hpe_final'], '.2f')} ({fmt(v['hpe_final_pct'], '.2f')} %)",
-                      fmt(v["vrmse"], ".4f"), fmt(v["nees"], ".2f"), v["over_default"].text() if v["over_default"] else DASH,
+                      fmt(v["vrmse"], ".4f"), fmt(v["nees"], ".2f"),
+                      v["over_default"].text() if v["over_default"] else DASH,
                       v["over_tuned"].text() if v["over_tuned"] else DASH, f"{v['counted']} / {v['lost']}"])
     best_model = min(MODEL_BASED, key=lambda n: row_values(m, n)["hpe"])
     g_ekf, g_model, g_tuned = rows["ANEKF (ProcessNet)"]["over_default"], gain(m, best_model, LEARNED, n_boot=n_boot), \
