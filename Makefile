@@ -155,8 +155,8 @@ recorded-anukf-table1 recorded-anukf-table2 recorded-nespm-table1: setup results
 AKIT_DATA := $(if $(DATA),$(DATA),$(IMU_DATA))
 AKIT_OUT ?= results/akit
 AKIT_RUNS ?= 100
-AKIT_TRIALS ?= 30
-AKIT_TUNE_RUNS ?= 3
+AKIT_TRIALS ?= 60
+AKIT_TUNE_RUNS ?= 5
 NESPM_PYTHON ?= $(BIN)/python
 AKIT_OPTS = --config experiments/akit/common.toml --data-dir $(AKIT_DATA) --corrections $(AKIT_OUT)/check/corrections.json
 AKIT_MC = $(NESPM) mc $(AKIT_OPTS) --config experiments/akit/mc.toml --runs $(AKIT_RUNS) --jobs $(JOBS)

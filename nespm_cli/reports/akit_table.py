@@ -181,9 +181,16 @@ def table(results: str | Path, n_boot: int = N_BOOT) -> tuple[str, dict]:
     headers = ["filter", "HPE RMS [m]", "final HPE [m] (% of distance)", "velocity RMSE [m/s]", "mean NEES",
                "HPE RMS gain over default EKF [95 %]", "over tuned EKF [95 %]", "runs counted / lost"]
     tuning = rows["EKF, tuned"]["over_default"]
-    share_text = (DASH + " (no gain over the default EKF to keep)" if not np.isfinite(share) else
-                  f"{share:.0f} % (more than all of it: the tuned EKF's HPE RMS is {-tuning.point:.1f} % above the "
-                  "default's on these runs)" if share > 100 and tuning.point < 0 else f"{share:.0f} %")
+    if not np.isfinite(share):
+        share_text = DASH + " (no gain over the default EKF to keep)"
+    elif share < 0:
+        share_text = (f"none (the ratio is {share:.0f} %: ANEKF's HPE RMS is {-g_tuned.point:.1f} % above the "
+                      "tuned EKF's)")
+    elif share > 100 and tuning.point < 0:
+        share_text = (f"{share:.0f} % (more than all of it: the tuned EKF's HPE RMS is {-tuning.point:.1f} % above "
+                      "the default's on these runs)")
+    else:
+        share_text = f"{share:.0f} %"
     learned = rows["ANEKF (ProcessNet)"]
     tail = [
         f"**Published gains in kind?** ANEKF's HPE RMS gain over the default EKF: {g_ekf.text()} (A-KIT: more than "
