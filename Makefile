@@ -8,7 +8,7 @@ RUNS   ?= 100
 JOBS   ?= 2
 DATA_OPT := $(if $(DATA),--data-dir $(DATA),)
 
-.PHONY: setup run tune-main test smoke aided sensors table1 table2 anukf-table1 anukf-table2 nespm-table1 weights sweep-misalignment sweep-heading gp-ukf bench clean check-data recorded-table1 recorded-table2 recorded-anukf-table1 recorded-anukf-table2 recorded-nespm-table1 recorded-weights
+.PHONY: setup run tune-main test smoke aided sensors table1 table2 anukf-table1 anukf-table2 nespm-table1 weights sweep-misalignment sweep-heading gp-ukf bench clean check-data recorded-table1 recorded-table2 recorded-anukf-table1 recorded-anukf-table2 recorded-nespm-table1 recorded-weights akit akit-data
 
 setup: $(VENV)/.installed
 
@@ -150,3 +150,39 @@ recorded-anukf-table1 recorded-anukf-table2 recorded-nespm-table1: setup results
 	$(NESPM) mc --config experiments/$@.toml --imu synthetic --jobs $(JOBS) --data-dir $(IMU_DATA) $(RUNS_OPT) \
 		--corrections results/check/corrections.json --out results/$@-synthetic-imu
 	$(NESPM) report results/$@ --beside results/$@-synthetic-imu
+
+# The A-KIT question on the recorded data (issue 32; docs/learned.md, "The A-KIT protocol"): the check's
+# corrections; ProcessNet trained (and exported to ONNX) and the EKF tuned on A-KIT's training tracks 1-4,
+# 7-13; on its test tracks 5 and 6 every filter in three mc folders on the same realizations (default EKF,
+# iae/sh/vb-ekf and anekf; the tuned EKF; anekf with the ONNX model); the report and the comparison; then
+# the README table (between its akit-table markers) from those folders. DATA=folder (default IMU_DATA);
+# AKIT_RUNS (runs per test track), AKIT_TRIALS and AKIT_TUNE_RUNS (tuning budget) set the cost.
+# NESPM and NESPM_PYTHON may be overridden (e.g. an installed nespm); setup runs only for the .venv's.
+AKIT_DATA := $(if $(DATA),$(DATA),$(IMU_DATA))
+AKIT_OUT ?= results/akit
+AKIT_RUNS ?= 100
+AKIT_TRIALS ?= 60
+AKIT_TUNE_RUNS ?= 5
+NESPM_PYTHON ?= $(BIN)/python
+AKIT_OPTS = --config experiments/akit/common.toml --data-dir $(AKIT_DATA) --corrections $(AKIT_OUT)/check/corrections.json
+AKIT_MC = $(NESPM) mc $(AKIT_OPTS) --config experiments/akit/mc.toml --runs $(AKIT_RUNS) --jobs $(JOBS)
+AKIT_SETUP := $(if $(filter $(BIN)/nespm,$(NESPM)),setup,)
+akit: $(AKIT_SETUP) akit-data $(AKIT_OUT)/check/corrections.json $(AKIT_OUT)/processnet.npz
+	$(NESPM) tune $(AKIT_OPTS) --config experiments/akit/tune.toml --runs $(AKIT_TUNE_RUNS) --trials $(AKIT_TRIALS) --out $(AKIT_OUT)/tune
+	$(NESPM) report $(AKIT_OUT)/tune
+	$(AKIT_MC) --weights $(AKIT_OUT)/processnet.npz --out $(AKIT_OUT)/mc
+	$(AKIT_MC) --config $(AKIT_OUT)/tune/tuned.toml --filters ekf --out $(AKIT_OUT)/mc-tuned
+	$(AKIT_MC) --filters anekf --noise-model $(AKIT_OUT)/processnet.onnx --out $(AKIT_OUT)/mc-onnx
+	$(NESPM) report $(AKIT_OUT)/mc
+	$(NESPM) compare $(AKIT_OUT)/mc $(AKIT_OUT)/mc-tuned $(AKIT_OUT)/mc-onnx --labels default,tuned,onnx --out $(AKIT_OUT)/compare
+	$(NESPM_PYTHON) -m nespm_cli.reports.akit_table $(AKIT_OUT) --readme README.md
+
+akit-data:
+	@test -d "$(AKIT_DATA)" || { echo "make akit: no data folder at $(AKIT_DATA) (give DATA=folder: the Snapir tracks with their IMU files)" >&2; exit 2; }
+
+# made once (delete $(AKIT_OUT) to start over: the mc folders refuse to resume on other inputs)
+$(AKIT_OUT)/check/corrections.json: | $(AKIT_SETUP) akit-data
+	$(NESPM) check --data-dir $(AKIT_DATA) --out $(AKIT_OUT)/check
+
+$(AKIT_OUT)/processnet.npz: $(AKIT_OUT)/check/corrections.json | $(AKIT_SETUP) akit-data
+	$(NESPM) train --config experiments/akit/train.toml --data-dir $(AKIT_DATA) --corrections $(AKIT_OUT)/check/corrections.json --no-progress --out $@
