@@ -1,5 +1,6 @@
 """``nespm tune`` reports progress with ``--jobs`` workers too (a thread reading the shared studies):
-a line per 10 completed trials and the last, each with the best score so far."""
+a line per 10 completed trials and the last, each with the best score so far; and every filter's
+first trial is its default setting with workers too (queued before they start)."""
 from __future__ import annotations
 
 from nespm_cli.cli import main
@@ -12,10 +13,15 @@ def test_progress_lines():
     assert progress_line("ekf", 25, 25, 0.25) == "ekf: 25/25 trials, best score 0.25"
 
 
-def test_workers_report_progress(tmp_path, capsys):
-    rc = main(["tune", "--tracks", "5", "--runs", "2", "--trials", "10", "--filters", "ekf", "--window", "0:30",
+def test_workers_report_progress_and_start_at_the_defaults(tmp_path, capsys):
+    rc = main(["tune", "--tracks", "5", "--runs", "2", "--trials", "10", "--filters", "ekf,ukf", "--window", "0:30",
                "--dvl", "synthetic", "--jobs", "2", "--level-runs", "2", "--out", str(tmp_path / "t")])
     err = capsys.readouterr().err
     assert rc == 0, err
     lines = [x for x in err.splitlines() if x.startswith("ekf: 10/10 trials, best score ")]
     assert len(lines) == 1, err
+    assert any(x.startswith("ukf: 10/10 trials") for x in err.splitlines()), err
+    import json
+
+    best = json.loads((tmp_path / "t" / "tune.json").read_text())["best"]
+    assert all(b["default_trial"] is not None and b["default_score"] is not None for b in best.values()), best

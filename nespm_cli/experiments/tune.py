@@ -191,6 +191,18 @@ def fail_stale(store, study) -> int:
     return len(stale)
 
 
+def enqueue_default(study, params: list[Param]) -> None:
+    """The first trial of a study: its defaults (when inside the ranges), queued before any worker
+    starts (so ``--jobs`` workers cannot skip it) and again after a kill that failed it."""
+    from optuna.trial import TrialState
+
+    states = {tr.state for tr in study.get_trials(deepcopy=False)}
+    if TrialState.COMPLETE in states or TrialState.WAITING in states:
+        return
+    if all(p.low <= p.default <= p.high for p in params):
+        study.enqueue_trial({p.key: p.default for p in params}, skip_if_exists=False)
+
+
 def make_sampler(kind: str, seed: int):
     """The sampler of one trial (seeded TPE, multivariate; or CMA-ES)."""
     import optuna
@@ -222,9 +234,6 @@ def tune_filter(t: TuneSpec, train: Spec, index: int, params: list[Param], out: 
         if len(trials) >= t.trials:
             return
         study.sampler = make_sampler(t.sampler, trial_seed(train.seed, index, done, worker))
-        if done == 0 and worker == 0 and not any(tr.state == TrialState.RUNNING for tr in trials):
-            if all(p.low <= p.default <= p.high for p in params):  # the first trial: the defaults
-                study.enqueue_trial({p.key: p.default for p in params}, skip_if_exists=False)
         trial = study.ask()
         values = {p.key: trial.suggest_float(p.key, p.low, p.high, log=p.log) for p in params}
         stats = trial_statistics(train, name, values, reuse)
@@ -382,7 +391,9 @@ def run_tune(t: TuneSpec, out: str | Path, jobs: int = 1, report: Callable[[str,
         quiet()
         store = storage(out)
         for f in train.filters:  # identity first (a foreign study file stops here), then stale trials
-            fail_stale(store, open_study(store, f, config_digest(train, f, space[f], t), out))
+            study = open_study(store, f, config_digest(train, f, space[f], t), out)
+            fail_stale(store, study)
+            enqueue_default(study, space[f])
         if jobs <= 1:
             for i, f in enumerate(train.filters):
                 tune_filter(t, train, i, space[f], out, 0, report)
