@@ -75,3 +75,13 @@ def test_level_refusals_in_one_line(tmp_path, capsys, extra, words):
     err = capsys.readouterr().err.strip()
     assert rc == 2 and words in err and len(err.splitlines()) == 1, err
     assert not (tmp_path / "t").exists()
+
+
+def test_sigma_point_level_is_refitted_to_two_percent(tmp_path):
+    """A UKF with a wide spread (alpha 0.3-1) is not exactly homogeneous in the level: the fitted
+    level is refitted until the training tracks' geometric-mean ANEES is within 2 % of 6."""
+    t = TuneSpec(Spec(**{**SMALL, "filters": ("ukf",)}), trials=4, profile=False, level_runs=8,
+                 ranges=(("ukf", "alpha", 0.3, 1.0),))
+    b = run_tune(t, tmp_path / "u")["best"]["ukf"]
+    tracks = np.array(list(b["at_level_tracks"].values()))
+    assert abs(np.log(np.exp(np.mean(np.log(tracks))) / 6.0)) <= np.log(1.02)

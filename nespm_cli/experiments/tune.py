@@ -52,6 +52,8 @@ STUDY_FILE = "study.db"
 CONFIG_ATTR = "nespm_config"  # the study's user attribute holding its configuration digest
 STATS_ATTR = "stats"  # a trial's user attribute: its statistics ({name: float}, tune_objective.summary)
 TUNE_STREAM = 0x74756E65  # "tune": the training seed's stream
+LEVEL_TOLERANCE = 0.02  # the fitted level is refitted while the tracks' geometric-mean ANEES is > 2 % off 6
+LEVEL_ITERATIONS = 3  # at most this many refits (an EKF needs none: it is homogeneous in the level)
 
 
 @dataclass(frozen=True)
@@ -333,7 +335,8 @@ def add_leveled(best: dict, out: Path, train: Spec, t: TuneSpec) -> None:
     """With the fitted level (``t.level == "tracks"``): each filter's best shape run on
     ``max(--runs, --level-runs)`` training runs per track (the trials' runs first, then more of the
     same stream), its level fitted on them (``level``, ``values``: a level fitted on few runs carries
-    their sampling spread), and the leveled values run once more on the same runs: ``at_level`` their
+    their sampling spread; refitted at the level while it is more than :data:`LEVEL_TOLERANCE` off,
+    as a sigma-point filter's spread moves with it), and the leveled values run once more on the same runs: ``at_level`` their
     statistics (:func:`tune_objective.summary`: the ANEES the closed form gives, the RMSE it keeps),
     ``at_level_tracks`` each track's ANEES (6 dof) there ({track: value}: how far a held-out track may land).
     Reused from ``tune.json`` when the shape and the runs are the same."""
@@ -352,6 +355,13 @@ def add_leveled(best: dict, out: Path, train: Spec, t: TuneSpec) -> None:
         c = fit_level(trial_statistics(big, f, b["shape"]))
         values = leveled(b["shape"], level_bases(train, f), c)
         stats = trial_statistics(big, f, values)
+        for _ in range(LEVEL_ITERATIONS):  # a sigma-point filter is not exactly homogeneous: refit at the level
+            again = fit_level(stats)
+            if abs(np.log(again)) <= np.log1p(LEVEL_TOLERANCE):
+                break
+            c *= again
+            values = leveled(b["shape"], level_bases(train, f), c)
+            stats = trial_statistics(big, f, values)
         b.update(level=c, values=values, at_level=summary(stats), level_runs=big.runs,
                  at_level_tracks={str(n): a for n, a in zip(train.tracks, stats["anees6_tracks"])})
 
