@@ -77,11 +77,22 @@ def test_level_refusals_in_one_line(tmp_path, capsys, extra, words):
     assert not (tmp_path / "t").exists()
 
 
-def test_sigma_point_level_is_refitted_to_two_percent(tmp_path):
-    """A UKF with a wide spread (alpha 0.3-1) is not exactly homogeneous in the level: the fitted
-    level is refitted until the training tracks' geometric-mean ANEES is within 2 % of 6."""
-    t = TuneSpec(Spec(**{**SMALL, "filters": ("ukf",)}), trials=4, profile=False, level_runs=8,
-                 ranges=(("ukf", "alpha", 0.3, 1.0),))
-    b = run_tune(t, tmp_path / "u")["best"]["ukf"]
-    tracks = np.array(list(b["at_level_tracks"].values()))
-    assert abs(np.log(np.exp(np.mean(np.log(tracks))) / 6.0)) <= np.log(1.02)
+def test_sigma_point_level_is_refitted(tmp_path, monkeypatch):
+    """A UKF with a wide spread (alpha 0.3-1) is not exactly homogeneous in the level: fitted once, the
+    training tracks' geometric-mean ANEES misses 6 (here by ~2e-7 relative on 60 s); refitted at the
+    level, it converges (to 1e-9 with the tolerance set to 1e-12; the default tolerance is 2 %)."""
+    import nespm_cli.experiments.tune as tune
+
+    def geo_error(folder):
+        t = TuneSpec(Spec(**{**SMALL, "filters": ("ukf",)}), trials=4, profile=False, level_runs=8,
+                     ranges=(("ukf", "alpha", 0.3, 1.0),))
+        b = run_tune(t, tmp_path / folder)["best"]["ukf"]
+        tracks = np.array(list(b["at_level_tracks"].values()))
+        return abs(np.exp(np.mean(np.log(tracks))) / 6.0 - 1.0)
+
+    monkeypatch.setattr(tune, "LEVEL_ITERATIONS", 0)
+    once = geo_error("once")
+    monkeypatch.setattr(tune, "LEVEL_ITERATIONS", 3)
+    monkeypatch.setattr(tune, "LEVEL_TOLERANCE", 1e-12)
+    refit = geo_error("refit")
+    assert once > 1e-8 and refit < 1e-9, (once, refit)
