@@ -15,7 +15,7 @@ def test_progress_lines():
 
 def test_workers_report_progress_and_start_at_the_defaults(tmp_path, capsys):
     rc = main(["tune", "--tracks", "5", "--runs", "2", "--trials", "10", "--filters", "ekf,ukf", "--window", "0:30",
-               "--dvl", "synthetic", "--jobs", "2", "--level-runs", "2", "--out", str(tmp_path / "t")])
+               "--dvl", "synthetic", "--jobs", "2", "--level-runs", "2", "--no-profile", "--out", str(tmp_path / "t")])
     err = capsys.readouterr().err
     assert rc == 0, err
     lines = [x for x in err.splitlines() if x.startswith("ekf: 10/10 trials, best score ")]
@@ -25,3 +25,4 @@ def test_workers_report_progress_and_start_at_the_defaults(tmp_path, capsys):
 
     best = json.loads((tmp_path / "t" / "tune.json").read_text())["best"]
     assert all(b["default_trial"] is not None and b["default_score"] is not None for b in best.values()), best
+    assert not any("profile" in b for b in best.values())  # --no-profile

@@ -22,6 +22,7 @@ TUNE = [  # (name, type, default, flag, help)
     ("test_tracks_", str, "", "--test-tracks", "Held-out tracks, run with the default and the tuned settings on --seed's realizations (e.g. --test-tracks 5 6)."),
     ("test_runs", int, 100, "--test-runs", "Held-out runs per test track."),
     ("allow_overlap", bool, False, "--allow-overlap", "Allow test tracks among the tuning tracks (the report flags it)."),
+    ("no_profile", bool, False, "--no-profile", "Skip the score profile of each tuned parameter (2 trials per parameter after the search; the report's profile column then reads —)."),
     ("jobs", int, 1, "--jobs", "Worker processes sharing the studies (one worker: bit-identical values run after run)."),
     ("no_progress", bool, False, "--no-progress", "No line per 10 trials."),
     ("config", Optional[str], None, "--config", "TOML file of options; [filters.NAME] and [tune] tables (docs/tuning.md)."),
@@ -46,7 +47,7 @@ def tune(
                 level=(kw.pop("level") or "").lower() or None, level_runs=kw.pop("level_runs"),
                 ranges=tuple(parse_range(r) for r in kw.pop("tune_range") or ()),
                 test_tracks=parse_tracks(test) if test else (), test_runs=kw.pop("test_runs"),
-                allow_overlap=kw.pop("allow_overlap"))
+                allow_overlap=kw.pop("allow_overlap"), profile=not kw.pop("no_profile"))
     jobs, quiet = kw.pop("jobs"), kw.pop("no_progress")
     spec = build_spec(tracks=parse_tracks(kw.pop("tracks_")), runs=kw.pop("runs"),
                       filters=parse_filters(kw.pop("filters_")), **kw)
