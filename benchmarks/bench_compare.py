@@ -20,6 +20,10 @@ printed and, unless ``--quick`` or ``--no-readme``, written into benchmarks/READ
 ``<!-- bench_compare:begin -->`` and ``<!-- bench_compare:end -->``; the raw numbers go to
 ``results/bench/compare.json``.
 
+Per run-step, each round's value is the least of ``--repeat`` (default 2) timed runs: other jobs'
+load only ever adds to a CPU time. ``--parts`` measures only some of steps, tune, main, memory;
+``--keep-from results/bench/compare.json`` takes the others from an earlier run (same base).
+
 Run: ``PYTHONPATH=. .venv/bin/python benchmarks/bench_compare.py --base REV [--quick] [--rounds 3]``
 (``make bench-compare BASE=REV``). Bad input: one line, exit 2.
 """
@@ -145,9 +149,9 @@ def plan(a) -> dict:
     """The sizes of every measurement (``--quick``: small ones for a fast check)."""
     if a.quick:
         return dict(rounds=a.rounds or 1, epochs=a.epochs or 20, trials=a.trials or 4, tune_runs=a.tune_runs or 5,
-                    main_runs=10, memory=(100, 1000))
+                    main_runs=10, memory=(100, 1000), repeat=a.repeat or 1, parts=a.parts)
     return dict(rounds=a.rounds or 3, epochs=a.epochs or 100, trials=a.trials or 50, tune_runs=a.tune_runs or 20,
-                main_runs=100, memory=(1000, 10000))
+                main_runs=100, memory=(1000, 10000), repeat=a.repeat or 2, parts=a.parts)
 
 
 def one_round(trees: dict, p: dict, work: Path, res: dict, i: int) -> None:
@@ -155,13 +159,13 @@ def one_round(trees: dict, p: dict, work: Path, res: dict, i: int) -> None:
     def say(msg):
         print(f"  round {i + 1}: {msg}", flush=True)
 
-    for who, tree in trees.items():
-        r = run_json([PY, str(HERE / "compare_steps.py"), "--epochs", str(p["epochs"]), "--runs", "100"],
-                     tree_env(tree), work)
+    for who, tree in trees.items() if "steps" in p["parts"] else ():
+        r = run_json([PY, str(HERE / "compare_steps.py"), "--epochs", str(p["epochs"]), "--runs", "100",
+                      "--repeat", str(p["repeat"])], tree_env(tree), work)
         res["steps"][who].append(r)
         say(f"{who} per run-step " + ", ".join(f"{k} {v['12']:.3f}" for k, v in r["cost_us"].items()
                                                if v.get("12") is not None))
-    for who, tree in trees.items():
+    for who, tree in trees.items() if "tune" in p["parts"] else ():
         if not has_tune(tree):
             continue
         t = res["tune"].setdefault(who, {"tune": [], "mc": []})
@@ -174,7 +178,7 @@ def one_round(trees: dict, p: dict, work: Path, res: dict, i: int) -> None:
         t["mc"].append(nespm(tree, ["mc", "--tracks", "5", "--filters", "ekf", "--runs", str(p["trials"] * p["tune_runs"]),
                                     "--jobs", "1", "--no-progress", "--out", str(out)], work))
         say(f"{who} tune {t['tune'][-1]['cpu_s']:.1f} s CPU, mc {t['mc'][-1]['cpu_s']:.1f} s CPU")
-    for who, tree in trees.items():
+    for who, tree in trees.items() if "main" in p["parts"] else ():
         out = work / f"main-{who}"
         shutil.rmtree(out, ignore_errors=True)
         m = nespm(tree, ["mc", "--tracks", "5", "6", "--runs", str(p["main_runs"]), "--jobs", "2", "--no-progress",
@@ -204,6 +208,35 @@ def short(text: str, n: int = 70) -> str:
     return text if len(text) <= n else text[:n].rsplit(" ", 1)[0] + " …"
 
 
+PARTS = ("steps", "tune", "main", "memory")
+
+
+def kept(path: str) -> dict:
+    """An earlier ``compare.json`` (Refused in one line when it cannot be read)."""
+    try:
+        old = json.loads(Path(path).read_text(encoding="utf-8"))
+        if not isinstance(old, dict) or "steps" not in old:
+            raise ValueError("not a bench_compare result")
+        return old
+    except (OSError, ValueError) as exc:
+        raise Refused(f"bench_compare: --keep-from {path}: {str(exc).splitlines()[0] if str(exc) else 'unreadable'}") from None
+
+
+def merge(res: dict, old: dict, parts: list[str]) -> None:
+    """Take the parts not measured now from ``old`` (same base required), noting when they were measured."""
+    if old.get("base") != res["base"]:
+        raise Refused(f"bench_compare: --keep-from holds base {old.get('base')}, not {res['base']}")
+    taken = [x for x in PARTS if x not in parts and old.get(x)]
+    for x in taken:
+        res[x] = old[x]
+    if "tune" in taken:
+        res["notes"] += [n for n in old.get("notes", []) if "tune" in n]
+    if taken:
+        res["notes"].append(f"{', '.join(taken)}: from the run of {old.get('date', '?')} against the same base "
+                            f"(now `{old.get('now', '?')}`, load {old.get('load', '?')}, "
+                            f"{old.get('plan', {}).get('rounds', '?')} rounds).")
+
+
 def machine() -> tuple[str, str]:
     cpu = "?"
     try:
@@ -222,7 +255,7 @@ def compare(a) -> dict:
     now = git("rev-parse", "HEAD")
     dirty = bool(git("status", "--porcelain", "--untracked-files=no"))
     cpu, load0 = machine()
-    res = {"base": base[:7], "base_subject": short(git("log", "-1", "--format=%s", base)),
+    res = {"base": base[:7], "repeat": p["repeat"], "base_subject": short(git("log", "-1", "--format=%s", base)),
            "now": now[:7] + (" + uncommitted changes" if dirty else ""), "runs": 100, "plan": p,
            "date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"), "cpu": cpu,
            "epochs_note": f"the first {p['epochs']} GT epochs of embedded track 5 ({(p['epochs'] - 1) * 100} IMU steps)",
@@ -244,12 +277,12 @@ def compare(a) -> dict:
                 print(f"kernels of {who} ready in {time.perf_counter() - t0:.1f} s", flush=True)
             for i in range(p["rounds"]):
                 one_round(trees, p, work, res, i)
-            if not a.skip_memory:
+            if "memory" in p["parts"]:
                 memory(trees, p, work, res, ["base", "now"] if a.memory_base else ["now"])
         finally:
             subprocess.run(["git", "worktree", "remove", "--force", str(base_tree)], cwd=ROOT, capture_output=True)
             subprocess.run(["git", "worktree", "prune"], cwd=ROOT, capture_output=True)
-    if "base" not in res["tune"]:
+    if "tune" in p["parts"] and "base" not in res["tune"]:
         res["notes"].append(f"The base has no `nespm tune`: its tuning overhead is \"{chr(0x2014)}\".")
     v = res["steps"]["now"][-1]["versions"] if res["steps"]["now"] else {}
     res["versions"] = ", ".join(f"{k} {x}" for k, x in v.items())
@@ -269,19 +302,28 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--epochs", type=int, help="GT epochs of track 5 per run-step measurement (default 100; quick 20)")
     ap.add_argument("--trials", type=int, help="tune trials (default 50; quick 4)")
     ap.add_argument("--tune-runs", type=int, help="tune runs per trial (default 20; quick 5)")
-    ap.add_argument("--skip-memory", action="store_true", help="leave out the 1,000 / 10,000-run memory measurement")
+    ap.add_argument("--repeat", type=int, help="timed runs per filter, layout and round, the least counts (default 2; quick 1)")
+    ap.add_argument("--parts", default="steps,tune,main,memory", help="comma list of what to measure")
+    ap.add_argument("--keep-from", help="an earlier compare.json: the parts not measured now are taken from it")
     ap.add_argument("--memory-base", action="store_true", help="also measure the base's memory")
     ap.add_argument("--no-readme", action="store_true", help="print only; leave benchmarks/README.md as it is")
     ap.add_argument("--out", default=str(ROOT / "results" / "bench" / "compare.json"))
     try:
         a = ap.parse_args(argv)
-        for name in ("rounds", "epochs", "trials", "tune_runs"):
+        parts = [x for x in a.parts.split(",") if x]
+        if not parts or set(parts) - set(PARTS):
+            raise Refused(f"bench_compare: --parts takes a comma list of {', '.join(PARTS)}, got {a.parts!r}")
+        a.parts = parts
+        old = kept(a.keep_from) if a.keep_from else None
+        for name in ("rounds", "epochs", "trials", "tune_runs", "repeat"):
             value = getattr(a, name)
             if value is not None and value < (2 if name == "epochs" else 1):
                 raise Refused(f"bench_compare: --{name.replace('_', '-')} must be at least {2 if name == 'epochs' else 1}")
         if a.epochs is not None and a.epochs > 400:
             raise Refused("bench_compare: --epochs must be at most 400 (track 5 has 400 GT epochs)")
         res = compare(a)
+        if old is not None:
+            merge(res, old, parts)
     except Refused as exc:
         print(str(exc).replace("\n", " "), file=sys.stderr)
         return 2

@@ -168,7 +168,8 @@ def report(res: dict) -> str:
     head = [f"Base `{res['base']}` ({res.get('base_subject', '')}) against now `{res['now']}`; measured "
             f"{res.get('date', '?')} on {res.get('cpu', '?')}; {res.get('versions', '')}.",
             f"Per run-step: R = {res.get('runs', 100)} runs batched, {res.get('epochs_note', '')}, one core, CPU time "
-            "of the measuring process, one untimed warm-up run first; the trees measured in turn (base, now, base, now ...), "
+            f"of the measuring process, one untimed warm-up run first, then the least of {res.get('repeat', 1)} timed run(s) "
+            "per round; the trees measured in turn (base, now, base, now ...), "
             "each cell the median over the rounds, each ratio the median of the rounds' paired ratios.",
             spread_note(res["steps"]["base"], res["steps"]["now"])]
     if res.get("load"):
