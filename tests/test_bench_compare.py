@@ -82,3 +82,36 @@ def test_rewrite_section_appends_when_absent_and_refuses_a_broken_one(ct):
         ct.rewrite_section(f"x {ct.END} y {ct.BEGIN}", "t")
     with pytest.raises(ValueError):
         ct.rewrite_section(f"x {ct.BEGIN} y", "t")
+
+
+@pytest.fixture(scope="module")
+def bc():
+    path = PATH.parent / "bench_compare.py"
+    spec = importlib.util.spec_from_file_location("bench_compare", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_merge_takes_the_parts_not_measured_from_the_earlier_run(bc):
+    res = {"base": "b27d778", "steps": {"base": [1], "now": [2]}, "tune": {"trials": 50}, "main": {"base": [], "now": []},
+           "notes": []}
+    old = {"base": "b27d778", "date": "d", "now": "fe909fd", "load": "1 and 5", "plan": {"rounds": 3},
+           "steps": {"base": [0], "now": [0]}, "tune": {"trials": 50, "now": {"tune": [], "mc": []}},
+           "main": {"base": [{"wall_s": 1.0}], "now": []}, "memory": {"runs": [1000, 10000]},
+           "notes": ["The base has no `nespm tune`: its tuning overhead is \"—\"."]}
+    bc.merge(res, old, ["steps"])
+    assert res["steps"] == {"base": [1], "now": [2]}  # measured now: kept
+    assert res["main"] is old["main"] and res["memory"] is old["memory"] and res["tune"] is old["tune"]
+    assert res["notes"][0].startswith("The base has no `nespm tune`")
+    assert res["notes"][-1].startswith("tune, main, memory: from the run of d against the same base")
+    with pytest.raises(bc.Refused):
+        bc.merge(dict(res, base="0000000"), old, ["steps"])
+
+
+def test_bad_options_are_one_line_exit_2(bc, capsys):
+    assert bc.main(["--base", "b27d778", "--parts", "steps,nope"]) == 2
+    assert bc.main(["--base", "b27d778", "--epochs", "1"]) == 2
+    assert bc.main(["--rounds", "2"]) == 2  # --base missing
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 3 and all(line.startswith("bench_compare: ") for line in err)
