@@ -317,8 +317,8 @@ def main(argv: list[str] | None = None) -> int:
         old = kept(a.keep_from) if a.keep_from else None
         for name in ("rounds", "epochs", "trials", "tune_runs", "repeat"):
             value = getattr(a, name)
-            if value is not None and value < (2 if name == "epochs" else 1):
-                raise Refused(f"bench_compare: --{name.replace('_', '-')} must be at least {2 if name == 'epochs' else 1}")
+            if value is not None and value < (4 if name == "epochs" else 1):
+                raise Refused(f"bench_compare: --{name.replace('_', '-')} must be at least {4 if name == 'epochs' else 1}")
         if a.epochs is not None and a.epochs > 400:
             raise Refused("bench_compare: --epochs must be at most 400 (track 5 has 400 GT epochs)")
         res = compare(a)

@@ -81,6 +81,9 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--runs", type=int, default=100)
     ap.add_argument("--repeat", type=int, default=1, help="timed runs per filter and layout (the least counts)")
     a = ap.parse_args(argv)
+    if (a.epochs is not None and not 4 <= a.epochs <= 400) or a.runs < 1:
+        print("compare_steps: --epochs must be 4-400 (track 5's GT epochs) and --runs at least 1", file=sys.stderr)
+        sys.exit(2)
     res = measure(a.filters.split(",") if a.filters else None, a.epochs, a.runs, max(1, a.repeat))
     print(json.dumps(res))
 

@@ -111,7 +111,7 @@ def test_merge_takes_the_parts_not_measured_from_the_earlier_run(bc):
 
 def test_bad_options_are_one_line_exit_2(bc, capsys):
     assert bc.main(["--base", "b27d778", "--parts", "steps,nope"]) == 2
-    assert bc.main(["--base", "b27d778", "--epochs", "1"]) == 2
+    assert bc.main(["--base", "b27d778", "--epochs", "3"]) == 2
     assert bc.main(["--rounds", "2"]) == 2  # --base missing
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 3 and all(line.startswith("bench_compare: ") for line in err)
