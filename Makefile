@@ -8,7 +8,7 @@ RUNS   ?= 100
 JOBS   ?= 2
 DATA_OPT := $(if $(DATA),--data-dir $(DATA),)
 
-.PHONY: setup run tune-main test smoke aided sensors table1 table2 anukf-table1 anukf-table2 nespm-table1 weights sweep-misalignment sweep-heading gp-ukf bench clean check-data recorded-table1 recorded-table2 recorded-anukf-table1 recorded-anukf-table2 recorded-nespm-table1 recorded-weights akit akit-data
+.PHONY: setup run tune-main test smoke aided sensors table1 table2 anukf-table1 anukf-table2 nespm-table1 weights sweep-misalignment sweep-heading gp-ukf bench bench-compare clean check-data recorded-table1 recorded-table2 recorded-anukf-table1 recorded-anukf-table2 recorded-nespm-table1 recorded-weights akit akit-data
 
 setup: $(VENV)/.installed
 
@@ -112,6 +112,12 @@ bench: setup
 	$(BIN)/python benchmarks/bench_foundation.py
 	$(BIN)/python benchmarks/bench_mc.py $(DATA_OPT)
 	$(BIN)/python benchmarks/bench_onnx_noise_model.py
+
+# This tree against an earlier commit (issue 33): make bench-compare BASE=b27d778 [QUICK=1]
+bench-compare:
+	@test -n "$(BASE)" || { echo "bench-compare: give BASE=<commit>"; exit 2; }
+	$(MAKE) setup
+	PYTHONPATH=. $(BIN)/python benchmarks/bench_compare.py --base $(BASE) $(if $(QUICK),--quick,)
 
 clean:
 	rm -rf $(VENV) *.egg-info

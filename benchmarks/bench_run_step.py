@@ -63,14 +63,19 @@ def run_once(name: str, args, noise_std) -> float:
     return time.perf_counter() - t0
 
 
-def noise_for(name: str, args):
+def noise_for(name: str, f_meas, w_meas, epoch_index):
+    """The packaged noise model's std per run and DVL interval for an adaptive filter, else None
+    (``f_meas``, ``w_meas`` (R, M, 3) [m/s², rad/s]; ``epoch_index`` (N,))."""
     from nespm_cli.experiments.spec import needs_noise_std
-    from nespm_cli.learn.noise_model import predict_interval_std
+
+    try:  # the noise models' registry (issue 32), else the older single ProcessNet module
+        from nespm_cli.learn.noise_models import predict_interval_std
+    except ImportError:
+        from nespm_cli.learn.noise_model import predict_interval_std
 
     if not needs_noise_std(name):
         return None
-    _, f, w, _, e, *_ = args
-    return predict_interval_std(f, w, e)
+    return predict_interval_std(f_meas, w_meas, epoch_index)
 
 
 def main() -> None:
@@ -89,7 +94,7 @@ def main() -> None:
         row = {}
         for R in SIZES:
             args = inputs(a.epochs, R)
-            ns = noise_for(name, args)
+            ns = noise_for(name, args[1], args[2], args[4])
             run_once(name, args, ns)  # warm-up
             t = float(np.median([run_once(name, args, ns) for _ in range(a.repeat)]))
             row[R] = 1e6 * t / (R * steps)
@@ -97,7 +102,7 @@ def main() -> None:
         print(f"{name:<12}" + "".join(f"{row[R]:>10.2f}" for R in SIZES), flush=True)
     if a.profile:
         args = inputs(a.epochs, 100)
-        ns = noise_for(a.profile, args)
+        ns = noise_for(a.profile, args[1], args[2], args[4])
         prof = cProfile.Profile()
         prof.enable()
         run_once(a.profile, args, ns)

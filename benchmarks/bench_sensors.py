@@ -34,16 +34,23 @@ ROOT = Path(__file__).resolve().parents[1]
 CONFIGS = {"12 dvl": ("12", ("dvl",)), "15 dvl": ("15", ("dvl",)), "15 dvl+depth+fix": ("15", ("dvl", "depth", "fix"))}
 
 
-def inputs(state: str, sensors: tuple, R: int):
-    """``(name -> run_filter keyword arguments)`` for R realizations of track 5 (mc's own path)."""
+def inputs(state: str, sensors: tuple, R: int, epochs: int | None = None):
+    """``(run_filter keyword arguments, IMU steps)`` for R realizations of track 5 (mc's own path);
+    ``epochs``: only the first that many GT epochs (1 s each; None: the whole 400 s track)."""
+    import dataclasses
+
     from nespm_cli.data.corruption import draw, imu_errors
     from nespm_cli.experiments.spec import Spec, filter_config, track_inputs, validate
     from nespm_cli.experiments.suite import sensor_suite
     from nespm_cli.filters import FilterConfig, initial_nav
+    from nespm_cli.nav.synthesis import synthesize
     from nespm_cli.sensors.channels import build_channel
 
     spec = validate(Spec(tracks=(5,), runs=R, sensors=sensors, filters=("ekf",), filter_config=FilterConfig(state=state)))
     track, truth = track_inputs(spec, 5)
+    if epochs is not None and epochs < len(track.t):  # the embedded track: no IMU file, no sensor files
+        track = dataclasses.replace(track, **{k: getattr(track, k)[:epochs] for k in ("t", "pos", "v_n", "euler", "dvl")})
+        truth = synthesize(track)
     e = truth.epoch_index
     runs = np.arange(R)
     real = draw(spec.seed, 5, runs, float(truth.t[e[-1]] - truth.t[e[0]]), spec.corruption)
