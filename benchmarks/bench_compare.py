@@ -6,7 +6,8 @@
 2. Per run-step cost [µs] of every built-in filter (``compare_steps.py``: R = 100 runs batched,
    one core, CPU time of the process) in the 12-state layout with the DVL and the 15-state
    layout with DVL + depth + fixes; a filter the base lacks shows "—".
-3. The tuning overhead: ``nespm tune`` of the EKF on track 5, T trials x r runs, against one
+3. The tuning overhead: ``nespm tune`` of the EKF on track 5, T trials x r runs (the trials alone:
+   ``--no-profile``, the level fitted on the trials' own runs), against one
    ``nespm mc`` of T·r runs of the EKF (jobs 1, CPU time of the whole command and its children).
 4. The main job, ``nespm mc --tracks 5 6 --runs 100 --jobs 2`` (the default filters, the embedded
    tracks: ``NESPM_DATA_DIR`` removed from the environment): wall time, CPU time, the largest
