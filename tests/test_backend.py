@@ -123,39 +123,67 @@ def test_client_is_closed_after_the_run(mc_dask, cluster):
 
 
 def test_worker_killed_mid_chunk(root, argv, cluster, mc_dask):
-    """SIGKILL a worker while it computes a chunk: the scheduler re-runs that chunk elsewhere,
-    the command succeeds, and the tables equal the uninterrupted run's."""
+    """SIGKILL a worker while it holds a chunk: the scheduler re-runs that chunk elsewhere,
+    the command succeeds, and the tables equal the uninterrupted run's.
+
+    The kill does not race the run: a worker plugin holds the first worker that starts a
+    second-wave chunk (index >= 2, so a first-wave chunk is written by then) in that task's
+    transition to "executing" and names its pid and key in a file; the test kills that pid.
+    Every other start (the other worker, the restarted one) passes, so the verdict is the
+    same on a fast or a loaded machine."""
+    from distributed.diagnostics.plugin import WorkerPlugin
+
     lc, client = cluster
     out = root / "K"
+    hold = root / "K-hold"
+    hold.mkdir()
+    bound = WAIT_BOUND
+
+    class HoldOneChunk(WorkerPlugin):
+        """Hold the first second-wave chunk task's worker until it is killed (or ``bound`` s)."""
+
+        def setup(self, worker):
+            self.pid = os.getpid()
+
+        def transition(self, key, start, finish, **kwargs):
+            import time
+            name = str(key)
+            if finish != "executing" or not name.startswith(CHUNK_TASK) or int(name.split("-")[-2]) < 2:
+                return
+            try:
+                os.close(os.open(hold / "claim", os.O_CREAT | os.O_EXCL | os.O_WRONLY))
+            except FileExistsError:
+                return  # a chunk was held already: this one runs
+            (hold / "tmp").write_text(f"{self.pid} {name}\n")
+            os.replace(hold / "tmp", hold / "held")
+            give_up = time.monotonic() + bound
+            while time.monotonic() < give_up:
+                time.sleep(0.05)
+
+    client.register_plugin(HoldOneChunk(), name="nespm-test-hold-one-chunk")
     env = {**os.environ, "NESPM_DASK_SCHEDULER": lc.scheduler_address}  # the variable instead of --scheduler
     env.pop("NESPM_DATA_DIR", None)
     proc = subprocess.Popen(console_script() + argv + ["--backend", "dask", "--out", str(out)],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env, text=True)
-    killed, killed_key = None, None
+    killed_key, written_at_kill = None, None
 
-    def kill_a_busy_worker() -> bool:
-        """Once the first chunk is done, SIGKILL a worker computing a chunk not yet written."""
-        nonlocal killed, killed_key
-        if not list((out / "chunks").glob("metrics-*.parquet")):  # the first chunk is done
+    def kill_the_held_worker() -> bool:
+        nonlocal killed_key, written_at_kill
+        if not (hold / "held").exists():
             return False
-        busy = client.run(lambda dask_worker: [str(ts.key) for ts in dask_worker.state.executing])
-        pids = client.run(os.getpid)
-        for addr, keys in busy.items():
-            firsts = [2 * int(k.split("-")[-2]) for k in keys if k.startswith(CHUNK_TASK)]
-            if firsts and not (out / "chunks" / f"metrics-5-ukf-nespm-{firsts[0]:06d}.parquet").exists():
-                os.kill(pids[addr], signal.SIGKILL)
-                killed = firsts[0]
-                killed_key = [k for k in keys if k.startswith(CHUNK_TASK)][0]
-                return True
-        return False
+        pid, killed_key = (hold / "held").read_text().split()
+        written_at_kill = len(list((out / "chunks").glob("metrics-*.parquet")))
+        os.kill(int(pid), signal.SIGKILL)
+        return True
 
     try:
-        wait_until(kill_a_busy_worker, "a worker was killed mid-chunk", proc=proc)
+        wait_until(kill_the_held_worker, "a worker holding a chunk was killed", proc=proc)
         stdout, stderr = proc.communicate(timeout=WAIT_BOUND)
     finally:
         if proc.poll() is None:
             proc.kill()
             proc.communicate()
+        client.unregister_worker_plugin("nespm-test-hold-one-chunk")
     assert proc.returncode == 0, stderr
     assert "Traceback" not in stdout + stderr
     assert sorted(p.name for p in (out / "chunks").glob("metrics-*.parquet")) == sorted(CHUNKS)
@@ -164,8 +192,9 @@ def test_worker_killed_mid_chunk(root, argv, cluster, mc_dask):
     pd.testing.assert_frame_equal(m, metrics(mc_dask), check_exact=True)
     pd.testing.assert_frame_equal(pd.read_parquet(out / "epochs.parquet"), pd.read_parquet(mc_dask / "epochs.parquet"),
                                   check_exact=True)
+    assert 1 <= written_at_kill < len(CHUNKS), written_at_kill  # killed mid-run, a chunk written before
     starts = [t for t in lc.scheduler.story(killed_key) if t[0] == killed_key and t[2] == "processing"]
-    assert len(starts) >= 2, f"chunk {killed} was not re-run after its worker died"
+    assert len(starts) >= 2, f"{killed_key} was not re-run after its worker died"
     client.wait_for_workers(2, timeout=WAIT_BOUND)  # the nanny restarts the killed worker for the next tests
 
 
