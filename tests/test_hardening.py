@@ -15,7 +15,7 @@ import pandas as pd
 import pytest
 
 from conftest import (REPO, WAIT_BOUND, assert_one_error_line, chunk_mtimes, console_script, env_without_data_dir, nespm,
-                      wait_until)
+                      slow_env, wait_until)
 from nespm_cli.cli import one_line
 from nespm_cli.experiments.metrics import DivergenceRule, EpochErrors, divergence
 from nespm_cli.experiments.store import FolderLock
@@ -229,25 +229,33 @@ def alive(pid: int) -> bool:
 @pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc to find the worker processes")
 def test_kill_9_leaves_no_workers_and_resume_is_complete(tmp_path, short_data_dir):
     """kill -9 of mc: its workers end (none outlives it), a second mc meanwhile finds the
-    folder busy, and the resumed run's manifest times every chunk."""
+    folder busy, and the resumed run's manifest times every chunk.
+
+    No race with the run's end: the killed mc runs the NumPy loop (chunks of seconds) and its
+    workers are stopped (SIGSTOP) the moment both are seen, so it cannot finish while the
+    second mc looks; they are continued (SIGCONT) after the kill, to notice their parent's death."""
     out_dir = tmp_path / "r"
     cmd = [sys.executable, "-m", "nespm_cli.cli", "mc", "--data-dir", str(short_data_dir), "--tracks", "5", "6",
            "--runs", "8", "--chunk-size", "2", "--filters", "ekf,ukf-nespm", "--jobs", "2", "--no-progress",
            "--out", str(out_dir)]
-    proc = subprocess.Popen(cmd, cwd=REPO, env=env_without_data_dir(), stdout=subprocess.DEVNULL,
-                            stderr=subprocess.PIPE)
+    proc = subprocess.Popen(cmd, cwd=REPO, env=slow_env(), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     workers: list[int] = []
 
     def started() -> bool:
         workers[:] = [c for c in children(proc.pid) if "loky" in Path(f"/proc/{c}/cmdline").read_text(errors="replace")]
         return len(workers) >= 2 and (out_dir / "chunks" / ".progress").exists()
 
-    wait_until(started, "two loky workers and the first progress file", proc=proc, step=0.2)
+    wait_until(started, "two loky workers and the first progress file", proc=proc, step=0.02)
+    for w in workers:
+        os.kill(w, signal.SIGSTOP)
     rc, out, err = nespm("mc", "--data-dir", str(short_data_dir), "--tracks", "5", "6", "--runs", "8",
                          "--chunk-size", "2", "--filters", "ekf,ukf-nespm", "--out", str(out_dir))
     assert_one_error_line(rc, out, err, "busy", str(proc.pid))
     proc.send_signal(signal.SIGKILL)
     proc.wait()
+    for w in workers:
+        if alive(w):
+            os.kill(w, signal.SIGCONT)
     # the workers notice their parent's death and end (a hang-guard bound, not a speed verdict)
     wait_until(lambda: not any(alive(w) for w in workers), "the workers to end after their parent", step=0.1)
     # resumed in-process (--jobs is not part of the experiment: the same chunks, no worker start-up)
