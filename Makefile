@@ -158,26 +158,26 @@ recorded-anukf-table1 recorded-anukf-table2 recorded-nespm-table1: setup results
 	$(NESPM) report results/$@ --beside results/$@-synthetic-imu
 
 # The A-KIT question on the recorded data (issue 32; docs/learned.md, "The A-KIT protocol"): the check's
-# corrections; ProcessNet trained (and exported to ONNX) and the EKF tuned on A-KIT's training tracks 1-4,
-# 7-13; on its test tracks 5 and 6 every filter in three mc folders on the same realizations (default EKF,
-# iae/sh/vb-ekf and anekf; the tuned EKF; anekf with the ONNX model); the report and the comparison; then
+# corrections; ProcessNet trained (and exported to ONNX) and every filter tuned with the same budget on A-KIT's
+# training tracks 1-4, 7-13; on its test tracks 5 and 6 every filter in three mc folders on the same
+# realizations (default EKF, iae/sh/vb-ekf and anekf; the same five tuned; anekf with the ONNX model); the report and the comparison; then
 # the README table (between its akit-table markers) from those folders. DATA=folder (default IMU_DATA);
 # AKIT_RUNS (runs per test track), AKIT_TRIALS and AKIT_TUNE_RUNS (tuning budget) set the cost.
 # NESPM and NESPM_PYTHON may be overridden (e.g. an installed nespm); setup runs only for the .venv's.
 AKIT_DATA := $(if $(DATA),$(DATA),$(IMU_DATA))
 AKIT_OUT ?= results/akit
 AKIT_RUNS ?= 100
-AKIT_TRIALS ?= 60
-AKIT_TUNE_RUNS ?= 5
+AKIT_TRIALS ?= 50
+AKIT_TUNE_RUNS ?= 4
 NESPM_PYTHON ?= $(BIN)/python
 AKIT_OPTS = --config experiments/akit/common.toml --data-dir $(AKIT_DATA) --corrections $(AKIT_OUT)/check/corrections.json
 AKIT_MC = $(NESPM) mc $(AKIT_OPTS) --config experiments/akit/mc.toml --runs $(AKIT_RUNS) --jobs $(JOBS)
 AKIT_SETUP := $(if $(filter $(BIN)/nespm,$(NESPM)),setup,)
 akit: $(AKIT_SETUP) akit-data $(AKIT_OUT)/check/corrections.json $(AKIT_OUT)/processnet.npz
-	$(NESPM) tune $(AKIT_OPTS) --config experiments/akit/tune.toml --runs $(AKIT_TUNE_RUNS) --trials $(AKIT_TRIALS) --out $(AKIT_OUT)/tune
+	$(NESPM) tune $(AKIT_OPTS) --config experiments/akit/tune.toml --weights $(AKIT_OUT)/processnet.npz --runs $(AKIT_TUNE_RUNS) --trials $(AKIT_TRIALS) --jobs $(JOBS) --out $(AKIT_OUT)/tune
 	$(NESPM) report $(AKIT_OUT)/tune
 	$(AKIT_MC) --weights $(AKIT_OUT)/processnet.npz --out $(AKIT_OUT)/mc
-	$(AKIT_MC) --config $(AKIT_OUT)/tune/tuned.toml --filters ekf --out $(AKIT_OUT)/mc-tuned
+	$(AKIT_MC) --config $(AKIT_OUT)/tune/tuned.toml --weights $(AKIT_OUT)/processnet.npz --out $(AKIT_OUT)/mc-tuned
 	$(AKIT_MC) --filters anekf --noise-model $(AKIT_OUT)/processnet.onnx --out $(AKIT_OUT)/mc-onnx
 	$(NESPM) report $(AKIT_OUT)/mc
 	$(NESPM) compare $(AKIT_OUT)/mc $(AKIT_OUT)/mc-tuned $(AKIT_OUT)/mc-onnx --labels default,tuned,onnx --out $(AKIT_OUT)/compare

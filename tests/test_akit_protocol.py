@@ -2,7 +2,8 @@
 
 Three small ``mc`` folders on the same realizations (embedded tracks 5 and 6 cut to 80 epochs,
 4 runs) stand in for the target's: ``mc`` (the EKF, the model-based adaptive EKFs and anekf with
-the packaged ProcessNet), ``mc-tuned`` (the EKF with another R) and ``mc-onnx`` (anekf with
+the packaged ProcessNet), ``mc-tuned`` (the same five, each with another R and the adaptive ones
+with another window or forgetting factor, as a tuning would give) and ``mc-onnx`` (anekf with
 another R, so that its row differs; the writer does not care which noise model ran). Every number
 of the table is recomputed here from the folders' ``metrics.parquet`` with pandas alone.
 """
@@ -23,6 +24,10 @@ from nespm_cli.reports.akit_table import BEGIN, END, ROWS
 
 ROOT = Path(__file__).resolve().parents[1]
 COMMON = ["--tracks", "5", "6", "--runs", "4", "--jobs", "1", "--no-progress"]
+#: stand-ins for tuned values: another R for every filter, another window or forgetting factor
+TUNED = [a for o in ("ekf.r_scale_dvl=3", "iae-ekf.r_scale_dvl=2", "iae-ekf.window=10", "sh-ekf.r_scale_dvl=2",
+                     "sh-ekf.forgetting=0.9", "vb-ekf.r_scale_dvl=2", "vb-ekf.rho=0.9", "anekf.r_scale_dvl=2")
+         for a in ("--filter-option", o)]
 
 
 @pytest.fixture(scope="module")
@@ -30,7 +35,7 @@ def folders(tmp_path_factory, short_data_dir):
     root = tmp_path_factory.mktemp("akit")
     data = ["--data-dir", str(short_data_dir)]
     for sub, extra in (("mc", ["--filters", "ekf,iae-ekf,sh-ekf,vb-ekf,anekf"]),
-                       ("mc-tuned", ["--filters", "ekf", "--filter-option", "ekf.r_scale_dvl=3"]),
+                       ("mc-tuned", ["--filters", "ekf,iae-ekf,sh-ekf,vb-ekf,anekf", *TUNED]),
                        ("mc-onnx", ["--filters", "anekf", "--filter-option", "anekf.r_scale_dvl=0.5"])):
         rc, _, err = nespm("mc", *COMMON, *data, *extra, "--out", root / sub)
         assert rc == 0, err
@@ -63,7 +68,7 @@ def test_table_numbers_equal_those_recomputed_from_the_parquet_files(folders):
     m = _rows(folders)
     assert not m["diverged"].any()
     exp = {name: _expected(m, name) for _, name in ROWS}
-    assert len({round(e["hpe"], 12) for e in exp.values()}) == len(ROWS)  # seven different rows
+    assert len({round(e["hpe"], 12) for e in exp.values()}) == len(ROWS)  # eleven different rows
     ref_default, ref_tuned = exp["default/ekf"]["hpe"], exp["tuned/ekf"]["hpe"]
     for label, name in ROWS:
         got, e = numbers["rows"][label], exp[name]
@@ -92,6 +97,13 @@ def test_table_numbers_equal_those_recomputed_from_the_parquet_files(folders):
     assert s["over_model"].point == pytest.approx(100 * (exp[best]["hpe"] - learned) / exp[best]["hpe"], rel=1e-9)
     share = s["over_tuned"].point / s["over_ekf"].point * 100 if s["over_ekf"].point > 0 else math.nan
     assert s["share_pct"] == pytest.approx(share, nan_ok=True)
+    fair = exp["tuned/anekf"]["hpe"]
+    assert s["tuned_over_tuned"].point == pytest.approx(100 * (ref_tuned - fair) / ref_tuned, rel=1e-9)
+    best_tuned = min(("tuned/iae-ekf", "tuned/sh-ekf", "tuned/vb-ekf"), key=lambda n: exp[n]["hpe"])
+    assert s["best_tuned_model"] == best_tuned
+    b = exp[best_tuned]["hpe"]
+    assert s["tuned_over_tuned_model"].point == pytest.approx(100 * (b - fair) / b, rel=1e-9)
+    assert "**Every filter tuned with the same budget**" in text
     assert "**Published gains in kind?**" in text and "no significant gain" in text  # † rows are never significant
 
 
@@ -136,12 +148,13 @@ def test_setup_line_reads_the_training_and_tuning_records(tmp_path):
     shutil.copy(pkg, tmp_path / "processnet.npz")
     (tmp_path / "tune").mkdir()
     (tmp_path / "tune" / "tune.json").write_text(json.dumps(
-        {"trials": 7, "objective": "rmse", "tuned_on": {"tracks": [1, 2], "runs": [0, 5], "seed": 1}}), encoding="utf-8")
+        {"trials": 7, "objective": "rmse", "tuned_on": {"tracks": [1, 2], "runs": [0, 5], "seed": 1},
+         "space": {"ekf": [], "anekf": []}}), encoding="utf-8")
     meta = load_nets(pkg)[1]
     line = akit_table.setup_line(tmp_path)
     assert f"accelerometer {meta['test']['acc']['spearman']:.3f}, gyro {meta['test']['gyro']['spearman']:.3f}" in line
     assert "ProcessNet trained on tracks 1, 2, 3, 4 (synthetic IMU, 24 realizations" in line
-    assert "tuned by `nespm tune` on tracks 1, 2 (7 trials, 5 runs per track, objective rmse)" in line
+    assert "ekf, anekf each tuned by `nespm tune` on tracks 1, 2 (7 trials each, 5 runs per track, objective rmse)" in line
     (tmp_path / "tune" / "tune.json").write_text("{}", encoding="utf-8")
     with pytest.raises(NespmError, match="not the record of nespm train / nespm tune"):
         akit_table.setup_line(tmp_path)

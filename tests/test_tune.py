@@ -209,3 +209,36 @@ def test_kill_9_during_tune_then_rerun(tmp_path):
     cols = [c for c in pw.columns if c.startswith("p_")] + ["score"]
     pk = pk[pk["score"].notna()].reset_index(drop=True)
     pd.testing.assert_frame_equal(pk[cols], pw[cols].reset_index(drop=True))
+
+
+def test_adaptive_filters_search_their_window_or_forgetting(tmp_path, capsys):
+    """iae-ekf's window (log), sh-ekf's forgetting and vb-ekf's rho (linear) are in their default
+    space beside the noise factors; a range end a track cannot take (a 120 s window on a 59 s
+    track) is refused in one line before any trial, and a narrowed range runs and writes the option."""
+    from nespm_cli.experiments.tune_space import default_space
+    from nespm_cli.filters.registry import get_filter
+    from nespm_cli.nav.state import LAYOUT_12
+
+    got = {f: {p.key: p for p in default_space(f, get_filter(f), LAYOUT_12, ("dvl",), 1e-3)}
+           for f in ("iae-ekf", "sh-ekf", "vb-ekf")}
+    w, b, r = got["iae-ekf"]["window"], got["sh-ekf"]["forgetting"], got["vb-ekf"]["rho"]
+    assert (w.low, w.high, w.log, w.default, w.kind) == (5.0, 120.0, True, 30.0, "plugin")
+    assert (b.low, b.high, b.log, b.default) == (0.9, 0.999, False, 0.97)
+    assert (r.low, r.high, r.log, r.default) == (0.9, 0.999, False, 0.97)
+    assert all("r_scale_dvl" in g and "acc_noise_scale" in g for g in got.values())
+
+    cli = ["tune", "--tracks", "5", "--runs", "2", "--filters", "iae-ekf,sh-ekf", "--dvl", "synthetic",
+           "--window", "0:60", "--no-progress", "--no-profile", "--level-runs", "2", "--trials", "3"]
+    rc = main(cli + ["--out", str(tmp_path / "a")])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and len(err.splitlines()) == 1, err
+    assert "iae-ekf.window = 5..120: at 120" in err and "--tune-range iae-ekf.window=LOW:HIGH" in err
+    assert not (tmp_path / "a").exists()
+    rc = main(cli + ["--tune-range", "iae-ekf.window=5:40", "--out", str(tmp_path / "b")])
+    assert rc == 0, capsys.readouterr().err
+    trials = pd.read_parquet(tmp_path / "b" / "trials.parquet")
+    iae, sh = trials[trials["filter"] == "iae-ekf"], trials[trials["filter"] == "sh-ekf"]
+    assert iae["p_window"].between(5, 40).all() and iae["p_window"].nunique() == 3
+    assert sh["p_forgetting"].between(0.9, 0.999).all() and sh["p_forgetting"].nunique() == 3
+    toml = (tmp_path / "b" / "tuned.toml").read_text()
+    assert "window = " in toml and "forgetting = " in toml

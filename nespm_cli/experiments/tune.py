@@ -39,7 +39,7 @@ import numpy as np
 import pandas as pd
 
 from nespm_cli.errors import NespmError
-from nespm_cli.experiments.spec import Spec, validate
+from nespm_cli.experiments.spec import Spec, check_filter_domains, track_inputs, validate
 from nespm_cli.experiments.tune_progress import watch_studies
 from nespm_cli.experiments.tune_objective import (LEVELS, OBJECTIVES, REUSE_RUNS, fit_level, leveled, score,
                                                   summary, trial_statistics)
@@ -126,7 +126,26 @@ def check(t: TuneSpec) -> tuple[TuneSpec, Spec, dict[str, list[Param]]]:
     for f, ps in space.items():
         if not ps:
             raise NespmError(f"--filters {f}: has no noise parameters to tune (no covariance); drop it")
-    return t, train, apply_ranges(space, t.ranges)
+    space = apply_ranges(space, t.ranges)
+    check_option_ranges(train, space)
+    return t, train, space
+
+
+def check_option_ranges(train: Spec, space: dict[str, list[Param]]) -> None:
+    """A filter's own searched option (``kind`` plugin: e.g. iae-ekf's window) at both ends of its
+    range passes the filter's domain check on the training tracks before any trial runs; else one
+    line naming the range (a trial must never fail on its options half-way through a study)."""
+    ends = [(p, v) for ps in space.values() for p in ps if p.kind == "plugin" for v in (p.low, p.high)]
+    if not ends:
+        return
+    span = min(track_inputs(train, n)[0].duration for n in train.tracks)
+    for p, v in ends:
+        try:
+            check_filter_domains(dataclasses.replace(train, filter_options=train.filter_options + ((p.filter, p.key, v),)),
+                                 span)
+        except NespmError as exc:
+            raise NespmError(f"tune space {p.name} = {p.low:g}..{p.high:g}: at {v:g}: {exc}; narrow it with "
+                             f"--tune-range {p.name}=LOW:HIGH") from None
 
 
 def level_bases(train: Spec, name: str) -> dict[str, float]:

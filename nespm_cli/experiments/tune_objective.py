@@ -41,6 +41,7 @@ runs are ranked worst, and fewer lost is better).
 from __future__ import annotations
 
 import dataclasses
+import warnings
 
 import numpy as np
 
@@ -107,7 +108,9 @@ def trial_statistics(spec: Spec, name: str, values: dict, reuse: dict | None = N
             nis.setdefault(k[len("nis_"):], []).append(np.where(ok[:, None], v, np.nan)[:, 1:])
         for sname, rec in out.sensors.items():
             dims[sname] = rec.nu.shape[-1]
-    with np.errstate(all="ignore"):
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        # an epoch no kept run reaches (or no update of a sensor) is NaN, the scores skip it: no warning
+        warnings.simplefilter("ignore", RuntimeWarning)
         anees = {b: np.nanmean(np.concatenate(v, axis=1), axis=0) for b, v in nees.items()
                  if v and np.isfinite(np.concatenate(v, axis=1)).any()}
         mean_anees = {b: float(np.nanmean(np.concatenate(nees[b], axis=1))) for b in anees}

@@ -100,6 +100,8 @@ class IAEEKF(AdaptiveREKF):
     """Innovation-based adaptive estimation of R over a window of ``window`` seconds."""
 
     option_defaults = {"window": 30.0, **BOUNDS}
+    #: searched by ``nespm tune`` beside the noise factors (log scale, seconds)
+    tune_ranges = {"window": (5.0, 120.0)}
 
     def __init__(self, cfg, nav0, imu, noise_std=None):
         super().__init__(cfg, nav0, imu, noise_std)
@@ -143,6 +145,8 @@ class SageHusaEKF(AdaptiveREKF):
     residual) or ``innovation`` (``R_k`` from the innovation, used in the same update)."""
 
     option_defaults = {"forgetting": 0.97, "form": "residual", **BOUNDS}
+    #: searched by ``nespm tune`` (linear): a memory of about 10 to 1,000 measurements
+    tune_ranges = {"forgetting": (0.9, 0.999, "linear")}
 
     def __init__(self, cfg, nav0, imu, noise_std=None):
         super().__init__(cfg, nav0, imu, noise_std)
@@ -175,6 +179,8 @@ class VBEKF(AdaptiveREKF):
     """Variational-Bayes adaptive diagonal R (Särkkä & Nummenmaa 2009), forgetting ``rho``."""
 
     option_defaults = {"rho": 0.97, "iterations": 3}
+    #: searched by ``nespm tune`` (linear): a memory of about 10 to 1,000 measurements
+    tune_ranges = {"rho": (0.9, 0.999, "linear")}
 
     def __init__(self, cfg, nav0, imu, noise_std=None):
         super().__init__(cfg, nav0, imu, noise_std)
