@@ -168,11 +168,12 @@ def table(results: str | Path, n_boot: int = N_BOOT) -> tuple[str, dict]:
                       fmt(v["vrmse"], ".4f"), fmt(v["nees"], ".2f"),
                       v["over_default"].text() if v["over_default"] else DASH,
                       v["over_tuned"].text() if v["over_tuned"] else DASH, f"{v['counted']} / {v['lost']}"])
-    best_model = min(MODEL_BASED, key=lambda n: row_values(m, n)["hpe"])
+    hpe = {name: rows[label]["hpe"] for label, name in ROWS}
+    best_model = min(MODEL_BASED, key=hpe.get)
     g_ekf, g_model, g_tuned = rows["ANEKF (ProcessNet)"]["over_default"], gain(m, best_model, LEARNED, n_boot=n_boot), \
         rows["ANEKF (ProcessNet)"]["over_tuned"]
     share = g_tuned.point / g_ekf.point * 100.0 if g_ekf.point > 0 else math.nan
-    best_tuned_model = min(TUNED_MODEL_BASED, key=lambda n: row_values(m, n)["hpe"])
+    best_tuned_model = min(TUNED_MODEL_BASED, key=hpe.get)
     g_fair, g_fair_model = rows["ANEKF (ProcessNet), tuned"]["over_tuned"], gain(m, best_tuned_model, TUNED_LEARNED,
                                                                                    n_boot=n_boot)
     summary = {"over_ekf": g_ekf, "over_model": g_model, "best_model": best_model, "over_tuned": g_tuned,
