@@ -158,10 +158,11 @@ recorded-anukf-table1 recorded-anukf-table2 recorded-nespm-table1: setup results
 	$(NESPM) report results/$@ --beside results/$@-synthetic-imu
 
 # The A-KIT question on the recorded data (issue 32; docs/learned.md, "The A-KIT protocol"): the check's
-# corrections; ProcessNet trained (and exported to ONNX) and every filter tuned with the same budget on A-KIT's
-# training tracks 1-4, 7-13; on its test tracks 5 and 6 every filter in three mc folders on the same
-# realizations (default EKF, iae/sh/vb-ekf and anekf; the same five tuned; anekf with the ONNX model); the report and the comparison; then
-# the README table (between its akit-table markers) from those folders. DATA=folder (default IMU_DATA);
+# corrections; ProcessNet trained (and exported to ONNX) and every filter tuned with the same budget on
+# A-KIT's training tracks 1-4, 7-13; on its test tracks 5 and 6 every filter in three mc folders on the
+# same realizations (default EKF, iae/sh/vb-ekf and anekf; the same five tuned; anekf with the ONNX
+# model); the report and the comparison; then the README table (between its akit-table markers) from
+# those folders. DATA=folder (default IMU_DATA);
 # AKIT_RUNS (runs per test track), AKIT_TRIALS and AKIT_TUNE_RUNS (tuning budget) set the cost.
 # NESPM and NESPM_PYTHON may be overridden (e.g. an installed nespm); setup runs only for the .venv's.
 AKIT_DATA := $(if $(DATA),$(DATA),$(IMU_DATA))

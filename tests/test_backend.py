@@ -183,6 +183,8 @@ def test_worker_killed_mid_chunk(root, argv, cluster, mc_dask):
         if proc.poll() is None:
             proc.kill()
             proc.communicate()
+        if killed_key is None and (hold / "held").exists():  # failed before the kill: free the held worker
+            os.kill(int((hold / "held").read_text().split()[0]), signal.SIGKILL)
         client.unregister_worker_plugin("nespm-test-hold-one-chunk")
     assert proc.returncode == 0, stderr
     assert "Traceback" not in stdout + stderr
