@@ -110,6 +110,8 @@ class Spec:
         d.pop("given")  # how the options were given is no part of the experiment
         if not self.filter_config.r_scale:
             d["filter_config"].pop("r_scale")
+        if not self.filter_config.levers:
+            d["filter_config"].pop("levers")
         return json.loads(json.dumps(d, default=list))
 
 

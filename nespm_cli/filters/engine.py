@@ -50,7 +50,7 @@ from nespm_cli.filters.protocol import ImuData
 from nespm_cli.filters.registry import filter_names, filter_source, get_filter, is_builtin
 from nespm_cli.filters.smoother import SmootherRecord, dead_reckoned_position
 from nespm_cli.filters.timeline import Timeline, dvl_channel
-from nespm_cli.sensors.guard import checked_measurement
+from nespm_cli.sensors.guard import checked_measurement, with_lever
 from nespm_cli.sensors.source import Channel, Context
 
 #: the built-in filters' names (plugins: :func:`nespm_cli.filters.registry.filter_names`)
@@ -202,6 +202,12 @@ def run_filter(
                  for ch in channels},
     )
 
+    models = [ch.sensor for ch in channels]  # the sensors as this filter's model sees them
+    for c, ch in enumerate(channels):
+        lever = cfg.model_lever(ch.sensor.name, ch.sensor.opt.lever_arm)  # --filter-option NAME.lever_arm_X_S
+        if lever is not None:
+            models[c] = with_lever(ch.sensor, lever)
+
     def record(k):
         nav = call(filt.state, "state")
         call(lambda: store(out, k, nav), "state")
@@ -225,7 +231,7 @@ def run_filter(
             z = np.where(ok[:, None], z, z[np.argmax(ok)])
         nav = call(filt.state, "state")
         ctx = Context(f_meas[:, j_last] - nav.b_a, w_meas[:, j_last] - nav.b_g, ch.track)
-        meas = checked_measurement(ch.sensor, z, nav, ctx, layout)  # a plugin's: every call checked
+        meas = checked_measurement(models[c], z, nav, ctx, layout)  # a plugin's: every call checked
         if cfg.r_scale and cfg.r_factor(ch.sensor.name) != 1.0:  # this filter's R (--filter-option NAME.r_scale_S)
             meas.R = np.asarray(meas.R) * cfg.r_factor(ch.sensor.name) ** 2
         if ok.all():

@@ -81,10 +81,23 @@ class FilterConfig:
     p0_pos: tuple = (POS_STD_FLOOR, POS_STD_FLOOR, POS_STD_FLOOR)  # m, N E D
     options: tuple = ()  # ((key, value), ...): a filter's own options (--filter-option; filters.options)
     r_scale: tuple = ()  # ((sensor key, factor), ...): this filter's R std of a sensor x factor (filters.options)
+    levers: tuple = ()  # ((sensor key, axis 0-2, m), ...): this filter's model lever arm coordinates (filters.options)
 
     def r_factor(self, sensor: str) -> float:
         """The factor on sensor ``sensor``'s R std for this filter (1.0: the sensor's own R)."""
         return float(dict(self.r_scale).get(sensor.replace("-", "_"), 1.0))
+
+    def model_lever(self, sensor: str, lever) -> tuple | None:
+        """Sensor ``sensor``'s lever arm (3,) [m, body] in this filter's model, from the sensor's own
+        ``lever`` with this filter's coordinates over it; None when the filter sets none."""
+        key = sensor.replace("-", "_")
+        mine = [(a, v) for s, a, v in self.levers if s == key]
+        if not mine:
+            return None
+        out = [float(x) for x in lever]
+        for a, v in mine:
+            out[int(a)] = float(v)
+        return tuple(out)
 
     @property
     def layout(self) -> StateLayout:

@@ -14,6 +14,11 @@ A filter takes two kinds of option:
   (``r_scale_<sensor>``, ``-`` in the name written ``_``: ``r_scale_dvl``, ``r_scale_dvl_beams``),
   over the study's value (the filter told the truth, ``--filter-acc-noise``, the sensor's
   ``r_std``); a variance scales by its square. ``nespm tune`` searches these (docs/tuning.md);
+* **a lever arm** (every filter with a covariance): ``lever_arm_<axis>_<sensor>`` (``lever_arm_x_dvl``)
+  [m, body], one coordinate of the sensor's mounting point from the IMU in this filter's
+  measurement model, in place of the sensor's ``lever_arm`` (which still makes the synthetic
+  measurements): a filter that assumes another mounting point than the truth's, or that ``nespm
+  tune`` calibrates on training tracks (``--tune-range '*.lever_arm_x_dvl=-3:3'``);
 * ``tuned_on``: where ``nespm tune`` tuned them (``seed=S;tracks=N,M;runs=A-B``): no effect on the
   numbers; ``mc`` on those realizations says that its numbers are training numbers.
 
@@ -36,6 +41,9 @@ NOISE_SCALES = {
     "p0_att_scale": "p0_att_deg", "p0_acc_bias_scale": "p0_acc_bias", "p0_gyro_bias_scale": "p0_gyro_bias",
 }
 R_SCALE = "r_scale_"  # + the sensor's name with '-' as '_': a factor on that sensor's R std for this filter
+LEVER = "lever_arm_"  # + axis + '_' + the sensor's key: this filter's model lever arm coordinate [m, body]
+AXES = "xyz"
+LEVER_LIMIT = 100.0  # [m]: the sensors' own lever-arm bound (sensors.source.check_options)
 
 
 TUNED_ON = "tuned_on"  # where a filter's options were tuned: "seed=S;tracks=1,2;runs=0-19" (nespm tune)
@@ -76,6 +84,20 @@ def training_overlap(filter_options, seed: int, tracks, runs: int) -> list[str]:
 def r_scale_key(sensor: str) -> str:
     """The option that scales ``sensor``'s R std for one filter: ``r_scale_dvl``, ``r_scale_dvl_beams``."""
     return R_SCALE + sensor.replace("-", "_")
+
+
+def lever_key(sensor: str, axis: str) -> str:
+    """The option that sets coordinate ``axis`` (x, y, z) of ``sensor``'s lever arm in one filter's
+    model: ``lever_arm_x_dvl``, ``lever_arm_z_dvl_beams``."""
+    return f"{LEVER}{axis}_{sensor.replace('-', '_')}"
+
+
+def lever_keys(cls: type, sensors=None) -> dict:
+    """``{key: 0.0}`` of the lever-arm options filter class ``cls`` takes for ``sensors`` (none without
+    a covariance)."""
+    if not getattr(cls, "has_covariance", True):
+        return {}
+    return {lever_key(s, a): 0.0 for s in (sensors or ()) for a in AXES}
 
 
 def noise_scales(cls: type, sensors=None) -> dict:
@@ -132,15 +154,23 @@ def check_filter_options(pairs, filters, get_filter, sensors=()) -> tuple:
         cls = get_filter(name)
         own = option_defaults(cls)
         scales = noise_scales(cls, sensors)
+        levers = lever_keys(cls, sensors)
+        if key in levers:
+            v = typed(value, 0.0, where)
+            if abs(v) > LEVER_LIMIT:
+                raise NespmError(f"{where}: a lever-arm coordinate within +-{LEVER_LIMIT:g} m, got {value!r}")
+            out[(name, key)] = v
+            continue
         if key == TUNED_ON and scales:
             parse_tuned_on(value, where)
             out[(name, key)] = str(value).strip()
             continue
         if key not in own and key not in scales:
             takes = ", ".join(sorted(own)) or "no options"
-            extra = (f" (of its own; and the noise scales {', '.join(scales)})" if scales else "")
-            if key.startswith(R_SCALE) and scales:
-                extra += f"; {key} names no sensor of --sensors ({', '.join(sensors)})"
+            extra = (f" (of its own; and the noise scales {', '.join(scales)}; and lever_arm_X_SENSOR)" if scales
+                     else "")
+            if (key.startswith(R_SCALE) or key.startswith(LEVER)) and scales:
+                extra += f"; {key} names no sensor of --sensors ({', '.join(sensors)}) or no axis x, y, z"
             raise NespmError(f"{where}: unknown option; {name} takes {takes}{extra}")
         default = own.get(key, scales.get(key))
         v = typed(value, default, where)
@@ -165,8 +195,11 @@ def configure(cfg: FilterConfig, name: str, cls: type, pairs) -> FilterConfig:
     r_scale = tuple((k[len(R_SCALE):], float(v)) for k, v in mine if k.startswith(R_SCALE))
     if r_scale:
         fields["r_scale"] = r_scale
+    levers = tuple((k[len(LEVER) + 2:], AXES.index(k[len(LEVER)]), float(v)) for k, v in mine if k.startswith(LEVER))
+    if levers:
+        fields["levers"] = levers
     own = tuple((k, v) for k, v in mine if k not in tunable and k not in NOISE_SCALES and not k.startswith(R_SCALE)
-                and k != TUNED_ON)
+                and not k.startswith(LEVER) and k != TUNED_ON)
     return dataclasses.replace(cfg, **fields, options=own)
 
 
@@ -175,6 +208,7 @@ def option_values(cls: type, cfg: FilterConfig) -> dict:
     return {**dict(getattr(cls, "option_defaults", {}) or {}), **dict(cfg.options)}
 
 
-__all__ = ["NOISE_SCALES", "R_SCALE", "TUNED_ON", "check_filter_options", "configure", "noise_scales",
+__all__ = ["AXES", "LEVER", "NOISE_SCALES", "R_SCALE", "TUNED_ON", "check_filter_options", "configure", "lever_key",
+           "lever_keys", "noise_scales",
            "option_defaults", "option_values", "parse_tuned_on", "r_scale_key", "training_overlap", "tuned_on_text",
            "typed"]

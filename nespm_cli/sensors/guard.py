@@ -120,6 +120,12 @@ def make_sensor(cls: type, options: SensorOptions) -> Sensor:
     return sensor
 
 
+def with_lever(sensor: Sensor, lever) -> Sensor:
+    """A copy of ``sensor`` whose options put it at ``lever`` (3,) [m, body]: the sensor one filter's
+    measurement model assumes (``--filter-option NAME.lever_arm_x_SENSOR``); its values are unchanged."""
+    return make_sensor(type(sensor), dataclasses.replace(sensor.opt, lever_arm=tuple(float(x) for x in lever)))
+
+
 def checked_values(sensor: Sensor, method: str, values, shape: tuple, finite: bool = True) -> np.ndarray:
     """``values`` as a float array of ``shape`` (NaN refused when ``finite``), else one line."""
     try:
@@ -224,4 +230,4 @@ def checked_measurement(sensor: Sensor, z, nav, ctx, layout) -> Measurement:
 
 
 __all__ = ["CheckedMeasurement", "SYM_TOL", "check_class", "check_dim", "checked_R", "checked_measurement",
-           "checked_values", "global_rng_state", "is_plugin", "make_sensor", "sensor_call", "where"]
+           "checked_values", "global_rng_state", "is_plugin", "make_sensor", "sensor_call", "where", "with_lever"]
