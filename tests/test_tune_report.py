@@ -42,3 +42,29 @@ def test_heldout_report_and_training_warning(tmp_path, capsys):
     assert len(err) == 2 and err[0].startswith("nespm: warning: ekf: its settings were tuned on these realizations")
     assert main(["report", str(tmp_path / "train")]) == 0
     assert "Training numbers: ukf" in (tmp_path / "train" / "report.md").read_text()
+
+
+def test_cross_check_scores_each_filter_with_the_others_values(tmp_path, capsys):
+    """With one trial each (both filters at their defaults) the ekf scored with the ukf's values is
+    its own best bit for bit (the ukf's alpha is not an ekf parameter) and vice versa: gain 0, no
+    filter flagged. With four trials, the report flags exactly the filters whose cross score beats
+    their own best by more than 2 % (tune.json's numbers)."""
+    one = tmp_path / "one"
+    assert main(CLI[:-3] + ["--trials", "1", "--no-progress", "--level-runs", "3", "--out", str(one)]) == 0
+    rec = json.loads((one / "tune.json").read_text())
+    for f, g in (("ekf", "ukf"), ("ukf", "ekf")):
+        c = rec["best"][f]["cross"][g]
+        assert c["score"] == rec["best"][f]["score"] and c["gain"] == 0.0
+    assert main(["report", str(one)]) == 0
+    text = (one / "report.md").read_text()
+    assert "## Each filter with the others' values" in text and "at least as good as the others'" in text
+    four = tmp_path / "four"
+    assert main(CLI + ["--level-runs", "3", "--out", str(four)]) == 0
+    capsys.readouterr()
+    rec = json.loads((four / "tune.json").read_text())
+    assert main(["report", str(four)]) == 0
+    text = (four / "report.md").read_text()
+    for f in ("ekf", "ukf"):
+        (g, c), = rec["best"][f]["cross"].items()
+        assert c["gain"] == (rec["best"][f]["score"] - c["score"]) / rec["best"][f]["score"]
+        assert (f"- **{f}**: {g}'s searched values" in text) == (c["gain"] > 0.02)

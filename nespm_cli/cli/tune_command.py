@@ -18,7 +18,7 @@ TUNE = [  # (name, type, default, flag, help)
     ("level", Optional[str], None, "--level", "With rmse-consistent: tracks (default; the common level of Q, R and P0 set in closed form so the geometric mean over the training tracks of each track's ANEES is its expectation, the search sets their ratios) or off (the level searched with the factors, a band penalty on the ANEES)."),
     ("level_runs", int, 100, "--level-runs", "With --level tracks: training runs per track the best settings' level is fitted on (more runs than the trials' make the level's sampling spread small)."),
     ("sampler", str, "tpe", "--sampler", "Optuna sampler: tpe (seeded, multivariate) or cmaes (needs the cmaes package)."),
-    ("tune_range", Optional[List[str]], None, "--tune-range", "NAME.KEY=LOW:HIGH narrows or widens a parameter's range (NAME * for every filter), NAME.KEY=off drops it; repeatable; a [tune] table in a --config file."),
+    ("tune_range", Optional[List[str]], None, "--tune-range", "NAME.KEY=LOW:HIGH narrows or widens a parameter's range (NAME * for every filter), NAME.KEY=off drops it; a range on a sensor's lever arm turns its search on ('*.lever_arm_x_dvl=-3:3': each filter calibrates the DVL's fore-aft offset, linear); repeatable; a [tune] table in a --config file."),
     ("test_tracks_", str, "", "--test-tracks", "Held-out tracks, run with the default and the tuned settings on --seed's realizations (e.g. --test-tracks 5 6)."),
     ("test_runs", int, 100, "--test-runs", "Held-out runs per test track."),
     ("allow_overlap", bool, False, "--allow-overlap", "Allow test tracks among the tuning tracks (the report flags it)."),

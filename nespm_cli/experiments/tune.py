@@ -40,10 +40,11 @@ import pandas as pd
 
 from nespm_cli.errors import NespmError
 from nespm_cli.experiments.spec import Spec, check_filter_domains, track_inputs, validate
+from nespm_cli.experiments.suite import sensor_suite
 from nespm_cli.experiments.tune_progress import watch_studies
 from nespm_cli.experiments.tune_objective import (LEVELS, OBJECTIVES, REUSE_RUNS, fit_level, leveled, score,
                                                   summary, trial_statistics)
-from nespm_cli.experiments.tune_space import Param, apply_ranges, default_space
+from nespm_cli.experiments.tune_space import Param, apply_ranges, default_space, optional_space
 from nespm_cli.filters.options import TUNED_ON, tuned_on_text
 from nespm_cli.filters.registry import get_filter
 
@@ -126,7 +127,9 @@ def check(t: TuneSpec) -> tuple[TuneSpec, Spec, dict[str, list[Param]]]:
     for f, ps in space.items():
         if not ps:
             raise NespmError(f"--filters {f}: has no noise parameters to tune (no covariance); drop it")
-    space = apply_ranges(space, t.ranges)
+    levers = {sn.name: tuple(sn.opt.lever_arm) for sn in sensor_suite(train)}
+    optional = {f: optional_space(f, get_filter(f), levers) for f in train.filters}
+    space = apply_ranges(space, t.ranges, optional)
     check_option_ranges(train, space)
     return t, train, space
 
@@ -328,11 +331,12 @@ def best_values(out: Path, filters: tuple, trials: int, space: dict | None = Non
 
 
 def add_profiles(best: dict, out: Path, train: Spec, space: dict, t: TuneSpec) -> None:
-    """Add each filter's ``importance`` and (``t.profile``) ``profile`` to ``best``, reusing those of
-    ``tune.json`` when its best trial is the same (a rerun costs nothing)."""
+    """Add each filter's ``importance`` and (``t.profile``) ``profile`` and, with two filters or more,
+    ``cross`` (its score with the others' searched values) to ``best``, reusing those of ``tune.json``
+    when the best trials are the same (a rerun costs nothing)."""
     import optuna
 
-    from nespm_cli.experiments.tune_profile import importances, profile
+    from nespm_cli.experiments.tune_profile import cross_scores, importances, profile
 
     try:
         old = json.loads((out / "tune.json").read_text(encoding="utf-8")).get("best", {})
@@ -348,6 +352,12 @@ def add_profiles(best: dict, out: Path, train: Spec, space: dict, t: TuneSpec) -
             b["profile"] = prev["profile"]
         else:
             b["profile"] = profile(train, f, space[f], b["shape"], t.objective, b["score"], t.level)
+        others = {g: o["shape"] for g, o in best.items() if g != f}
+        if not others:
+            continue
+        same = prev.get("trial") == b["trial"] and all(old.get(g, {}).get("shape") == v for g, v in others.items())
+        b["cross"] = prev["cross"] if same and "cross" in prev else cross_scores(
+            train, f, b["shape"], others, t.objective, b["score"], t.level)
 
 
 def add_leveled(best: dict, out: Path, train: Spec, t: TuneSpec) -> None:

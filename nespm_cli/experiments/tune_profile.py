@@ -6,6 +6,11 @@
   and / :data:`FACTOR` (within its range), the others held; the parameter is **flat** (the objective
   cannot see it: its tuned value means nothing) when neither moves the score by more than
   :data:`FLAT` (relative). Two trials per parameter, on the same training realizations.
+* **Cross-check**: each filter scored with every other filter's searched values on the parameters
+  they share (its own elsewhere, e.g. alpha). A filter another's values serve better than its own
+  best by more than :data:`FLAT` stopped short of its optimum: an equal budget is not an equal
+  search, and its rank among the tuned filters says so little until more trials are run. One
+  trial per pair.
 """
 from __future__ import annotations
 
@@ -59,4 +64,17 @@ def profile(train: Spec, name: str, params: list[Param], best: dict, objective: 
     return out
 
 
-__all__ = ["FACTOR", "FLAT", "importances", "profile", "steps"]
+def cross_scores(train: Spec, name: str, best: dict, others: dict, objective: str, best_score: float,
+                 level: str = "off") -> dict:
+    """``{other: {"score", "gain"}}``: filter ``name`` (best searched values ``best``) scored as its
+    trials were with each of ``others`` (``{filter: its searched values}``) over the keys they share;
+    ``gain`` the relative score drop against ``best_score`` (> :data:`FLAT`: the search stopped short)."""
+    out = {}
+    for g, values in others.items():
+        mixed = {k: float(values.get(k, v)) for k, v in best.items()}
+        s = score(trial_statistics(train, name, mixed), objective, level)
+        out[g] = {"score": float(s), "gain": float((best_score - s) / max(abs(best_score), 1e-300))}
+    return out
+
+
+__all__ = ["FACTOR", "FLAT", "cross_scores", "importances", "profile", "steps"]

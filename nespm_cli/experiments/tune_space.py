@@ -17,6 +17,12 @@ the filter has one (``tunable``); a plugin's own options where the class declare
 ``--tune-range NAME.KEY=LOW:HIGH`` (``NAME`` may be ``*``: every filter that has ``KEY``) or a
 ``[tune]`` config table (``"ekf.acc_noise_scale" = [0.5, 2]``) narrows or widens a range;
 ``=off`` drops a parameter from the search (it keeps its default). Every mistake is one line.
+
+Off by default, on with a range (:func:`optional_space`): a sensor's lever arm in the filter's model,
+``lever_arm_<axis>_<sensor>`` [m, body, linear], from the sensor's ``lever_arm``. Not a noise
+parameter but a model one, which the truth fixes and the filter may not know (the embedded DVL sits
+1.6 m aft of the IMU): a researcher calibrates it on training tracks rather than hide the error in Q
+and R. ``--tune-range '*.lever_arm_x_dvl=-3:3'`` searches the DVL's fore-aft offset for every filter.
 """
 from __future__ import annotations
 
@@ -24,7 +30,7 @@ import math
 from dataclasses import asdict, dataclass
 
 from nespm_cli.errors import NespmError
-from nespm_cli.filters.options import noise_scales, r_scale_key
+from nespm_cli.filters.options import AXES, lever_key, noise_scales, r_scale_key
 from nespm_cli.nav.state import StateLayout
 
 SCALE_RANGE = (0.1, 10.0)  # a std factor: two decades around the study's value
@@ -45,7 +51,7 @@ class Param:
     high: float
     log: bool = True
     default: float = 1.0
-    kind: str = "Q"
+    kind: str = "Q"  # Q, R, P0, alpha, plugin or model (a lever arm)
 
     @property
     def name(self) -> str:
@@ -82,6 +88,16 @@ def default_space(name: str, cls: type, layout: StateLayout, sensors: tuple, alp
     return out
 
 
+def optional_space(name: str, cls: type, levers: dict) -> list[Param]:
+    """The parameters of filter ``name`` (class ``cls``) a ``--tune-range`` turns on: the lever-arm
+    coordinates of every sensor of ``levers`` (``{sensor: (x, y, z)}`` [m, body], the sensor's
+    ``lever_arm``, each coordinate's default), linear over +-3 m around it until a range is given."""
+    if not noise_scales(cls, tuple(levers)):
+        return []
+    return [Param(name, lever_key(s, a), float(lever[i]) - 3.0, float(lever[i]) + 3.0, False, float(lever[i]), "model")
+            for s, lever in levers.items() for i, a in enumerate(AXES)]
+
+
 def check_range(where: str, low: float, high: float, log: bool) -> None:
     """Refuse a non-finite, empty or inverted range, or a log range reaching 0 (one line)."""
     if not (math.isfinite(low) and math.isfinite(high)):
@@ -110,11 +126,13 @@ def parse_range(text: str) -> tuple[str, str, float | None, float | None]:
     return name.strip(), key.strip(), low, high
 
 
-def apply_ranges(space: dict[str, list[Param]], ranges) -> dict[str, list[Param]]:
+def apply_ranges(space: dict[str, list[Param]], ranges, optional: dict | None = None) -> dict[str, list[Param]]:
     """``space`` ({filter: [Param]}) with ``ranges`` (``(NAME, KEY, LOW, HIGH)``, in order, the last
-    winning; NAME ``*`` for every filter that has KEY) applied. An unknown filter or parameter, an
-    empty or inverted range, or a space left empty is one line."""
+    winning; NAME ``*`` for every filter that has KEY) applied; a range on a parameter of
+    ``optional`` ({filter: [Param]}, :func:`optional_space`) adds it. An unknown filter or
+    parameter, an empty or inverted range, or a space left empty is one line."""
     out = {f: {p.key: p for p in ps} for f, ps in space.items()}
+    space = {f: list(ps) + list((optional or {}).get(f, ())) for f, ps in space.items()}
     for name, key, low, high in ranges:
         where = f"{name}.{key}"
         targets = [f for f in out if name in ("*", f)]
@@ -139,4 +157,4 @@ def apply_ranges(space: dict[str, list[Param]], ranges) -> dict[str, list[Param]
 
 
 __all__ = ["ALPHA_RANGE", "P0_KEYS", "Param", "SCALE_RANGE", "apply_ranges", "check_range", "default_space",
-           "parse_range"]
+           "optional_space", "parse_range"]

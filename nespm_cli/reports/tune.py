@@ -64,7 +64,7 @@ def values_table(record: dict) -> str:
             rows.append([f, k, p["kind"], fmt(p["default"]), fmt(shape), fmt(b["values"][k]),
                          f"{fmt(p['low'])}–{fmt(p['high'])}", fmt(imp.get(k, float("nan")), ".2f"), seen])
     return md_table(["filter", "parameter", "acts on", "default", "searched", "tuned (written)", "range", "importance",
-                     "profile (score change at x3, /3)"], rows)
+                     "profile (score change at x3, /3; linear: ± a third of the range)"], rows)
 
 
 def level_table(record: dict) -> str:
@@ -175,6 +175,37 @@ def figures(record: dict, trials: pd.DataFrame, fig_dir: Path) -> list[str]:
     return ["convergence.png", "importance.png"]
 
 
+def cross_section(record: dict) -> list[str]:
+    """"Each filter with the others' values": its training score with every other filter's searched
+    values (docs/tuning.md), and a line per filter whose search stopped short (another's values
+    score better than its own best by more than 2 %). Empty without the cross-check."""
+    best = record["best"]
+    if not any("cross" in b for b in best.values()):
+        return []
+    names = list(best)
+    rows, short = [], []
+    for f, b in best.items():
+        cross = b.get("cross", {})
+        rows.append([f, fmt(b["score"])] + ["—" if g == f or g not in cross else
+                                             f"{fmt(cross[g]['score'])} ({-100 * cross[g]['gain']:+.0f} %)"
+                                             for g in names])
+        win = min(cross.items(), key=lambda kv: kv[1]["score"], default=None)
+        if win is not None and win[1]["gain"] > 0.02:
+            short.append(f"- **{f}**: {win[0]}'s searched values score {fmt(win[1]['score'])} on its training "
+                         f"runs, {100 * win[1]['gain']:.0f} % below its own best {fmt(b['score'])}: its search stopped "
+                         "short of its optimum. Its rank among the tuned filters below reflects the search as much "
+                         "as the filter: run more trials (`--trials`) before reading it.")
+    lines = ["## Each filter with the others' values", "",
+             "The training score of each filter (row) with every other filter's searched values on the parameters "
+             "they share (its own on the rest, e.g. alpha), and the change against its own best (negative: "
+             "better than its own); scored as its trials were, on the same training runs. A "
+             "filter another's values serve better than its own best stopped short: an equal budget is not an "
+             "equal search (docs/tuning.md).", "",
+             md_table(["filter", "own best"] + [f"with {g}'s values" for g in names], rows), ""]
+    return lines + (short + [""] if short else ["Every filter's own best is at least as good as the others' "
+                                                  "values (within 2 %).", ""])
+
+
 def write_tune_report(out_dir: Path, n_boot: int = 2000) -> Path:
     """Write ``out_dir/report.md`` (and figures); return its path."""
     out_dir = Path(out_dir)
@@ -192,10 +223,12 @@ def write_tune_report(out_dir: Path, n_boot: int = 2000) -> Path:
     lines += ["## Training scores", "", score_table(record, trials), "",
               "## Tuned values beside the defaults", "",
               "A factor multiplies the study's std (the filter told the truth, or your options); a flat profile "
-              "(the score moves < 2 % at x3 and /3) marks a parameter this objective cannot see: its tuned "
+              "(the score moves < 2 % at x3 and /3, or ± a third of a linear range) marks a parameter this "
+              "objective cannot see: its tuned "
               "value means nothing. *Searched* is the best trial's factor; *tuned* what `tuned.toml` writes "
               "(with the fitted level: every Q, R and P0 factor times the level's std factor).", "",
               values_table(record), ""]
+    lines += cross_section(record)
     lt = level_table(record)
     if lt:
         lines += ["## The level", "",
