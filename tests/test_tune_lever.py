@@ -13,7 +13,6 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from nespm_cli.cli import main
 from nespm_cli.data.embedded import L_DVL
 from nespm_cli.errors import NespmError
 from nespm_cli.experiments.mc import simulate
@@ -49,20 +48,6 @@ def test_a_filters_lever_arm_is_the_sensors_for_that_filter_alone():
     cfg = filter_config_of(ekf_only, "ekf")
     assert cfg.levers == (("dvl", 0, -1.6),) and filter_config_of(ekf_only, "ukf").levers == ()
     assert cfg.model_lever("dvl", (0.0, 0.2, 0.3)) == (-1.6, 0.2, 0.3)  # one coordinate over the sensor's
-
-
-@pytest.mark.parametrize("option, words", [
-    ("ekf.lever_arm_w_dvl=1", "unknown option"),
-    ("ekf.lever_arm_x_depth=1", "names no sensor of --sensors"),
-    ("ekf.lever_arm_x_dvl=200", "within +-100 m"),
-    ("ekf.lever_arm_x_dvl=nan", "expected a float"),
-    ("ins.lever_arm_x_dvl=1", "ins takes no options"),
-])
-def test_bad_lever_arm_option_in_one_line(capsys, option, words):
-    rc = main(["mc", "--filters", "ekf,ins", "--tracks", "5", "--runs", "1", "--filter-option", option,
-               "--out", "/nonexistent/never"])
-    err = capsys.readouterr().err.strip()
-    assert rc == 2 and words in err and len(err.splitlines()) == 1, err
 
 
 def test_lever_arm_is_off_in_the_default_space_and_a_range_turns_it_on():
