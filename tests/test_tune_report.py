@@ -41,7 +41,8 @@ def test_heldout_report_and_training_warning(tmp_path, capsys):
     err = [line for line in capsys.readouterr().err.splitlines() if "training numbers" in line]
     assert len(err) == 2 and err[0].startswith("nespm: warning: ekf: its settings were tuned on these realizations")
     assert main(["report", str(tmp_path / "train")]) == 0
-    assert "Training numbers: ukf" in (tmp_path / "train" / "report.md").read_text()
+    text = (tmp_path / "train" / "report.md").read_text()
+    assert "Training numbers: ukf" in text and "Tuned settings (nespm tune) for ekf, ukf: a difference" in text
 
 
 def test_cross_check_scores_each_filter_with_the_others_values(tmp_path, capsys):

@@ -18,7 +18,7 @@ import pandas as pd
 from nespm_cli.data.atomic import write_text_atomic
 from nespm_cli.errors import NespmError
 from nespm_cli.experiments.tune_heldout import DEFAULT_DIR, TUNED_DIR
-from nespm_cli.filters.options import training_overlap
+from nespm_cli.filters.options import TUNED_ON, training_overlap
 from nespm_cli.reports.block_consistency import block_consistency, consistency_words
 from nespm_cli.reports.figures import save_figure, use_agg
 from nespm_cli.reports.markdown import fmt, md_table
@@ -32,14 +32,20 @@ def is_tune_folder(out_dir: Path) -> bool:
 
 
 def training_caveats(manifest: dict) -> list[str]:
-    """The caveat of an ``mc`` folder whose tuned filters run on their own tuning realizations."""
+    """The caveats of an ``mc`` folder with tuned filters: which ran with ``nespm tune``'s settings (a
+    ranking between tuned filters also reflects their searches), and those run on their own tuning
+    realizations."""
     o = manifest.get("options", {}) or {}
+    options = [tuple(x) for x in o.get("filter_options", [])]
+    tuned = list(dict.fromkeys(x[0] for x in options if x[1] == TUNED_ON))
+    out = [f"Tuned settings (nespm tune) for {', '.join(tuned)}: a difference between tuned filters also reflects "
+           "how well each search did; the tune report's cross-check (\"Each filter with the others' values\") "
+           "says which searches stopped short (docs/tuning.md)."] if len(tuned) > 1 else []
     try:
-        lines = training_overlap([tuple(x) for x in o.get("filter_options", [])], o.get("seed", 0),
-                                 o.get("tracks", []), o.get("runs", 0))
+        lines = training_overlap(options, o.get("seed", 0), o.get("tracks", []), o.get("runs", 0))
     except NespmError:
-        return []
-    return [f"Training numbers: {line}." for line in lines]
+        return out
+    return out + [f"Training numbers: {line}." for line in lines]
 
 
 def load(out_dir: Path) -> tuple[dict, pd.DataFrame]:
