@@ -60,7 +60,7 @@ def test_noise_scales_per_filter():
     ("ekf.acc_noise_scale=0", "a noise scale is a factor > 0"),
     ("ins.acc_noise_scale=2", "ins takes no options"),
     ("ekf.lever_arm_w_dvl=1", "unknown option"),  # a lever-arm coordinate (tests/test_tune_lever.py)
-    ("ekf.lever_arm_x_depth=1", "names no sensor of --sensors"),
+    ("ekf.lever_arm_x_depth=1", "no sensor of --sensors whose model has a lever arm (dvl)"),
     ("ekf.lever_arm_x_dvl=200", "within +-100 m"),
     ("ekf.lever_arm_x_dvl=nan", "expected a float"),
     ("ins.lever_arm_x_dvl=1", "ins takes no options"),

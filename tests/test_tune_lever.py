@@ -14,6 +14,7 @@ import pandas as pd
 import pytest
 
 from nespm_cli.data.embedded import L_DVL
+from conftest import assert_one_error_line, cli
 from nespm_cli.errors import NespmError
 from nespm_cli.experiments.mc import simulate
 from nespm_cli.experiments.spec import Spec, filter_config_of, validate
@@ -48,6 +49,14 @@ def test_a_filters_lever_arm_is_the_sensors_for_that_filter_alone():
     cfg = filter_config_of(ekf_only, "ekf")
     assert cfg.levers == (("dvl", 0, -1.6),) and filter_config_of(ekf_only, "ukf").levers == ()
     assert cfg.model_lever("dvl", (0.0, 0.2, 0.3)) == (-1.6, 0.2, 0.3)  # one coordinate over the sensor's
+
+
+def test_a_heading_has_no_lever_arm_option(capsys):
+    """A heading is a rotation: its model reads no lever arm, so a filter's lever-arm option for it
+    would be silently ignored: refused in one line naming the sensors that have one."""
+    rc, out, err = cli(capsys, "mc", "--sensors", "dvl,heading", "--tracks", "5", "--runs", "1",
+                       "--filter-option", "ekf.lever_arm_x_heading=1", "--out", "/nonexistent/never")
+    assert_one_error_line(rc, out, err, "--filter-option ekf.lever_arm_x_heading", "lever arm (dvl)")
 
 
 def test_lever_arm_is_off_in_the_default_space_and_a_range_turns_it_on():

@@ -122,6 +122,7 @@ def validate(spec: Spec) -> Spec:
     from nespm_cli.filters.registry import filter_names, get_filter
     from nespm_cli.learn.noise_model import WINDOW
     from nespm_cli.learn.noise_models import load_noise_model
+    from nespm_cli.sensors.registry import get_sensor, sensor_names
 
     check_domains(spec)
     if spec.chunk_size is not None and spec.chunk_size < 1:
@@ -133,8 +134,9 @@ def validate(spec: Spec) -> Spec:
     if len(set(spec.filters)) != len(spec.filters) or not spec.filters:
         raise NespmError("--filters: give each filter once, at least one")
     layout = parse_layout(spec.filter_config.state)
+    levered = tuple(n for n in spec.sensors if n in sensor_names() and get_sensor(n).has_lever)
     spec = dataclasses.replace(spec, filter_options=check_filter_options(spec.filter_options, spec.filters,
-                                                                         get_filter, spec.sensors))
+                                                                         get_filter, spec.sensors, levered))
     for f in spec.smooth:
         if f not in spec.filters:
             raise NespmError(f"--smooth {f}: not in --filters ({', '.join(spec.filters)}); the smoother runs on a "

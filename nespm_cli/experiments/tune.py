@@ -127,7 +127,7 @@ def check(t: TuneSpec) -> tuple[TuneSpec, Spec, dict[str, list[Param]]]:
     for f, ps in space.items():
         if not ps:
             raise NespmError(f"--filters {f}: has no noise parameters to tune (no covariance); drop it")
-    levers = {sn.name: tuple(sn.opt.lever_arm) for sn in sensor_suite(train)}
+    levers = {sn.name: tuple(sn.opt.lever_arm) for sn in sensor_suite(train) if sn.has_lever}
     optional = {f: optional_space(f, get_filter(f), levers) for f in train.filters}
     space = apply_ranges(space, t.ranges, optional)
     check_option_ranges(train, space)

@@ -142,10 +142,11 @@ def typed(value, default, where: str):
         raise NespmError(f"{where}: expected a {kind}, got {text!r}") from None
 
 
-def check_filter_options(pairs, filters, get_filter, sensors=()) -> tuple:
+def check_filter_options(pairs, filters, get_filter, sensors=(), lever_sensors=None) -> tuple:
     """Check ``(filter, key, value)`` triples against the study's ``filters`` (the classes from
-    ``get_filter``) and ``sensors`` (the R scales); return them with typed values, in the given
-    order, the last of a repeated key winning. One-line errors naming ``--filter-option NAME.KEY``."""
+    ``get_filter``), ``sensors`` (the R scales) and ``lever_sensors`` (those whose model has a lever
+    arm; None: all of ``sensors``); return them with typed values, in the given order, the last of a
+    repeated key winning. One-line errors naming ``--filter-option NAME.KEY``."""
     out: dict = {}
     for name, key, value in pairs:
         where = f"--filter-option {name}.{key}"
@@ -154,7 +155,7 @@ def check_filter_options(pairs, filters, get_filter, sensors=()) -> tuple:
         cls = get_filter(name)
         own = option_defaults(cls)
         scales = noise_scales(cls, sensors)
-        levers = lever_keys(cls, sensors)
+        levers = lever_keys(cls, sensors if lever_sensors is None else lever_sensors)
         if key in levers:
             v = typed(value, 0.0, where)
             if abs(v) > LEVER_LIMIT:
@@ -169,8 +170,12 @@ def check_filter_options(pairs, filters, get_filter, sensors=()) -> tuple:
             takes = ", ".join(sorted(own)) or "no options"
             extra = (f" (of its own; and the noise scales {', '.join(scales)}; and lever_arm_X_SENSOR)" if scales
                      else "")
-            if (key.startswith(R_SCALE) or key.startswith(LEVER)) and scales:
-                extra += f"; {key} names no sensor of --sensors ({', '.join(sensors)}) or no axis x, y, z"
+            if key.startswith(R_SCALE) and scales:
+                extra += f"; {key} names no sensor of --sensors ({', '.join(sensors)})"
+            if key.startswith(LEVER) and scales:
+                with_lever = sensors if lever_sensors is None else lever_sensors
+                extra += (f"; {key} names no axis x, y, z or no sensor of --sensors whose model has a lever arm "
+                          f"({', '.join(with_lever) or 'none'})")
             raise NespmError(f"{where}: unknown option; {name} takes {takes}{extra}")
         default = own.get(key, scales.get(key))
         v = typed(value, default, where)

@@ -89,6 +89,7 @@ class Heading(Sensor):
     observes = ("att",)
     Options = HeadingOptions
     default_interval = 1.0
+    has_lever = False  # a rotation only: no lever-arm option for a filter's model
 
     def __init__(self, options: HeadingOptions | None = None):
         super().__init__(options)

@@ -142,6 +142,7 @@ class Sensor:
     Options: type = SensorOptions
     stream: int | None = None
     default_interval: float | None = 1.0
+    has_lever: bool = True  # its model reads ``opt.lever_arm`` (a heading's does not)
 
     def __init__(self, options: SensorOptions | None = None):
         self.opt = options if options is not None else self.Options()
