@@ -268,15 +268,17 @@ def tune_filter(t: TuneSpec, train: Spec, index: int, params: list[Param], out: 
             report(name, done + 1, study.best_value)
 
 
-def worker_run(t: TuneSpec, train: Spec, space: dict, out: str, worker: int) -> None:
-    """One ``--jobs`` worker: every filter's trials in turn (the studies are shared)."""
+def worker_run(t: TuneSpec, train: Spec, space: dict, out: str, worker: int, only: int | None = None) -> None:
+    """One ``--jobs`` worker: every filter's trials in turn (the studies are shared), or (``only``) that
+    filter's alone, as worker 0: its study's one writer, so its values are those of ``--jobs 1``."""
     from nespm_cli.experiments.spec import load_filters
     from nespm_cli.experiments.suite import load_sensors
 
     load_sensors(load_filters(train))
     quiet()
     for i, f in enumerate(train.filters):
-        tune_filter(t, train, i, space[f], Path(out), worker)
+        if only is None or i == only:
+            tune_filter(t, train, i, space[f], Path(out), worker)
 
 
 def quiet() -> None:
@@ -441,8 +443,12 @@ def run_tune(t: TuneSpec, out: str | Path, jobs: int = 1, report: Callable[[str,
 
             watch = None if report is None else watch_studies(storage(out), train.filters, t.trials, report)
             try:
-                Parallel(n_jobs=jobs, backend="loky")(delayed(worker_run)(t, train, space, str(out.resolve()), w)
-                                                      for w in range(jobs))
+                if len(train.filters) >= jobs:  # a process per filter: each study has one writer (= --jobs 1)
+                    calls = (delayed(worker_run)(t, train, space, str(out.resolve()), 0, i)
+                             for i in range(len(train.filters)))
+                else:  # fewer filters than workers: they share each study (values depend on the interleaving)
+                    calls = (delayed(worker_run)(t, train, space, str(out.resolve()), w) for w in range(jobs))
+                Parallel(n_jobs=jobs, backend="loky")(calls)
             finally:
                 if watch is not None:
                     watch()
