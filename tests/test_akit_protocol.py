@@ -158,3 +158,27 @@ def test_setup_line_reads_the_training_and_tuning_records(tmp_path):
     (tmp_path / "tune" / "tune.json").write_text("{}", encoding="utf-8")
     with pytest.raises(NespmError, match="not the record of nespm train / nespm tune"):
         akit_table.setup_line(tmp_path)
+
+
+def test_search_line_names_the_searches_that_stopped_short(tmp_path):
+    """The cross-check of tune.json under the table: a filter whose best another's values beat by
+    more than 2 % is named with the winner and the margin; none flagged is said too; no check, no line."""
+    import json
+
+    (tmp_path / "tune").mkdir()
+    rec = tmp_path / "tune" / "tune.json"
+    assert akit_table.search_line(tmp_path) is None  # no record
+    best = {"ekf": {"cross": {"anekf": {"score": 0.0587, "gain": 0.061}, "vb-ekf": {"score": 0.0596, "gain": 0.047}}},
+            "anekf": {"cross": {"ekf": {"score": 0.0706, "gain": -0.22}, "vb-ekf": {"score": 0.0836, "gain": -0.45}}},
+            "sh-ekf": {"cross": {"anekf": {"score": 0.0612, "gain": 0.015}}}}
+    rec.write_text(json.dumps({"best": best}), encoding="utf-8")
+    line = akit_table.search_line(tmp_path)
+    assert "for ekf (anekf's values 6 % better): those searches stopped short" in line
+    assert "sh-ekf" not in line and "anekf (" not in line  # 1.5 % is within the 2 % rule; anekf's own best wins
+    for b in best.values():
+        for c in b["cross"].values():
+            c["gain"] = min(c["gain"], 0.0)
+    rec.write_text(json.dumps({"best": best}), encoding="utf-8")
+    assert "no filter's own best is beaten" in akit_table.search_line(tmp_path)
+    rec.write_text(json.dumps({"best": {"ekf": {"score": 1.0}}}), encoding="utf-8")
+    assert akit_table.search_line(tmp_path) is None  # tuned without the profile: no cross-check

@@ -154,6 +154,36 @@ def setup_line(results: Path) -> str | None:
         raise NespmError(f"akit table: {npz} or {tune}: not the record of nespm train / nespm tune ({exc})") from None
 
 
+def search_line(results: Path) -> str | None:
+    """The tuning's cross-check (``tune/tune.json``, docs/tuning.md): which filters' searches stopped
+    short (another filter's searched values score better than their own best on the training runs,
+    by more than :data:`~nespm_cli.experiments.tune_profile.FLAT`); None without the record or the check."""
+    import json
+
+    from nespm_cli.experiments.tune_profile import FLAT
+
+    tune = results / "tune" / "tune.json"
+    if not tune.is_file():
+        return None
+    try:
+        best = json.loads(tune.read_text(encoding="utf-8"))["best"]
+        if not any("cross" in b for b in best.values()):
+            return None
+        short = []
+        for f, b in best.items():
+            g, c = min(b.get("cross", {}).items(), key=lambda kv: kv[1]["score"], default=(None, None))
+            if c is not None and c["gain"] > FLAT:
+                short.append(f"{f} ({g}'s values {100 * c['gain']:.0f} % better)")
+    except (KeyError, TypeError, ValueError, OSError) as exc:
+        raise NespmError(f"akit table: {tune}: not the record of nespm tune ({exc})") from None
+    if not short:
+        return (f"**The searches** (the tuning report's cross-check): no filter's own best is beaten by another's "
+                f"searched values on the training runs (by more than {100 * FLAT:.0f} %).")
+    return (f"**The searches** (the tuning report's cross-check): another filter's searched values score better on "
+            f"the training runs for {', '.join(short)}: those searches stopped short, so a tuned row's rank against "
+            "theirs reflects the search as much as the filter (docs/tuning.md).")
+
+
 def table(results: str | Path, n_boot: int = N_BOOT) -> tuple[str, dict]:
     """The markdown of the A-KIT table and its numbers (``rows``: label -> values and gains;
     ``summary``: the gains behind the final lines)."""
@@ -201,6 +231,7 @@ def table(results: str | Path, n_boot: int = N_BOOT) -> tuple[str, dict]:
     else:
         share_text = f"{share:.0f} %"
     learned = rows["ANEKF (ProcessNet)"]
+    searches = search_line(Path(results))
     tail = [
         f"**Published gains in kind?** ANEKF's HPE RMS gain over the default EKF: {g_ekf.text()} (A-KIT: more than "
         f"{PUBLISHED['ekf']} %): {in_kind(g_ekf, PUBLISHED['ekf'])}; over the best model-based adaptive EKF "
@@ -209,6 +240,7 @@ def table(results: str | Path, n_boot: int = N_BOOT) -> tuple[str, dict]:
         f"the gain over the default EKF that remains: {share_text}. **Every filter tuned with the same "
         f"budget** (the fair comparison): the tuned ANEKF over the tuned EKF {g_fair.text()}, over the best tuned "
         f"model-based adaptive EKF ({best_tuned_model.split(SEP)[1]}) {g_fair_model.text()}.",
+        *([searches] if searches else []),
         f"ANEKF's learned noise std, mean over runs and DVL intervals, in multiples of the nominal: "
         f"accelerometer {fmt(learned['q_factor_acc'], '.2f')}, gyro {fmt(learned['q_factor_gyro'], '.2f')} "
         f"(the validity clip is 0.25-24). Mean NEES: 6 is consistent.",
