@@ -77,4 +77,15 @@ def cross_scores(train: Spec, name: str, best: dict, others: dict, objective: st
     return out
 
 
-__all__ = ["FACTOR", "FLAT", "cross_scores", "importances", "profile", "steps"]
+def stopped_short(best: dict) -> dict[str, tuple[str, dict]]:
+    """``{filter: (other, its cross entry)}`` of ``best`` (``tune.json``'s, with ``cross``): the filters
+    whose own best another filter's searched values beat by more than :data:`FLAT`, with the best such."""
+    out = {}
+    for f, b in best.items():
+        win = min((b.get("cross") or {}).items(), key=lambda kv: kv[1]["score"], default=None)
+        if win is not None and win[1]["gain"] > FLAT:
+            out[f] = win
+    return out
+
+
+__all__ = ["FACTOR", "FLAT", "cross_scores", "importances", "profile", "steps", "stopped_short"]

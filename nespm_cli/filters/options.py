@@ -32,6 +32,7 @@ import dataclasses
 
 from nespm_cli.errors import NespmError
 from nespm_cli.filters.model import FilterConfig
+from nespm_cli.sensors.source import LEVER_LIMIT
 
 
 #: noise-scale option -> the FilterConfig field (a std, or a tuple of stds) it multiplies
@@ -43,7 +44,6 @@ NOISE_SCALES = {
 R_SCALE = "r_scale_"  # + the sensor's name with '-' as '_': a factor on that sensor's R std for this filter
 LEVER = "lever_arm_"  # + axis + '_' + the sensor's key: this filter's model lever arm coordinate [m, body]
 AXES = "xyz"
-LEVER_LIMIT = 100.0  # [m]: the sensors' own lever-arm bound (sensors.source.check_options)
 
 
 TUNED_ON = "tuned_on"  # where a filter's options were tuned: "seed=S;tracks=1,2;runs=0-19" (nespm tune)

@@ -160,7 +160,7 @@ def search_line(results: Path) -> str | None:
     by more than :data:`~nespm_cli.experiments.tune_profile.FLAT`); None without the record or the check."""
     import json
 
-    from nespm_cli.experiments.tune_profile import FLAT
+    from nespm_cli.experiments.tune_profile import FLAT, stopped_short
 
     tune = results / "tune" / "tune.json"
     if not tune.is_file():
@@ -169,11 +169,7 @@ def search_line(results: Path) -> str | None:
         best = json.loads(tune.read_text(encoding="utf-8"))["best"]
         if not any("cross" in b for b in best.values()):
             return None
-        short = []
-        for f, b in best.items():
-            g, c = min(b.get("cross", {}).items(), key=lambda kv: kv[1]["score"], default=(None, None))
-            if c is not None and c["gain"] > FLAT:
-                short.append(f"{f} ({g}'s values {100 * c['gain']:.0f} % better)")
+        short = [f"{f} ({g}'s values {100 * c['gain']:.0f} % better)" for f, (g, c) in stopped_short(best).items()]
     except (KeyError, TypeError, ValueError, OSError) as exc:
         raise NespmError(f"akit table: {tune}: not the record of nespm tune ({exc})") from None
     if not short:

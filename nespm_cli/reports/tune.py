@@ -18,6 +18,7 @@ import pandas as pd
 from nespm_cli.data.atomic import write_text_atomic
 from nespm_cli.errors import NespmError
 from nespm_cli.experiments.tune_heldout import DEFAULT_DIR, TUNED_DIR
+from nespm_cli.experiments.tune_profile import FLAT, stopped_short
 from nespm_cli.filters.options import TUNED_ON, training_overlap
 from nespm_cli.reports.block_consistency import block_consistency, consistency_words
 from nespm_cli.reports.figures import save_figure, use_agg
@@ -189,18 +190,16 @@ def cross_section(record: dict) -> list[str]:
     if not any("cross" in b for b in best.values()):
         return []
     names = list(best)
-    rows, short = [], []
+    rows = []
     for f, b in best.items():
         cross = b.get("cross", {})
         rows.append([f, fmt(b["score"])] + ["—" if g == f or g not in cross else
                                              f"{fmt(cross[g]['score'])} ({-100 * cross[g]['gain']:+.0f} %)"
                                              for g in names])
-        win = min(cross.items(), key=lambda kv: kv[1]["score"], default=None)
-        if win is not None and win[1]["gain"] > 0.02:
-            short.append(f"- **{f}**: {win[0]}'s searched values score {fmt(win[1]['score'])} on its training "
-                         f"runs, {100 * win[1]['gain']:.0f} % below its own best {fmt(b['score'])}: its search stopped "
-                         "short of its optimum. Its rank among the tuned filters below reflects the search as much "
-                         "as the filter: run more trials (`--trials`) before reading it.")
+    short = [f"- **{f}**: {g}'s searched values score {fmt(c['score'])} on its training runs, {100 * c['gain']:.0f} % "
+             f"below its own best {fmt(best[f]['score'])}: its search stopped short of its optimum. Its rank among "
+             "the tuned filters below reflects the search as much as the filter: run more trials (`--trials`) "
+             "before reading it." for f, (g, c) in stopped_short(best).items()]
     lines = ["## Each filter with the others' values", "",
              "The training score of each filter (row) with every other filter's searched values on the parameters "
              "they share (its own on the rest, e.g. alpha), and the change against its own best (negative: "
@@ -209,7 +208,7 @@ def cross_section(record: dict) -> list[str]:
              "equal search (docs/tuning.md).", "",
              md_table(["filter", "own best"] + [f"with {g}'s values" for g in names], rows), ""]
     return lines + (short + [""] if short else ["Every filter's own best is at least as good as the others' "
-                                                  "values (within 2 %).", ""])
+                                                  f"values (within {100 * FLAT:.0f} %).", ""])
 
 
 def write_tune_report(out_dir: Path, n_boot: int = 2000) -> Path:

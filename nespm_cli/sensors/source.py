@@ -38,6 +38,9 @@ MIN_VARIANCE = float(np.finfo(float).tiny)  # a std whose square is below the sm
 TRACK_LEVEL = 2**31  # the run slot of a track-level draw (jittered stamps: one schedule for every run)
 
 
+LEVER_LIMIT = 100.0  # [m]: the largest lever-arm coordinate a sensor (or a filter's model of it) takes
+
+
 @dataclass(frozen=True)
 class SensorOptions:
     """Options every sensor has (``--sensor-option NAME.KEY=VALUE``; ``[sensors.NAME]`` in a config).
@@ -348,10 +351,10 @@ def check_options(name: str, opt: SensorOptions) -> None:
     if not (0.0 <= opt.dropout < 1.0):
         raise bad("dropout", "must be a probability in [0, 1)")
     lever = np.asarray(opt.lever_arm, dtype=float)
-    if lever.shape != (3,) or not np.all(np.isfinite(lever)) or np.abs(lever).max() > 100.0:
-        raise bad("lever_arm", "must be three finite numbers within +-100 m")
+    if lever.shape != (3,) or not np.all(np.isfinite(lever)) or np.abs(lever).max() > LEVER_LIMIT:
+        raise bad("lever_arm", f"must be three finite numbers within +-{LEVER_LIMIT:g} m")
     parse_windows(opt.outage, f"--sensor-option {name}.outage")
 
 
-__all__ = ["Channel", "Context", "SOURCES", "Sensor", "SensorOptions", "TrackInfo", "Truth", "availability", "check_options",
+__all__ = ["Channel", "Context", "LEVER_LIMIT", "SOURCES", "Sensor", "SensorOptions", "TrackInfo", "Truth", "availability", "check_options",
            "convert", "jittered", "options_of", "parse_windows"]
