@@ -1,7 +1,7 @@
 """The house rules of nespm_cli, checked on its source (docs/architecture.md):
 
 * layers import only downward: errors < plugins < nav < data < checks < vehicles < learn < sensors <
-  filters < experiments < reports < api < cli (a module may import its own layer and any lower one);
+  filters < experiments < tuning < reports < api < cli (a module may import its own layer and any lower one);
 * no import circle between modules (function-level imports count too);
 * no private name (``_x``) imported from another module.
 """
@@ -12,7 +12,7 @@ from pathlib import Path
 
 PKG = Path(__file__).resolve().parents[1] / "nespm_cli"
 LAYERS = ["errors", "plugins", "nav", "data", "checks", "vehicles", "learn", "sensors", "filters", "experiments",
-          "reports", "api", "cli"]
+          "tuning", "reports", "api", "cli"]
 
 
 def module_name(path: Path) -> str:

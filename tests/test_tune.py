@@ -16,8 +16,10 @@ from nespm_cli.cli import main
 from nespm_cli.errors import NespmError
 from nespm_cli.experiments.mc import simulate
 from nespm_cli.experiments.spec import Spec, validate
-from nespm_cli.experiments.tune import STUDY_FILE, TuneSpec, run_tune, storage, training_seed
-from nespm_cli.experiments.tune_space import parse_range
+from nespm_cli.tuning.run import run_tune
+from nespm_cli.tuning.spec import TuneSpec, training_seed
+from nespm_cli.tuning.study import STUDY_FILE, storage
+from nespm_cli.tuning.space import parse_range
 
 SMALL = dict(tracks=(5,), runs=4, filters=("ekf",), dvl="synthetic", window="0:60")
 CLI = ["tune", "--tracks", "5", "--runs", "4", "--filters", "ekf", "--dvl", "synthetic", "--window", "0:60",
@@ -220,7 +222,7 @@ def test_adaptive_filters_search_their_window_or_forgetting(tmp_path, capsys):
     """iae-ekf's window (log), sh-ekf's forgetting and vb-ekf's rho (linear) are in their default
     space beside the noise factors; a range end a track cannot take (a 120 s window on a 59 s
     track) is refused in one line before any trial, and a narrowed range runs and writes the option."""
-    from nespm_cli.experiments.tune_space import default_space
+    from nespm_cli.tuning.space import default_space
     from nespm_cli.filters.registry import get_filter
     from nespm_cli.nav.state import LAYOUT_12
 

@@ -12,8 +12,9 @@ import pytest
 
 from nespm_cli.cli import main
 from nespm_cli.experiments.spec import Spec, validate
-from nespm_cli.experiments.tune import TuneSpec, level_bases, run_tune
-from nespm_cli.experiments.tune_objective import fit_level, leveled, score, trial_statistics
+from nespm_cli.tuning.run import run_tune
+from nespm_cli.tuning.spec import TuneSpec, level_bases
+from nespm_cli.tuning.objective import fit_level, leveled, score, trial_statistics
 
 SMALL = dict(tracks=(5, 6), runs=4, filters=("ekf",), dvl="synthetic", window="0:60")
 
@@ -81,7 +82,7 @@ def test_sigma_point_level_is_refitted(tmp_path, monkeypatch):
     """A UKF with a wide spread (alpha 0.3-1) is not exactly homogeneous in the level: fitted once, the
     training tracks' geometric-mean ANEES misses 6 (here by ~2e-7 relative on 60 s); refitted at the
     level, it converges (to 1e-9 with the tolerance set to 1e-12; the default tolerance is 2 %)."""
-    import nespm_cli.experiments.tune as tune
+    import nespm_cli.tuning.best as tune
 
     def geo_error(folder):
         t = TuneSpec(Spec(**{**SMALL, "filters": ("ukf",)}), trials=4, profile=False, level_runs=8,

@@ -18,8 +18,9 @@ from conftest import assert_one_error_line, cli
 from nespm_cli.errors import NespmError
 from nespm_cli.experiments.mc import simulate
 from nespm_cli.experiments.spec import Spec, filter_config_of, validate
-from nespm_cli.experiments.tune import TuneSpec, run_tune
-from nespm_cli.experiments.tune_space import apply_ranges, default_space, optional_space
+from nespm_cli.tuning.run import run_tune
+from nespm_cli.tuning.spec import TuneSpec
+from nespm_cli.tuning.space import apply_ranges, default_space, optional_space
 from nespm_cli.filters.registry import get_filter
 from nespm_cli.nav.state import LAYOUT_12
 

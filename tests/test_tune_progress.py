@@ -5,7 +5,7 @@ as workers each study has one writer, so the values are those of ``--jobs 1``, b
 from __future__ import annotations
 
 from nespm_cli.cli import main
-from nespm_cli.experiments.tune_progress import progress_line
+from nespm_cli.tuning.progress import progress_line
 
 
 def test_progress_lines():

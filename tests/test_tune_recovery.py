@@ -14,7 +14,8 @@ from __future__ import annotations
 
 from nespm_cli.data.corruption import NOMINAL_ACC_NOISE, NOMINAL_GYRO_NOISE
 from nespm_cli.experiments.spec import Spec
-from nespm_cli.experiments.tune import TuneSpec, run_tune
+from nespm_cli.tuning.run import run_tune
+from nespm_cli.tuning.spec import TuneSpec
 from nespm_cli.filters import FilterConfig
 
 import pandas as pd

@@ -7,7 +7,7 @@ import json
 import pandas as pd
 
 from nespm_cli.cli import main
-from nespm_cli.experiments.tune import training_seed
+from nespm_cli.tuning.spec import training_seed
 
 CLI = ["tune", "--tracks", "5", "--runs", "3", "--filters", "ekf,ukf", "--dvl", "synthetic", "--window", "0:60",
        "--trials", "4", "--no-progress"]

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from nespm_cli.experiments.spec import Spec, validate
-from nespm_cli.experiments.tune_objective import trial_statistics
+from nespm_cli.tuning.objective import trial_statistics
 
 
 @pytest.mark.parametrize("name", ["ekf", "ukf-nespm", "sh-ekf"])

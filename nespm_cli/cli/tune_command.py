@@ -35,10 +35,11 @@ def tune(
     **kw,
 ) -> None:
     """Tune every filter's noise (Q, R, P0, alpha) with the same budget on training runs; write tuned.toml."""
-    from nespm_cli.experiments.tune import TuneSpec, run_tune
-    from nespm_cli.experiments.tune_progress import echo_progress
-    from nespm_cli.experiments.tune_heldout import run_heldout
-    from nespm_cli.experiments.tune_space import parse_range
+    from nespm_cli.tuning.run import run_tune
+    from nespm_cli.tuning.spec import TuneSpec
+    from nespm_cli.tuning.progress import echo_progress
+    from nespm_cli.tuning.heldout import run_heldout
+    from nespm_cli.tuning.space import parse_range
 
     kw.pop("config")
     t0 = time.perf_counter()

@@ -157,10 +157,10 @@ def setup_line(results: Path) -> str | None:
 def search_line(results: Path) -> str | None:
     """The tuning's cross-check (``tune/tune.json``, docs/tuning.md): which filters' searches stopped
     short (another filter's searched values score better than their own best on the training runs,
-    by more than :data:`~nespm_cli.experiments.tune_profile.FLAT`); None without the record or the check."""
+    by more than :data:`~nespm_cli.tuning.profile.FLAT`); None without the record or the check."""
     import json
 
-    from nespm_cli.experiments.tune_profile import FLAT, stopped_short
+    from nespm_cli.tuning.profile import FLAT, stopped_short
 
     tune = results / "tune" / "tune.json"
     if not tune.is_file():

@@ -17,8 +17,8 @@ import pandas as pd
 
 from nespm_cli.data.atomic import write_text_atomic
 from nespm_cli.errors import NespmError
-from nespm_cli.experiments.tune_heldout import DEFAULT_DIR, TUNED_DIR
-from nespm_cli.experiments.tune_profile import FLAT, stopped_short
+from nespm_cli.tuning.heldout import DEFAULT_DIR, TUNED_DIR
+from nespm_cli.tuning.profile import FLAT, stopped_short
 from nespm_cli.filters.options import TUNED_ON, training_overlap
 from nespm_cli.reports.block_consistency import block_consistency, consistency_words
 from nespm_cli.reports.figures import save_figure, use_agg

@@ -17,8 +17,8 @@ from __future__ import annotations
 import numpy as np
 
 from nespm_cli.experiments.spec import Spec
-from nespm_cli.experiments.tune_objective import score, trial_statistics
-from nespm_cli.experiments.tune_space import Param
+from nespm_cli.tuning.objective import score, trial_statistics
+from nespm_cli.tuning.space import Param
 
 FACTOR = 3.0  # the profile's step: x 3 and / 3 (linear ranges: ± a third of the range)
 FLAT = 0.02  # a relative score change below this at both steps: the parameter is not seen
