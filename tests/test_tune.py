@@ -23,7 +23,7 @@ from nespm_cli.tuning.space import parse_range
 
 SMALL = dict(tracks=(5,), runs=4, filters=("ekf",), dvl="synthetic", window="0:60")
 CLI = ["tune", "--tracks", "5", "--runs", "4", "--filters", "ekf", "--dvl", "synthetic", "--window", "0:60",
-       "--no-progress"]
+       "--refine-trials", "0", "--no-progress"]  # the global search alone (the refinement: tests/test_tune_refine.py)
 
 
 def params(folder) -> pd.DataFrame:
@@ -83,7 +83,9 @@ def test_reproducible_and_mc_takes_tuned_config(tmp_path, capsys):
     pa, pb = params(tmp_path / "a"), params(tmp_path / "b")
     pd.testing.assert_frame_equal(pa, pb)
     assert a["best"] == b["best"]
-    assert len(pa) == 12 and pa["score"].notna().all()
+    phase = pd.read_parquet(tmp_path / "a" / "trials.parquet")["phase"]
+    assert (phase == "search").sum() == 12 and pa["score"].notna().all()
+    assert (phase == "refine").sum() > 0  # the refinement ran after the global search (tests/test_tune_refine.py)
     assert (pa.iloc[0][[c for c in pa.columns if c.startswith("p_")]] == 1.0).all()  # trial 0: the defaults
     assert pa["score"].nunique() > 6  # the sampler moved
     assert a["tuned_on"]["seed"] == training_seed(0) != 0
@@ -104,7 +106,7 @@ def test_reproducible_and_mc_takes_tuned_config(tmp_path, capsys):
 def test_resume_after_a_kill_continues_to_the_same_values(tmp_path):
     """A run killed mid-trial (its trial left RUNNING in study.db) and rerun ends with the values of an
     uninterrupted run; a smaller first budget extended later does too."""
-    whole = TuneSpec(Spec(**SMALL), trials=11, profile=False)
+    whole = TuneSpec(Spec(**SMALL), trials=11, profile=False, refine_trials=0)
     run_tune(whole, tmp_path / "whole")
     part = tmp_path / "part"
     run_tune(dataclasses.replace(whole, trials=4), part)
@@ -209,7 +211,7 @@ def test_kill_9_during_tune_then_rerun(tmp_path):
         proc.send_signal(signal.SIGKILL)
         proc.wait()
     assert 3 <= done < 8, done  # killed mid-study
-    t = TuneSpec(Spec(**SMALL), trials=8, profile=False)
+    t = TuneSpec(Spec(**SMALL), trials=8, profile=False, refine_trials=0)
     run_tune(t, out)  # the compiled loop from here: the same scores to round-off (rtol below)
     run_tune(t, tmp_path / "whole")
     pk, pw = params(out), params(tmp_path / "whole")
@@ -235,7 +237,7 @@ def test_adaptive_filters_search_their_window_or_forgetting(tmp_path, capsys):
     assert all("r_scale_dvl" in g and "acc_noise_scale" in g for g in got.values())
 
     cli = ["tune", "--tracks", "5", "--runs", "2", "--filters", "iae-ekf,sh-ekf", "--dvl", "synthetic",
-           "--window", "0:60", "--no-progress", "--no-profile", "--level-runs", "2", "--trials", "3"]
+           "--window", "0:60", "--no-progress", "--no-profile", "--level-runs", "2", "--trials", "3", "--refine-trials", "0"]
     rc = main(cli + ["--out", str(tmp_path / "a")])
     err = capsys.readouterr().err.strip()
     assert rc == 2 and len(err.splitlines()) == 1, err
@@ -244,6 +246,7 @@ def test_adaptive_filters_search_their_window_or_forgetting(tmp_path, capsys):
     rc = main(cli + ["--tune-range", "iae-ekf.window=5:40", "--out", str(tmp_path / "b")])
     assert rc == 0, capsys.readouterr().err
     trials = pd.read_parquet(tmp_path / "b" / "trials.parquet")
+    trials = trials[trials["phase"] == "search"]
     iae, sh = trials[trials["filter"] == "iae-ekf"], trials[trials["filter"] == "sh-ekf"]
     assert iae["p_window"].between(5, 40).all() and iae["p_window"].nunique() == 3
     assert sh["p_forgetting"].between(0.9, 0.999).all() and sh["p_forgetting"].nunique() == 3

@@ -53,7 +53,7 @@ def test_tune_writes_the_leveled_values(tmp_path):
     """The tuned values are the best trial's factors x √level, the level fitted on --level-runs runs;
     at those values the training tracks' ANEES has geometric mean 6 and the RMSE of the best trial's
     runs is kept (its first --runs runs are the trials' own)."""
-    t = TuneSpec(Spec(**SMALL), trials=6, profile=False, level_runs=8)
+    t = TuneSpec(Spec(**SMALL), trials=6, profile=False, level_runs=8, refine_trials=0)
     rec = run_tune(t, tmp_path / "a")
     b = rec["best"]["ekf"]
     assert rec["level"] == "tracks" and b["level_runs"] == 8
@@ -85,7 +85,7 @@ def test_sigma_point_level_is_refitted(tmp_path, monkeypatch):
     import nespm_cli.tuning.best as tune
 
     def geo_error(folder):
-        t = TuneSpec(Spec(**{**SMALL, "filters": ("ukf",)}), trials=4, profile=False, level_runs=8,
+        t = TuneSpec(Spec(**{**SMALL, "filters": ("ukf",)}), trials=4, profile=False, level_runs=8, refine_trials=0,
                      ranges=(("ukf", "alpha", 0.3, 1.0),))
         b = run_tune(t, tmp_path / folder)["best"]["ukf"]
         tracks = np.array(list(b["at_level_tracks"].values()))

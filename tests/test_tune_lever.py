@@ -84,7 +84,7 @@ def test_tune_calibrates_the_dvl_lever_arm_on_a_training_track(tmp_path):
     spec = Spec(tracks=(1,), runs=2, filters=("ekf",), window="0:300")
     noise = [p.key for p in default_space("ekf", get_filter("ekf"), LAYOUT_12, ("dvl",), 1e-3)]
     ranges = [("ekf", k, None, None) for k in noise] + [("ekf", "lever_arm_x_dvl", -3.0, 3.0)]
-    best = run_tune(TuneSpec(spec, trials=24, profile=False, level_runs=2, ranges=tuple(ranges)), tmp_path / "t")
+    best = run_tune(TuneSpec(spec, trials=24, profile=False, level_runs=2, ranges=tuple(ranges), refine_trials=0), tmp_path / "t")
     b = best["best"]["ekf"]
     assert abs(b["shape"]["lever_arm_x_dvl"] - L_DVL[0]) < 0.3, b["shape"]
     assert b["values"]["lever_arm_x_dvl"] == b["shape"]["lever_arm_x_dvl"]

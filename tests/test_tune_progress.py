@@ -16,7 +16,7 @@ def test_progress_lines():
 
 def test_workers_report_progress_and_start_at_the_defaults(tmp_path, capsys):
     argv = ["tune", "--tracks", "5", "--runs", "2", "--trials", "10", "--filters", "ekf,ukf", "--window", "0:30",
-            "--dvl", "synthetic", "--level-runs", "2", "--no-profile"]
+            "--dvl", "synthetic", "--level-runs", "2", "--no-profile", "--refine-trials", "12"]
     rc = main(argv + ["--jobs", "2", "--out", str(tmp_path / "t")])
     err = capsys.readouterr().err
     assert rc == 0, err

@@ -5,10 +5,12 @@ objective (docs/tuning.md).
 The world: embedded track 5, its first 90 s, 6 runs per trial, the synthetic DVL (0.02 m/s); the
 filter told the truth about everything else (P0 from the corruption; the constant biases as
 bias random walks of 1e-5 m/s²/√s and 1e-8 rad/s/√s). The space: the three mis-set factors, each
-over three decades (the answer, 0.1 / 0.1 / 5, inside). 50 trials (seeded TPE).
-Measured: acc 0.1056 (truth 0.1), DVL 4.83 (truth 5), gyro 0.262 (truth 0.1; in 90 s the gyro
-white noise is nearly invisible: its profile moves the score by ~1 %); every block's ANEES in its
-per-epoch band at 91-100 % of the epochs.
+over three decades (the answer, 0.1 / 0.1 / 5, inside). 50 trials (seeded TPE), then the local
+refinement (its default budget). Measured: acc 0.1056 (truth 0.1), DVL 4.83 (truth 5), gyro 0.685
+(truth 0.1; in 90 s the gyro white noise is seen from above only: its profile moves the score 0.3 %
+at /3 and 11 % at x3, so only an upper bound is identified, and the report says so); the search
+converged, its training score 0.0873 1.3 % below the score at the true values (0.0885); every
+block's ANEES in its per-epoch band at 91-100 % of the epochs.
 """
 from __future__ import annotations
 
@@ -41,7 +43,18 @@ def test_consistency_objective_recovers_mis_set_noise(tmp_path):
     gyro = v["gyro_noise_scale"] * 10
     assert 1 / 1.5 <= acc <= 1.5, acc
     assert 1 / 1.5 <= dvl <= 1.5, dvl
-    assert 1 / 3 <= gyro <= 3 or best["profile"]["gyro_noise_scale"]["flat"], (gyro, best["profile"])
+    assert 1 / 1.5 <= gyro <= 1.5 or best["profile"]["gyro_noise_scale"]["flat_side"], (gyro, best["profile"])
+    assert best["convergence"]["status"] == "converged", best["convergence"]
+    # the tuned training score is no worse than the score at the true values (by more than 1 %)
+    import dataclasses
+
+    from nespm_cli.experiments.spec import validate
+    from nespm_cli.tuning.objective import score, trial_statistics
+
+    train = validate(dataclasses.replace(spec, seed=rec["tuned_on"]["seed"]))
+    truth = score(trial_statistics(train, "ekf", {"acc_noise_scale": 0.1, "gyro_noise_scale": 0.1,
+                                                   "r_scale_dvl": TRUE_DVL_STD / TOLD_DVL_STD}), "consistency")
+    assert best["score"] <= 1.01 * truth, (best["score"], truth)
     trials = pd.read_parquet(tmp_path / "t" / "trials.parquet")
     row = trials[trials["trial"] == best["trial"]].iloc[0]
     for block in ("vel", "att", "ba", "bg"):

@@ -10,7 +10,7 @@ from nespm_cli.cli import main
 from nespm_cli.tuning.spec import training_seed
 
 CLI = ["tune", "--tracks", "5", "--runs", "3", "--filters", "ekf,ukf", "--dvl", "synthetic", "--window", "0:60",
-       "--trials", "4", "--no-progress"]
+       "--refine-trials", "0", "--trials", "4", "--no-progress"]
 
 
 def test_heldout_report_and_training_warning(tmp_path, capsys):

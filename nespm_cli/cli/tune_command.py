@@ -17,13 +17,19 @@ TUNE = [  # (name, type, default, flag, help)
     ("objective", str, "rmse-consistent", "--objective", "rmse-consistent (the most accurate settings whose ANEES lies in its band), rmse, or consistency (every block's ANEES and sensor's ANIS near its expectation)."),
     ("level", Optional[str], None, "--level", "With rmse-consistent: tracks (default; the common level of Q, R and P0 set in closed form so the geometric mean over the training tracks of each track's ANEES is its expectation, the search sets their ratios) or off (the level searched with the factors, a band penalty on the ANEES)."),
     ("level_runs", int, 100, "--level-runs", "With --level tracks: training runs per track the best settings' level is fitted on (more runs than the trials' make the level's sampling spread small)."),
-    ("sampler", str, "tpe", "--sampler", "Optuna sampler: tpe (seeded, multivariate) or cmaes (needs the cmaes package)."),
+    ("sampler", str, "tpe", "--sampler", "Optuna sampler of the global search: tpe (seeded, multivariate) or cmaes (needs the cmaes package)."),
+    ("refine_trials", Optional[int], None, "--refine-trials", "Budget per filter of the local refinement after the global search (a pattern search from the best of the filter's own and the other filters' values, until no step improves the score by more than 0.5 %); default 14 per searched parameter; 0: none. The report says per filter converged or stopped short by X %."),
+    ("search_seed", Optional[int], None, "--search-seed", "Seed of the samplers (the search's luck), apart from --seed (the data's); default: the training seed derived from --seed."),
+    ("repeats", int, 1, "--repeats", "Independent searches per filter on the same training runs (search k's seed from --search-seed); the report gives each search's held-out score and whether the ranking survives the search's spread."),
+    ("storage", Optional[str], None, "--storage", "An Optuna RDB storage URL every worker reaches (e.g. postgresql://user@host/db) instead of OUT/study.db (docs/cluster.md)."),
     ("tune_range", Optional[List[str]], None, "--tune-range", "NAME.KEY=LOW:HIGH narrows or widens a parameter's range (NAME * for every filter), NAME.KEY=off drops it; a range on a sensor's lever arm turns its search on ('*.lever_arm_x_dvl=-3:3': each filter calibrates the DVL's fore-aft offset, linear); repeatable; a [tune] table in a --config file."),
     ("test_tracks_", str, "", "--test-tracks", "Held-out tracks, run with the default and the tuned settings on --seed's realizations (e.g. --test-tracks 5 6)."),
     ("test_runs", int, 100, "--test-runs", "Held-out runs per test track."),
     ("allow_overlap", bool, False, "--allow-overlap", "Allow test tracks among the tuning tracks (the report flags it)."),
     ("no_profile", bool, False, "--no-profile", "Skip the score profile of each tuned parameter (2 trials per parameter after the search; the report's profile column then reads —)."),
-    ("jobs", int, 1, "--jobs", "Worker processes sharing the studies (one worker: bit-identical values run after run)."),
+    ("jobs", int, 1, "--jobs", "Worker processes (a process per filter and search when there are at least as many: the values of --jobs 1, bit for bit); with --backend dask the local cluster's workers."),
+    ("backend", str, "loky", "--backend", "Where the searches run: loky (local processes) or dask (a task per filter and search on a Dask cluster, the studies in OUT/study.db or --storage; docs/cluster.md)."),
+    ("scheduler", Optional[str], None, "--scheduler", "Dask scheduler address (tcp://host:8786) or scheduler file; default $NESPM_DASK_SCHEDULER, else a local cluster of --jobs workers."),
     ("no_progress", bool, False, "--no-progress", "No line per 10 trials."),
     ("config", Optional[str], None, "--config", "TOML file of options; [filters.NAME] and [tune] tables (docs/tuning.md)."),
 ]
@@ -48,21 +54,28 @@ def tune(
                 level=(kw.pop("level") or "").lower() or None, level_runs=kw.pop("level_runs"),
                 ranges=tuple(parse_range(r) for r in kw.pop("tune_range") or ()),
                 test_tracks=parse_tracks(test) if test else (), test_runs=kw.pop("test_runs"),
-                allow_overlap=kw.pop("allow_overlap"), profile=not kw.pop("no_profile"))
+                allow_overlap=kw.pop("allow_overlap"), profile=not kw.pop("no_profile"),
+                refine_trials=kw.pop("refine_trials"), search_seed=kw.pop("search_seed"), repeats=kw.pop("repeats"),
+                storage=kw.pop("storage"))
     jobs, quiet = kw.pop("jobs"), kw.pop("no_progress")
+    backend, scheduler = kw.pop("backend").lower(), kw.pop("scheduler")
     spec = build_spec(tracks=parse_tracks(kw.pop("tracks_")), runs=kw.pop("runs"),
                       filters=parse_filters(kw.pop("filters_")), **kw)
     t = TuneSpec(spec, **opts)
 
-    record = run_tune(t, out, jobs=jobs, report=None if quiet else echo_progress(t.trials), argv=("nespm", *ARGV))
+    record = run_tune(t, out, jobs=jobs, report=None if quiet else echo_progress(t.trials), argv=("nespm", *ARGV),
+                      backend=backend, scheduler=scheduler)
     for f, b in record["best"].items():
         d = b["default_score"]
-        typer.echo(f"{f}: score {d:.6g} (default) -> {b['score']:.6g} (trial {b['trial']})" if d is not None
-                   else f"{f}: best score {b['score']:.6g} (trial {b['trial']})")
+        c = b.get("convergence") or {}
+        said = {"converged": "converged", "stopped short": f"stopped short by {100 * c.get('short_by', 0):.1f} % "
+                f"({c.get('by', '')})", "not checked": "convergence not checked"}.get(c.get("status"), "")
+        typer.echo((f"{f}: score {d:.6g} (default) -> {b['score']:.6g} (trial {b['trial']})" if d is not None
+                    else f"{f}: best score {b['score']:.6g} (trial {b['trial']})") + (f"; {said}" if said else ""))
     if t.test_tracks:
         if not quiet:
             typer.echo(f"held out: tracks {' '.join(map(str, t.test_tracks))}, {t.test_runs} runs, default and tuned",
                        err=True)
-        run_heldout(spec, record, out, jobs=jobs, progress=not quiet)
+        run_heldout(spec, record, out, jobs=jobs, progress=not quiet, backend=backend, scheduler=scheduler)
     typer.echo(f"{t.trials} trials per filter in {time.perf_counter() - t0:.1f} s -> {out}/tuned.toml; "
                f"next: nespm mc --config {out}/tuned.toml" + (f"; nespm report {out}" if t.test_tracks else ""))

@@ -3,78 +3,79 @@ what the search can see around it (importance, profile, the cross-check; docs/tu
 from __future__ import annotations
 
 import dataclasses
-import json
 from pathlib import Path
 
 import numpy as np
 
 from nespm_cli.experiments.spec import Spec
+from nespm_cli.tuning.evaluate import Evaluator
 from nespm_cli.tuning.objective import fit_level, leveled, summary, trial_statistics
+from nespm_cli.tuning.refine import verdict
 from nespm_cli.tuning.spec import TuneSpec, level_bases
-from nespm_cli.tuning.study import STATS_ATTR, storage
+from nespm_cli.tuning.study import STATS_ATTR, study_name, trial_phase
 
 LEVEL_TOLERANCE = 0.02  # the fitted level is refitted while the tracks' geometric-mean ANEES is > 2 % off 6
 LEVEL_ITERATIONS = 3  # at most this many refits (an EKF needs none: it is homogeneous in the level)
 
 
-def best_values(out: Path, filters: tuple, trials: int, space: dict | None = None,
-                bases: dict | None = None) -> dict[str, dict]:
+def best_values(store, filters: tuple, trials: int, space: dict | None = None, bases: dict | None = None,
+                search: int = 0) -> dict[str, dict]:
     """``{filter: {"trial", "score", "values", "shape", "level", "default_score"}}``: each filter's best
-    of its first ``trials`` completed trials (ties: the earlier trial); ``shape`` its searched values,
-    ``level`` the variance factor fitted to it (``bases`` given: ``{filter: level_bases}``, the fitted
-    level applies; else 1) and ``values`` the shape at that level (what ``tuned.toml`` writes);
-    ``default_score`` that of the first trial at the defaults of ``space`` (None if there is none)."""
+    (search ``search``, :func:`nespm_cli.tuning.study.study_name`) of its first ``trials`` completed
+    trials of the global search and every trial of its refinement (ties: the earlier trial); ``shape``
+    its searched values, ``level`` the variance factor fitted to it (``bases`` given: ``{filter:
+    level_bases}``, the fitted level applies; else 1) and ``values`` the shape at that level (what
+    ``tuned.toml`` writes); ``default_score`` that of the first trial at the defaults of ``space``
+    (None if there is none)."""
     import optuna
     from optuna.trial import TrialState
 
-    store = storage(out)
     res = {}
     for f in filters:
-        done = optuna.load_study(study_name=f, storage=store).get_trials(deepcopy=False, states=(TrialState.COMPLETE,))
-        done = sorted(done, key=lambda tr: tr.number)[:trials]
-        best = min(done, key=lambda tr: (tr.value, tr.number))
+        done = optuna.load_study(study_name=study_name(f, search), storage=store).get_trials(
+            deepcopy=False, states=(TrialState.COMPLETE,))
+        done = sorted(done, key=lambda tr: tr.number)
+        glob = [tr for tr in done if trial_phase(tr) == "search"][:trials]
+        best = min(glob + [tr for tr in done if trial_phase(tr) == "refine"], key=lambda tr: (tr.value, tr.number))
         defaults = {p.key: p.default for p in (space or {}).get(f, [])}
-        first = next((tr for tr in done if defaults and tr.params == defaults), None)
+        first = next((tr for tr in glob if defaults and tr.params == defaults), None)
         c = float(best.user_attrs.get(STATS_ATTR, {}).get("level", 1.0)) if bases else 1.0
         shape = dict(best.params)
         res[f] = {"trial": best.number, "score": best.value, "shape": shape, "level": c,
                   "values": leveled(shape, bases[f], c) if bases else shape,
                   "default_score": first.value if first is not None else None,
-                  "default_trial": first.number if first is not None else None}
+                  "default_trial": first.number if first is not None else None,
+                  "phase": trial_phase(best)}
     return res
 
 
-def add_profiles(best: dict, out: Path, train: Spec, space: dict, t: TuneSpec) -> None:
+def add_checks(best: dict, store, out: Path, train: Spec, space: dict, t: TuneSpec, refined: dict | None = None,
+               search: int = 0) -> None:
     """Add each filter's ``importance`` and (``t.profile``) ``profile`` and, with two filters or more,
-    ``cross`` (its score with the others' searched values) to ``best``, reusing those of ``tune.json``
-    when the best trials are the same (a rerun costs nothing)."""
+    ``cross`` (its score with the others' searched values) to ``best``, and its convergence verdict
+    (``convergence``, :func:`nespm_cli.tuning.refine.verdict`; ``refined``: ``{filter: the
+    refinement's record}``, None where none ran). The checks' points are scored once and kept in the
+    study (phase ``check``; a converged refinement has scored them already: no new run)."""
     import optuna
 
     from nespm_cli.tuning.profile import cross_scores, importances, profile
 
-    try:
-        old = json.loads((out / "tune.json").read_text(encoding="utf-8")).get("best", {})
-    except (OSError, ValueError):
-        old = {}
-    store = storage(out)
-    for i, (f, b) in enumerate(best.items()):
-        b["importance"] = importances(optuna.load_study(study_name=f, storage=store))
-        if not t.profile:
-            continue
-        prev = old.get(f, {})
-        if prev.get("trial") == b["trial"] and prev.get("values") == b["values"] and "profile" in prev:
-            b["profile"] = prev["profile"]
-        else:
-            b["profile"] = profile(train, f, space[f], b["shape"], t.objective, b["score"], t.level)
-        others = {g: o["shape"] for g, o in best.items() if g != f}
-        if not others:
-            continue
-        same = prev.get("trial") == b["trial"] and all(old.get(g, {}).get("shape") == v for g, v in others.items())
-        b["cross"] = prev["cross"] if same and "cross" in prev else cross_scores(
-            train, f, b["shape"], others, t.objective, b["score"], t.level)
+    for f, b in best.items():
+        study = optuna.load_study(study_name=study_name(f, search), storage=store)
+        b["importance"] = importances(study)
+        ev = Evaluator(train, f, space[f], study, t.objective, t.level)
+
+        def check_point(values: dict, ev=ev) -> float:
+            return ev(values, "check")
+        if t.profile:
+            b["profile"] = profile(space[f], b["shape"], check_point, b["score"])
+            others = {g: o["shape"] for g, o in best.items() if g != f}
+            if others:
+                b["cross"] = cross_scores(b["shape"], others, check_point, b["score"])
+        b["convergence"] = verdict(b["score"], b.get("profile"), b.get("cross"), (refined or {}).get(f))
 
 
-def add_leveled(best: dict, out: Path, train: Spec, t: TuneSpec) -> None:
+def add_leveled(best: dict, old: dict, train: Spec, t: TuneSpec) -> None:
     """With the fitted level (``t.level == "tracks"``): each filter's best shape run on
     ``max(--runs, --level-runs)`` training runs per track (the trials' runs first, then more of the
     same stream), its level fitted on them (``level``, ``values``: a level fitted on few runs carries
@@ -82,13 +83,10 @@ def add_leveled(best: dict, out: Path, train: Spec, t: TuneSpec) -> None:
     as a sigma-point filter's spread moves with it), and the leveled values run once more on the same runs: ``at_level`` their
     statistics (:func:`nespm_cli.tuning.objective.summary`: the ANEES the closed form gives, the RMSE it keeps),
     ``at_level_tracks`` each track's ANEES (6 dof) there ({track: value}: how far a held-out track may land).
-    Reused from ``tune.json`` when the shape and the runs are the same."""
+    Reused from ``old`` (the same search's ``best`` of the previous ``tune.json``; {} if none) when the
+    shape and the runs are the same."""
     if t.level != "tracks":
         return
-    try:
-        old = json.loads((out / "tune.json").read_text(encoding="utf-8")).get("best", {})
-    except (OSError, ValueError):
-        old = {}
     big = dataclasses.replace(train, runs=max(train.runs, t.level_runs))
     for f, b in best.items():
         prev = old.get(f, {})
@@ -109,4 +107,4 @@ def add_leveled(best: dict, out: Path, train: Spec, t: TuneSpec) -> None:
                  at_level_tracks={str(n): a for n, a in zip(train.tracks, stats["anees6_tracks"])})
 
 
-__all__ = ["LEVEL_ITERATIONS", "LEVEL_TOLERANCE", "add_leveled", "add_profiles", "best_values"]
+__all__ = ["LEVEL_ITERATIONS", "LEVEL_TOLERANCE", "add_checks", "add_leveled", "best_values"]

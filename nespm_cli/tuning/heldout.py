@@ -3,6 +3,8 @@ settings of every filter, on the same realizations (``--seed``, runs ``0 .. --te
 ``mc`` folders inside the tuning folder: ``OUT/heldout-default`` and ``OUT/heldout-tuned``
 (resumable like any ``mc``; ``nespm compare`` pairs them run by run). The tuned one is exactly
 ``nespm mc --config OUT/tuned.toml --tracks TEST --runs N --seed S`` with the study's options.
+With ``--repeats K`` each further search k has its own tuned folder ``OUT/heldout-tuned-search{k}``
+(:func:`tuned_dir`) on the same realizations.
 """
 from __future__ import annotations
 
@@ -25,23 +27,41 @@ def tuned_options(spec: Spec, best: dict, tuned_on: str) -> tuple:
     return keep + tuple((f, k, v) for (f, k), v in tuned.items())
 
 
-def heldout_specs(spec: Spec, record: dict) -> tuple[Spec, Spec]:
+def tuned_dir(search: int = 0) -> str:
+    """The held-out folder of search ``search``'s tuned values (``--repeats``): ``heldout-tuned`` for the
+    first, ``heldout-tuned-search{k}`` after."""
+    return TUNED_DIR if search == 0 else f"{TUNED_DIR}-search{search}"
+
+
+def search_best(record: dict, search: int) -> dict:
+    """``{filter: {"values": ...}}`` of search ``search`` of a ``tune.json`` record (the first: ``best``)."""
+    if search == 0:
+        return record["best"]
+    return {f: {"values": runs[search]["values"]} for f, runs in record["searches"].items()}
+
+
+def heldout_specs(spec: Spec, record: dict, search: int = 0) -> tuple[Spec, Spec]:
     """``(default, tuned)``: the held-out study (``record["test"]`` of ``tune.json``) with the study's
-    options, and with the tuned ones."""
+    options, and with the tuned ones of search ``search``."""
     test, on = record["test"], record["tuned_on"]
     base = dataclasses.replace(spec, tracks=tuple(test["tracks"]), runs=int(test["runs"]), smooth=())
     where = tuned_on_text(on["seed"], on["tracks"], on["runs"][0], on["runs"][1])
-    return base, dataclasses.replace(base, filter_options=tuned_options(spec, record["best"], where))
+    return base, dataclasses.replace(base, filter_options=tuned_options(spec, search_best(record, search), where))
 
 
-def run_heldout(spec: Spec, record: dict, out: str | Path, jobs: int = 1, progress: bool = False) -> dict:
-    """Run both held-out folders (resuming them); return ``{"default": metrics, "tuned": metrics}``."""
+def run_heldout(spec: Spec, record: dict, out: str | Path, jobs: int = 1, progress: bool = False,
+                backend: str = "loky", scheduler: str | None = None) -> dict:
+    """Run the held-out folders (resuming them): the default and each search's tuned values; return
+    ``{"default": metrics, "tuned": metrics, "tuned-search{k}": metrics, ...}``."""
     from nespm_cli.experiments.mc import run_mc
 
-    default, tuned = heldout_specs(spec, record)
-    ex = Execution(jobs=jobs, progress=progress)
+    ex = Execution(jobs=jobs, backend=backend, scheduler=scheduler, progress=progress)
     out = Path(out)
-    return {"default": run_mc(default, out / DEFAULT_DIR, ex), "tuned": run_mc(tuned, out / TUNED_DIR, ex)}
+    default, tuned = heldout_specs(spec, record)
+    res = {"default": run_mc(default, out / DEFAULT_DIR, ex), "tuned": run_mc(tuned, out / TUNED_DIR, ex)}
+    for k in range(1, int(record.get("repeats", 1))):
+        res[f"tuned-search{k}"] = run_mc(heldout_specs(spec, record, k)[1], out / tuned_dir(k), ex)
+    return res
 
 
-__all__ = ["DEFAULT_DIR", "TUNED_DIR", "heldout_specs", "run_heldout", "tuned_options"]
+__all__ = ["DEFAULT_DIR", "TUNED_DIR", "heldout_specs", "run_heldout", "search_best", "tuned_dir", "tuned_options"]

@@ -21,7 +21,10 @@ The objectives (:data:`OBJECTIVES`):
   filter's ANEES (the report's: velocity and attitude, 6 dof, over all epochs and runs) outside
   its 95 % band ``χ²(6R)/R`` (:func:`nespm_cli.experiments.metrics.nees_band`): the most accurate
   settings whose ANEES lies in its band (1 % outside doubles the score); outside it the penalty
-  grows smoothly, so the search finds the band.
+  grows smoothly, so the search finds the band;
+* ``innovation``: no truth read: the filter's innovation likelihood with its NIS per sensor against
+  its χ² band (:mod:`nespm_cli.tuning.innovation`), from ``innovation`` (each sensor's sums of NIS,
+  log det S and rows over the runs the engine did not flag) and ``lost_numeric`` alone.
 
 The level (``--level``, :data:`LEVELS`): scaling every variance of Q, R and P0 by one factor ``c``
 leaves an EKF's gain, estimates and errors unchanged and divides its NEES by ``c`` (the Kalman
@@ -36,7 +39,8 @@ its written values are its factors x ``√c`` (:func:`leveled`). ``off``: the ba
 the factors as searched.
 
 A trial that loses a run scores ``LOST + lost fraction`` (above every trial that loses none: lost
-runs are ranked worst, and fewer lost is better).
+runs are ranked worst, and fewer lost is better); with ``innovation`` a run is lost when the engine
+flags it (``lost_numeric``: the attitude rule needs the truth).
 """
 from __future__ import annotations
 
@@ -49,8 +53,9 @@ from nespm_cli.data.corruption import true_biases
 from nespm_cli.experiments.metrics import (STAT_BLOCKS, block_statistics, divergence, epoch_nis, nees_band,
                                           run_metrics)
 from nespm_cli.experiments.spec import Spec
+from nespm_cli.tuning.innovation import add_sums, innovation_score, innovation_summary, sensor_sums
 
-OBJECTIVES = ("rmse-consistent", "rmse", "consistency")
+OBJECTIVES = ("rmse-consistent", "rmse", "consistency", "innovation")
 LEVELS = ("tracks", "off")  # rmse-consistent: the level fitted over the tracks (default), or searched as the factors
 LOST = 1e6  # the score of a trial that lost runs: LOST + the fraction lost
 BAND_PENALTY = 100.0  # rmse-consistent: x (1 + BAND_PENALTY x the log-distance outside the band)
@@ -71,7 +76,9 @@ def trial_statistics(spec: Spec, name: str, values: dict, reuse: dict | None = N
     """Run filter ``name`` with the options ``values`` on every run of every track of ``spec``
     (validated); return the statistics the objectives use: ``rmse``, ``lost`` (fractions),
     ``anees`` ({block: (N,) per epoch over every track's epochs}), ``anis`` ({sensor: (N,)}),
-    ``mean_anees`` ({block: float}), ``runs`` (total). ``reuse``: a dict kept across the trials of one
+    ``mean_anees`` ({block: float}), ``runs`` (total), and from the filter's outputs alone (no truth):
+    ``innovation`` ({sensor: (4,)}, :func:`nespm_cli.tuning.innovation.sensor_sums` over the runs the
+    engine did not flag) and ``lost_numeric`` (the fraction it flagged). ``reuse``: a dict kept across the trials of one
     training spec (:func:`nespm_cli.experiments.mc.simulate`): the realizations are built once, not
     per trial (the same arrays: bit-identical scores)."""
     from nespm_cli.experiments.mc import simulate
@@ -84,9 +91,14 @@ def trial_statistics(spec: Spec, name: str, values: dict, reuse: dict | None = N
     tracks6 = []  # each track's ANEES (6 dof): mean over its runs kept and its epochs
     nis: dict = {}
     dims: dict = {}
+    inn: dict = {}  # the innovation objective's sums: the filter's outputs only
+    flagged = 0
     for number in spec.tracks:
         results, truth, real = simulate(s, number, runs, (name,), reuse=reuse)
         out, err, _ = results[name]
+        numeric = np.asarray(out.diverged, dtype=bool)
+        inn = add_sums(inn, sensor_sums(out, ~numeric))
+        flagged += int(numeric.sum())
         e = truth.epoch_index
         t_rel = truth.t[e] - truth.t[e[0]]
         lost_runs, _, _ = divergence(err, out.diverged, t_rel, spec.divergence)
@@ -118,7 +130,8 @@ def trial_statistics(spec: Spec, name: str, values: dict, reuse: dict | None = N
                 if np.isfinite(np.concatenate(v, axis=1)).any()}
     return {"rmse": float(np.sqrt(sse / n)) if n else float("nan"), "lost": lost / max(total, 1), "anees": anees,
             "mean_anees": mean_anees, "anis": anis, "dims": dims, "runs": total - lost,
-            "runs_per_track": len(runs), "anees6_tracks": tracks6,
+            "runs_per_track": len(runs), "anees6_tracks": tracks6, "innovation": inn,
+            "lost_numeric": flagged / max(total, 1),
             "anees6": float(np.nanmean(np.concatenate([x.ravel() for x in nees6]))) if n else float("nan")}
 
 
@@ -165,7 +178,11 @@ def leveled(values: dict, bases: dict, c: float) -> dict:
 
 def score(stats: dict, objective: str, level: str = "off") -> float:
     """The trial's score under ``objective`` (:data:`OBJECTIVES`) and ``level`` (:data:`LEVELS`; it acts
-    on ``rmse-consistent`` only); lower is better."""
+    on ``rmse-consistent`` only); lower is better. ``innovation`` reads ``innovation`` and
+    ``lost_numeric`` only."""
+    if objective == "innovation":
+        lost = float(stats["lost_numeric"])
+        return LOST + lost if lost > 0 else innovation_score(stats["innovation"])
     if stats["lost"] > 0 or not np.isfinite(stats["rmse"]):
         return LOST + float(stats["lost"])
     if objective == "rmse" or (objective == "rmse-consistent" and level == "tracks"):
@@ -178,9 +195,11 @@ def score(stats: dict, objective: str, level: str = "off") -> float:
 def summary(stats: dict) -> dict:
     """The trial's numbers kept beside its score (trials.parquet): ``rmse``, ``lost``, ``consistency``,
     ``band_distance``, ``level`` (:func:`fit_level`), ``anees_<block>`` (mean over runs and epochs), ``in_band_<block>`` (the
-    fraction of epochs whose ANEES lies in its per-epoch band χ²(3R)/R), ``anis_<sensor>``."""
+    fraction of epochs whose ANEES lies in its per-epoch band χ²(3R)/R), ``anis_<sensor>``, and the
+    innovation objective's (:func:`nespm_cli.tuning.innovation.innovation_summary`, ``lost_numeric``)."""
     out = {"rmse": stats["rmse"], "lost": stats["lost"], "consistency": consistency(stats),
-           "anees": stats["anees6"], "band_distance": band_distance(stats), "level": fit_level(stats)}
+           "anees": stats["anees6"], "band_distance": band_distance(stats), "level": fit_level(stats),
+           "lost_numeric": stats["lost_numeric"], **innovation_summary(stats["innovation"])}
     lo, hi = nees_band(3, max(int(stats["runs_per_track"]), 1))  # each epoch's ANEES: one track's runs
     for b, v in stats["anees"].items():
         out[f"anees_{b}"] = stats["mean_anees"][b]

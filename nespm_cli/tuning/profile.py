@@ -5,7 +5,8 @@
 * **Profile**: the score at the best setting with one parameter at its tuned value x :data:`FACTOR`
   and / :data:`FACTOR` (within its range), the others held; the parameter is **flat** (the objective
   cannot see it: its tuned value means nothing) when neither moves the score by more than
-  :data:`FLAT` (relative). Two trials per parameter, on the same training realizations.
+  :data:`FLAT` (relative); **flat on one side** when one of them does not (only a bound of it is seen).
+  Two trials per parameter, on the same training realizations.
 * **Cross-check**: each filter scored with every other filter's searched values on the parameters
   they share (its own elsewhere, e.g. alpha). A filter another's values serve better than its own
   best by more than :data:`FLAT` stopped short of its optimum: an equal budget is not an equal
@@ -16,8 +17,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from nespm_cli.experiments.spec import Spec
-from nespm_cli.tuning.objective import score, trial_statistics
+from typing import Callable
+
 from nespm_cli.tuning.space import Param
 
 FACTOR = 3.0  # the profile's step: x 3 and / 3 (linear ranges: ± a third of the range)
@@ -49,30 +50,34 @@ def steps(p: Param, value: float) -> tuple[float, float]:
     return max(p.low, value - span), min(p.high, value + span)
 
 
-def profile(train: Spec, name: str, params: list[Param], best: dict, objective: str, best_score: float,
-            level: str = "off") -> dict:
-    """``{key: {"low", "high", "score_low", "score_high", "change", "flat"}}`` at the best searched values
-    ``best``, scored as the trials were (``objective``, ``level``)."""
+def profile(params: list[Param], best: dict, evaluate: Callable[[dict], float], best_score: float) -> dict:
+    """``{key: {"low", "high", "score_low", "score_high", "change", "flat", "flat_side"}}`` at the best
+    searched values ``best``, each point scored by ``evaluate`` (values -> score, as the trials were).
+    ``flat_side``: ``both`` (flat), ``low`` or ``high`` where the score moves less than :data:`FLAT` on that
+    side only (or the value sits at that end of its range): the objective bounds the parameter on one
+    side only, so its tuned value is not identified (only a bound is), ``""`` where both steps move it."""
     out = {}
     for p in params:
         v = float(best[p.key])
         lo, hi = steps(p, v)
-        s = [score(trial_statistics(train, name, {**best, p.key: x}), objective, level) for x in (lo, hi)]
-        change = float(np.max(np.abs(np.asarray(s) - best_score)) / max(abs(best_score), 1e-300))
+        s = [evaluate({**best, p.key: x}) for x in (lo, hi)]
+        sides = np.abs(np.asarray(s) - best_score) / max(abs(best_score), 1e-300)
+        change = float(np.max(sides))
+        flat_side = {(True, True): "both", (True, False): "low", (False, True): "high"}.get(
+            (bool(sides[0] < FLAT or lo == v), bool(sides[1] < FLAT or hi == v)), "")
         out[p.key] = {"low": lo, "high": hi, "score_low": float(s[0]), "score_high": float(s[1]),
-                      "change": change, "flat": bool(change < FLAT)}
+                      "change": change, "flat": bool(change < FLAT), "flat_side": flat_side}
     return out
 
 
-def cross_scores(train: Spec, name: str, best: dict, others: dict, objective: str, best_score: float,
-                 level: str = "off") -> dict:
-    """``{other: {"score", "gain"}}``: filter ``name`` (best searched values ``best``) scored as its
-    trials were with each of ``others`` (``{filter: its searched values}``) over the keys they share;
-    ``gain`` the relative score drop against ``best_score`` (> :data:`FLAT`: the search stopped short)."""
+def cross_scores(best: dict, others: dict, evaluate: Callable[[dict], float], best_score: float) -> dict:
+    """``{other: {"score", "gain"}}``: a filter (best searched values ``best``) scored by ``evaluate`` with
+    each of ``others`` (``{filter: its searched values}``) over the keys they share; ``gain`` the
+    relative score drop against ``best_score`` (> :data:`FLAT`: the search stopped short)."""
     out = {}
     for g, values in others.items():
         mixed = {k: float(values.get(k, v)) for k, v in best.items()}
-        s = score(trial_statistics(train, name, mixed), objective, level)
+        s = evaluate(mixed)
         out[g] = {"score": float(s), "gain": float((best_score - s) / max(abs(best_score), 1e-300))}
     return out
 

@@ -34,11 +34,14 @@ import numpy as np
 
 from nespm_cli.experiments.spec import Spec
 from nespm_cli.filters.options import TUNED_ON, tuned_on_text
-from nespm_cli.tuning.best import add_leveled, add_profiles, best_values
+from nespm_cli.errors import NespmError
+from nespm_cli.tuning.best import add_checks, add_leveled, best_values
 from nespm_cli.tuning.progress import watch_studies
-from nespm_cli.tuning.search import tune_filter, worker_run
+from nespm_cli.tuning.refine import auto_budget
+from nespm_cli.tuning.search import refine_filter, tune_filter, worker_run
 from nespm_cli.tuning.spec import TuneSpec, check, level_bases
-from nespm_cli.tuning.study import config_digest, enqueue_default, fail_stale, open_study, quiet, storage, trials_table
+from nespm_cli.tuning.study import (config_digest, enqueue_default, fail_stale, open_study, quiet, search_seed, storage,
+                                    study_name, trials_table)
 
 
 def tuned_toml(best: dict, train: Spec, t: TuneSpec) -> str:
@@ -62,65 +65,146 @@ def tuned_toml(best: dict, train: Spec, t: TuneSpec) -> str:
     return "\n".join(lines)
 
 
+def run_tasks(fn: Callable, args: list[tuple], jobs: int, backend: str, scheduler: str | None) -> list:
+    """``fn(*a)`` for every ``a`` of ``args``: in this process (loky with one job), else as one task each
+    on ``jobs`` local processes or the Dask cluster (experiments.backend.parallel_map: a worker lost
+    mid-task is replaced and the task run again); the results in completion order."""
+    if backend == "loky" and jobs <= 1:
+        return [fn(*a) for a in args]
+    from nespm_cli.experiments.backend import parallel_map
+
+    return list(parallel_map(fn, args, jobs, backend, scheduler))
+
+
+def global_search(t: TuneSpec, train: Spec, space: dict, out: Path, jobs: int, backend: str, scheduler: str | None,
+                  report: Callable[[str, int, float], None] | None) -> None:
+    """Every filter's global search, for every search (``--repeats``): in this process (one job), one
+    task per filter and search (each study one writer: the values of one job, bit for bit), or, with
+    fewer of those than local workers, the workers sharing each study."""
+    tasks = [(i, k) for k in range(t.repeats) for i in range(len(train.filters))]
+    if backend == "loky" and jobs <= 1:
+        for i, k in tasks:
+            tune_filter(t, train, i, space[train.filters[i]], out, 0, report, k)
+        return
+    where = str(out.resolve())
+    watch = None if report is None else watch_studies(storage(out, t.storage), train.filters, t.trials, report)
+    try:
+        if len(tasks) >= jobs or backend == "dask":
+            run_tasks(worker_run, [(t, train, space, where, 0, i, k) for i, k in tasks], jobs, backend, scheduler)
+        else:  # fewer studies than workers: they share each study (values depend on the interleaving)
+            for k in range(t.repeats):
+                run_tasks(worker_run, [(t, train, space, where, w, None, k) for w in range(jobs)], jobs, backend,
+                          scheduler)
+    finally:
+        if watch is not None:
+            watch()
+
+
+def refinements(t: TuneSpec, train: Spec, space: dict, out: Path, store, jobs: int, backend: str,
+                scheduler: str | None) -> list[dict]:
+    """Every filter's local refinement (tuning.refine), per search: ``[{filter: {"start", "evaluations",
+    "finished"}}]`` (one dict per search; empty dicts with ``--refine-trials 0``). Each filter starts from
+    the best of its own global best and the other filters' (their searched values on the keys it has)."""
+    if t.refine_trials == 0:
+        return [{} for _ in range(t.repeats)]
+    tasks = []
+    for k in range(t.repeats):
+        starts = best_values(store, train.filters, t.trials, space, None, k)
+        for i, f in enumerate(train.filters):
+            tasks.append((t, train, space, str(out.resolve()), i, k, {"values": starts[f]["shape"],
+                                                                     "score": starts[f]["score"]},
+                          {g: b["shape"] for g, b in starts.items() if g != f}))
+    done = run_tasks(refine_filter, tasks, jobs, backend, scheduler)
+    out_ = [{} for _ in range(t.repeats)]
+    for r in done:
+        out_[r["search"]][r["filter"]] = {k: r[k] for k in ("start", "evaluations", "finished")}
+    return out_
+
+
+def previous_record(out: Path) -> dict:
+    """The ``tune.json`` of an earlier run into ``out`` ({} if none): what its level fits can be reused from."""
+    import json
+
+    try:
+        return json.loads((out / "tune.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return {}
+
+
+def searches_record(t: TuneSpec, train: Spec, searches: list[dict]) -> dict:
+    """``{filter: [{"search", "search_seed", "score", "values", "shape", "convergence"}]}`` over the searches."""
+    return {f: [{"search": k, "search_seed": search_seed(t, train, k), "score": b[f]["score"], "values": b[f]["values"],
+                 "shape": b[f]["shape"], "convergence": b[f].get("convergence")} for k, b in enumerate(searches)]
+            for f in train.filters}
+
+
 def run_tune(t: TuneSpec, out: str | Path, jobs: int = 1, report: Callable[[str, int, float], None] | None = None,
-             argv=None) -> dict:
-    """Tune every filter of ``t.spec`` into ``out`` (resuming what is there); write ``trials.parquet``,
-    ``tuned.toml`` and ``tune.json``; return the ``tune.json`` record."""
+             argv=None, backend: str = "loky", scheduler: str | None = None) -> dict:
+    """Tune every filter of ``t.spec`` into ``out`` (resuming what is there): the global search, the local
+    refinement, the level, the checks and the verdict, for every search (``--repeats``); write
+    ``trials.parquet``, ``tuned.toml`` (the first search's values) and ``tune.json``; return the
+    ``tune.json`` record. ``backend`` ``loky`` (``jobs`` local processes) or ``dask`` (``scheduler``, else a
+    local cluster of ``jobs`` workers; docs/cluster.md)."""
+    import sys
+
     from nespm_cli.data.atomic import write_text_atomic
+    from nespm_cli.experiments.backend import check_backend, check_scheduler
     from nespm_cli.experiments.store import FolderLock, write_json_atomic, write_parquet_atomic
 
     t, train, space = check(t)
+    check_backend(backend)
+    check_scheduler(backend, scheduler)
+    if jobs < 1:
+        raise NespmError(f"--jobs must be at least 1, got {jobs}")
     out = Path(out)
     lock = FolderLock(out)
     try:
         quiet()
-        store = storage(out)
-        for f in train.filters:  # identity first (a foreign study file stops here), then stale trials
-            study = open_study(store, f, config_digest(train, f, space[f], t), out)
-            fail_stale(store, study)
-            enqueue_default(study, space[f])
-        if jobs <= 1:
-            for i, f in enumerate(train.filters):
-                tune_filter(t, train, i, space[f], out, 0, report)
-        else:
-            from joblib import Parallel, delayed
-
-            watch = None if report is None else watch_studies(storage(out), train.filters, t.trials, report)
-            try:
-                if len(train.filters) >= jobs:  # a process per filter: each study has one writer (= --jobs 1)
-                    calls = (delayed(worker_run)(t, train, space, str(out.resolve()), 0, i)
-                             for i in range(len(train.filters)))
-                else:  # fewer filters than workers: they share each study (values depend on the interleaving)
-                    calls = (delayed(worker_run)(t, train, space, str(out.resolve()), w) for w in range(jobs))
-                Parallel(n_jobs=jobs, backend="loky")(calls)
-            finally:
-                if watch is not None:
-                    watch()
-        table = trials_table(out, train.filters)
-        write_parquet_atomic(table, out / "trials.parquet")
+        store = storage(out, t.storage)
+        for k in range(t.repeats):  # identity first (a foreign study file stops here), then stale trials
+            for f in train.filters:
+                study = open_study(store, study_name(f, k), config_digest(train, f, space[f], t, k), out)
+                fail_stale(store, study)
+                enqueue_default(study, space[f])
+        global_search(t, train, space, out, jobs, backend, scheduler, report)
+        if report is not None and t.refine_trials != 0:
+            most = {f: auto_budget(space[f]) if t.refine_trials is None else t.refine_trials for f in train.filters}
+            print(f"tune: refining each filter's best (pattern search, up to {max(most.values())} trials)",
+                  file=sys.stderr, flush=True)
+        refined = refinements(t, train, space, out, store, jobs, backend, scheduler)
         bases = {f: level_bases(train, f) for f in train.filters} if t.level == "tracks" else None
-        best = best_values(out, train.filters, t.trials, space, bases)
         if report is not None and (t.level == "tracks" or t.profile):
-            import sys
-
             what = " and ".join(w for w, on in (("fitting each filter's level", t.level == "tracks"),
-                                                ("profiling its best settings", t.profile)) if on)
+                                                ("checking its best settings", t.profile)) if on)
             print(f"tune: {what} on the training runs", file=sys.stderr, flush=True)
-        add_leveled(best, out, train, t)
-        add_profiles(best, out, train, space, t)
+        old = previous_record(out)
+        old_searches = [old.get("best", {})] + [{f: v[k] for f, v in old.get("searches", {}).items() if len(v) > k}
+                                                for k in range(1, t.repeats)]
+        searches = []
+        for k in range(t.repeats):
+            best = best_values(store, train.filters, t.trials, space, bases, k)
+            add_leveled(best, old_searches[k] if k < len(old_searches) else {}, train, t)
+            add_checks(best, store, out, train, space, t, refined[k], k)
+            searches.append(best)
+        write_parquet_atomic(trials_table(store, train.filters, t.repeats), out / "trials.parquet")
+        best = searches[0]
         write_text_atomic(out / "tuned.toml", tuned_toml(best, train, t))
         record = {"command": list(argv) if argv is not None else None, "objective": t.objective, "level": t.level,
-                  "sampler": t.sampler, "trials": t.trials, "jobs": jobs,
+                  "sampler": t.sampler, "trials": t.trials, "jobs": jobs, "backend": backend,
+                  "refine_trials": t.refine_trials, "search_seed": search_seed(t, train, 0), "repeats": t.repeats,
                   "tuned_on": {"tracks": list(train.tracks), "runs": [0, train.runs], "seed": train.seed,
                                "seed_of": t.spec.seed},
                   "test": {"tracks": list(t.test_tracks), "runs": t.test_runs, "seed": t.spec.seed,
                            "overlap": sorted(set(t.test_tracks) & set(train.tracks))},
                   "space": {f: [p.record() for p in ps] for f, ps in space.items()},
                   "best": best, "spec": train.as_dict()}
+        if t.repeats > 1:
+            record["searches"] = searches_record(t, train, searches)
         write_json_atomic(record, out / "tune.json")
         return record
     finally:
         lock.release()
 
 
-__all__ = ["run_tune", "tuned_toml"]
+__all__ = ["global_search", "previous_record", "refinements", "run_tasks", "run_tune", "searches_record",
+           "tuned_toml"]

@@ -28,7 +28,12 @@ class TuneSpec:
     sets the common level of Q, R and P0; None: its default), ``ranges`` (``(NAME, KEY, LOW, HIGH)``,
     :func:`nespm_cli.tuning.space.apply_ranges`), the
     held-out ``test_tracks`` and ``test_runs``, ``allow_overlap`` (test tracks among the tuning
-    tracks: flagged instead of refused)."""
+    tracks: flagged instead of refused); ``search_seed`` the samplers' seed (None: the training seed,
+    so one ``--seed`` sets both; given, the search's luck is varied apart from the data's), ``repeats``
+    independent searches per filter on the same training runs (search k's seed:
+    :func:`nespm_cli.tuning.study.search_seed`), ``refine_trials`` the local refinement's budget per
+    filter and search (0: none; None: :func:`nespm_cli.tuning.refine.auto_budget` of its space), ``storage`` an Optuna RDB storage URL every worker
+    reaches (None: the SQLite file ``OUT/study.db``)."""
 
     spec: Spec
     trials: int = 50
@@ -41,6 +46,10 @@ class TuneSpec:
     profile: bool = True  # each tuned parameter's score profile at the best setting (tuning.profile)
     level: str | None = None  # LEVELS; None: "tracks" with rmse-consistent, "off" otherwise
     level_runs: int = 100  # training runs per track the best shape's level is fitted on (at least --runs)
+    search_seed: int | None = None  # the samplers' seed; None: the training seed
+    repeats: int = 1  # independent searches per filter (--repeats)
+    refine_trials: int | None = None  # the local refinement's budget per filter and search (0: off; None: auto)
+    storage: str | None = None  # an RDB storage URL (None: OUT/study.db)
 
 
 def training_seed(seed: int) -> int:
@@ -64,6 +73,15 @@ def check(t: TuneSpec) -> tuple[TuneSpec, Spec, dict[str, list[Param]]]:
     if t.level == "tracks" and t.objective != "rmse-consistent":
         raise NespmError(f"--level tracks acts on --objective rmse-consistent only (got {t.objective}): "
                          "drop --level or use --level off")
+    if t.search_seed is not None and not 0 <= int(t.search_seed) < 2 ** 63:
+        raise NespmError(f"--search-seed must be from 0 to 2^63-1, got {t.search_seed}")
+    if not 1 <= t.repeats <= 100:
+        raise NespmError(f"--repeats must be from 1 to 100 (independent searches per filter), got {t.repeats}")
+    if t.refine_trials is not None and t.refine_trials < 0:
+        raise NespmError(f"--refine-trials must be 0 (no refinement) or more, got {t.refine_trials}")
+    if t.storage is not None and "://" not in t.storage:
+        raise NespmError(f"--storage must be a database URL (e.g. postgresql://user@host/db or "
+                         f"sqlite:////shared/study.db), got {t.storage!r}")
     if t.level_runs < 1:
         raise NespmError(f"--level-runs must be at least 1, got {t.level_runs}")
     if t.sampler not in SAMPLERS:

@@ -19,24 +19,83 @@ from nespm_cli.tuning.spec import TuneSpec
 STUDY_FILE = "study.db"
 CONFIG_ATTR = "nespm_config"  # the study's user attribute holding its configuration digest
 STATS_ATTR = "stats"  # a trial's user attribute: its statistics ({name: float}, objective.summary)
+PHASE_ATTR = "phase"  # a trial's user attribute: which phase ran it
+PHASES = ("search", "refine", "check")  # the global search; the refinement (with the candidates); the checks after it
 
 
-def config_digest(train: Spec, name: str, params: list[Param], t: TuneSpec) -> str:
-    """The identity of filter ``name``'s study: the training study, the objective, the sampler and the space."""
+def trial_phase(trial) -> str:
+    """The phase of a stored trial (:data:`PHASES`; the global search's trials before the phases existed:
+    ``search``)."""
+    return trial.user_attrs.get(PHASE_ATTR, "search")
+
+
+SEARCH_STREAM = 0x73656172  # "sear": the stream of the searches after the first (--repeats)
+
+
+def search_seed(t: TuneSpec, train: Spec, search: int = 0) -> int:
+    """The root seed of search ``search`` (0 .. --repeats-1) of every filter: ``--search-seed``, else the
+    training seed, for the first; its own stream of that for each other (0 .. 2⁶³-1)."""
+    root = int(train.seed if t.search_seed is None else t.search_seed)
+    if search == 0:
+        return root
+    state = np.random.SeedSequence([root, SEARCH_STREAM, int(search)]).generate_state(2, np.uint64)
+    return int(state[0] >> np.uint64(1))
+
+
+def study_name(name: str, search: int = 0) -> str:
+    """The study of filter ``name``'s search ``search``: the filter's name for the first, ``NAME#sK`` after."""
+    return name if search == 0 else f"{name}#s{search}"
+
+
+def config_digest(train: Spec, name: str, params: list[Param], t: TuneSpec, search: int = 0) -> str:
+    """The identity of filter ``name``'s study: the training study, the objective, the sampler, the space
+    and, when set apart from the training seed, the search's seed."""
     d = {"spec": train.as_dict(), "filter": name, "objective": t.objective, "sampler": t.sampler,
          "space": [p.record() for p in params]}
     if t.level == "tracks":  # "off" keeps the identity of the studies written before the level existed
         d["level"] = t.level
+    if t.search_seed is not None or search:  # none keeps the identity of the studies written before it existed
+        d["search_seed"] = search_seed(t, train, search)
     return hashlib.sha256(json.dumps(d, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 
-def storage(out: Path):
-    """The SQLite storage of ``out/study.db`` (shared by the workers). Write-ahead log with
-    ``synchronous=NORMAL``: a commit survives a killed process (not a power cut) without an fsync."""
+SQLITE_MAGIC = b"SQLite format 3\x00"
+
+
+def check_study_file(path: Path) -> None:
+    """One line (NespmError) when ``path`` exists but cannot be a study database: empty (0 bytes: not taken
+    as an empty study) or not an SQLite file."""
+    try:
+        if not path.exists():
+            return
+        with open(path, "rb") as fh:
+            head = fh.read(len(SQLITE_MAGIC))
+    except OSError as exc:
+        raise NespmError(f"{path}: cannot be read ({exc.strerror or exc})") from None
+    if not head:
+        raise NespmError(f"{path}: empty (0 bytes), not a study database; delete it to start afresh or use "
+                         "another --out")
+    if head != SQLITE_MAGIC:
+        raise NespmError(f"{path}: not an SQLite study database (corrupt or another file); delete it to start "
+                         "afresh or use another --out")
+
+
+def storage(out: Path, url: str | None = None):
+    """The Optuna storage of a tuning: the RDB storage at ``url`` (a database every worker reaches), else the
+    SQLite file ``out/study.db`` (shared by the local workers). Write-ahead log with
+    ``synchronous=NORMAL``: a commit survives a killed process (not a power cut) without an fsync. A file
+    that is not a study database, or a database that cannot be opened, is one line naming it."""
     import sqlite3
 
     import optuna
+    import sqlalchemy.exc
 
+    if url is not None:
+        try:
+            return optuna.storages.RDBStorage(url)
+        except (sqlalchemy.exc.SQLAlchemyError, ImportError, ValueError) as exc:
+            raise NespmError(f"--storage {url}: cannot be opened ({str(exc).splitlines()[0]})") from None
+    check_study_file(out / STUDY_FILE)
     path = str((out / STUDY_FILE).resolve())
 
     def connect():
@@ -45,14 +104,23 @@ def storage(out: Path):
         con.execute("PRAGMA synchronous=NORMAL")
         return con
 
-    return optuna.storages.RDBStorage(f"sqlite:///{path}", engine_kwargs={"creator": connect})
+    try:
+        return optuna.storages.RDBStorage(f"sqlite:///{path}", engine_kwargs={"creator": connect})
+    except sqlalchemy.exc.SQLAlchemyError as exc:
+        raise NespmError(f"{path}: not a readable study database ({str(exc.orig if hasattr(exc, 'orig') else exc)}); "
+                         "delete it to start afresh or use another --out") from None
 
 
 def open_study(store, name: str, digest: str, out: Path):
     """Filter ``name``'s study, created with ``digest`` or checked against it (one line if it differs)."""
     import optuna
+    import sqlalchemy.exc
 
-    study = optuna.create_study(storage=store, study_name=name, direction="minimize", load_if_exists=True)
+    try:
+        study = optuna.create_study(storage=store, study_name=name, direction="minimize", load_if_exists=True)
+    except sqlalchemy.exc.SQLAlchemyError as exc:
+        raise NespmError(f"{out / STUDY_FILE}: not a readable study database ({getattr(exc, 'orig', exc)}); delete "
+                         "it to start afresh or use another --out") from None
     have = study.user_attrs.get(CONFIG_ATTR)
     if have is None:
         if study.trials:
@@ -97,9 +165,10 @@ def make_sampler(kind: str, seed: int):
         return optuna.samplers.TPESampler(seed=seed, multivariate=True, n_startup_trials=10)
 
 
-def trial_seed(train_seed: int, index: int, done: int, worker: int) -> int:
-    """The sampler seed of a trial: from the training seed, the filter's index, the trials done, the worker."""
-    return int(np.random.SeedSequence([train_seed, index, done, worker]).generate_state(1)[0])
+def trial_seed(root: int, index: int, done: int, worker: int) -> int:
+    """The sampler seed of a trial: from the search's root seed (:func:`search_seed`), the filter's index,
+    the trials done, the worker."""
+    return int(np.random.SeedSequence([root, index, done, worker]).generate_state(1)[0])
 
 
 def quiet() -> None:
@@ -109,22 +178,24 @@ def quiet() -> None:
     optuna.logging.set_verbosity(optuna.logging.WARNING)
 
 
-def trials_table(out: Path, filters: tuple) -> pd.DataFrame:
-    """Every trial of every filter's study: ``filter``, ``trial``, ``state``, ``score``, ``p_<key>``
-    and the statistics of :func:`nespm_cli.tuning.objective.summary`."""
+def trials_table(store, filters: tuple, repeats: int = 1) -> pd.DataFrame:
+    """Every trial of every filter's studies (``store``, :func:`storage`): ``filter``, ``search`` (0 ..
+    --repeats-1), ``trial``, ``phase`` (:data:`PHASES`), ``state``, ``score``, ``p_<key>`` and the
+    statistics of :func:`nespm_cli.tuning.objective.summary`."""
     import optuna
 
     rows = []
-    store = storage(out)
     for f in filters:
-        study = optuna.load_study(study_name=f, storage=store)
-        for tr in study.get_trials(deepcopy=False):
-            rows.append({"filter": f, "trial": tr.number, "state": tr.state.name,
-                         "score": tr.value if tr.value is not None else np.nan,
-                         **{f"p_{k}": v for k, v in tr.params.items()},
-                         **tr.user_attrs.get(STATS_ATTR, {})})
+        for k in range(repeats):
+            study = optuna.load_study(study_name=study_name(f, k), storage=store)
+            for tr in study.get_trials(deepcopy=False):
+                rows.append({"filter": f, "search": k, "trial": tr.number, "phase": trial_phase(tr),
+                             "state": tr.state.name, "score": tr.value if tr.value is not None else np.nan,
+                             **{f"p_{key}": v for key, v in tr.params.items()},
+                             **tr.user_attrs.get(STATS_ATTR, {})})
     return pd.DataFrame(rows)
 
 
-__all__ = ["CONFIG_ATTR", "STATS_ATTR", "STUDY_FILE", "config_digest", "enqueue_default", "fail_stale", "make_sampler",
-           "open_study", "quiet", "storage", "trial_seed", "trials_table"]
+__all__ = ["CONFIG_ATTR", "PHASES", "PHASE_ATTR", "STATS_ATTR", "STUDY_FILE", "check_study_file", "config_digest",
+           "enqueue_default", "fail_stale", "make_sampler", "open_study", "quiet", "search_seed", "storage",
+           "study_name", "trial_phase", "trial_seed", "trials_table"]
