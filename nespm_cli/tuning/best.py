@@ -19,14 +19,15 @@ LEVEL_ITERATIONS = 3  # at most this many refits (an EKF needs none: it is homog
 
 
 def best_values(store, filters: tuple, trials: int, space: dict | None = None, bases: dict | None = None,
-                search: int = 0) -> dict[str, dict]:
+                search: int = 0, refined: bool = True) -> dict[str, dict]:
     """``{filter: {"trial", "score", "values", "shape", "level", "default_score"}}``: each filter's best
     (search ``search``, :func:`nespm_cli.tuning.study.study_name`) of its first ``trials`` completed
     trials of the global search and every trial of its refinement (ties: the earlier trial); ``shape``
     its searched values, ``level`` the variance factor fitted to it (``bases`` given: ``{filter:
     level_bases}``, the fitted level applies; else 1) and ``values`` the shape at that level (what
     ``tuned.toml`` writes); ``default_score`` that of the first trial at the defaults of ``space``
-    (None if there is none)."""
+    (None if there is none). ``refined`` False: the global search's best alone (where the refinement
+    starts)."""
     import optuna
     from optuna.trial import TrialState
 
@@ -36,7 +37,8 @@ def best_values(store, filters: tuple, trials: int, space: dict | None = None, b
             deepcopy=False, states=(TrialState.COMPLETE,))
         done = sorted(done, key=lambda tr: tr.number)
         glob = [tr for tr in done if trial_phase(tr) == "search"][:trials]
-        best = min(glob + [tr for tr in done if trial_phase(tr) == "refine"], key=lambda tr: (tr.value, tr.number))
+        local = [tr for tr in done if trial_phase(tr) == "refine"] if refined else []
+        best = min(glob + local, key=lambda tr: (tr.value, tr.number))
         defaults = {p.key: p.default for p in (space or {}).get(f, [])}
         first = next((tr for tr in glob if defaults and tr.params == defaults), None)
         c = float(best.user_attrs.get(STATS_ATTR, {}).get("level", 1.0)) if bases else 1.0

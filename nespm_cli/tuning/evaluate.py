@@ -16,8 +16,9 @@ from nespm_cli.tuning.study import PHASE_ATTR, STATS_ATTR
 
 
 def values_key(values: dict) -> tuple:
-    """The cache key of a setting: its ``(key, value)`` pairs, sorted."""
-    return tuple(sorted((str(k), float(v)) for k, v in values.items()))
+    """The cache key of a setting: its ``(key, value)`` pairs, sorted, each value to 12 significant digits
+    (a point reached by two paths, e.g. x / 3 x 3, is one point)."""
+    return tuple(sorted((str(k), float(f"{float(v):.12g}")) for k, v in values.items()))
 
 
 class Evaluator:

@@ -40,7 +40,7 @@ from nespm_cli.tuning.progress import watch_studies
 from nespm_cli.tuning.refine import auto_budget
 from nespm_cli.tuning.search import refine_filter, tune_filter, worker_run
 from nespm_cli.tuning.spec import TuneSpec, check, level_bases
-from nespm_cli.tuning.study import (config_digest, enqueue_default, fail_stale, open_study, quiet, search_seed, storage,
+from nespm_cli.tuning.study import (STUDY_FILE, check_study_file, config_digest, enqueue_default, fail_stale, open_study, quiet, search_seed, storage,
                                     study_name, trials_table)
 
 
@@ -109,7 +109,7 @@ def refinements(t: TuneSpec, train: Spec, space: dict, out: Path, store, jobs: i
         return [{} for _ in range(t.repeats)]
     tasks = []
     for k in range(t.repeats):
-        starts = best_values(store, train.filters, t.trials, space, None, k)
+        starts = best_values(store, train.filters, t.trials, space, None, k, refined=False)
         for i, f in enumerate(train.filters):
             tasks.append((t, train, space, str(out.resolve()), i, k, {"values": starts[f]["shape"],
                                                                      "score": starts[f]["score"]},
@@ -157,6 +157,8 @@ def run_tune(t: TuneSpec, out: str | Path, jobs: int = 1, report: Callable[[str,
     if jobs < 1:
         raise NespmError(f"--jobs must be at least 1, got {jobs}")
     out = Path(out)
+    if t.storage is None:
+        check_study_file(out / STUDY_FILE)  # before the lock: a bad file leaves nothing behind
     lock = FolderLock(out)
     try:
         quiet()

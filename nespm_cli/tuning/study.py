@@ -64,7 +64,7 @@ SQLITE_MAGIC = b"SQLite format 3\x00"
 
 def check_study_file(path: Path) -> None:
     """One line (NespmError) when ``path`` exists but cannot be a study database: empty (0 bytes: not taken
-    as an empty study) or not an SQLite file."""
+    as an empty study), not an SQLite file, or a damaged one (SQLite's quick check, read without writing)."""
     try:
         if not path.exists():
             return
@@ -78,6 +78,18 @@ def check_study_file(path: Path) -> None:
     if head != SQLITE_MAGIC:
         raise NespmError(f"{path}: not an SQLite study database (corrupt or another file); delete it to start "
                          "afresh or use another --out")
+    import sqlite3
+
+    try:  # read as an immutable file: no lock, no journal or WAL file written beside it
+        con = sqlite3.connect(f"file:{path.resolve()}?immutable=1", uri=True)
+        try:
+            got = con.execute("PRAGMA quick_check").fetchone()[0]
+        finally:
+            con.close()
+    except sqlite3.Error as exc:
+        got = str(exc)
+    if got != "ok":
+        raise NespmError(f"{path}: a damaged study database ({got}); delete it to start afresh or use another --out")
 
 
 def storage(out: Path, url: str | None = None):
