@@ -28,8 +28,13 @@ def test_heldout_report_and_training_warning(tmp_path, capsys):
     assert main(["report", str(out)]) == 0
     text = (out / "report.md").read_text()
     for words in ("# Tuning report", "## Tuned values beside the defaults", "## Held out: tracks 6",
-                  "### The tuned filters compared", "figures/convergence.png", "| ukf | alpha |"):
+                  "### The tuned filters compared", "figures/convergence.png", "| ukf | alpha |",
+                  "3 runs (seed 0), window 0:60 s", "over the epochs after t = 0"):
         assert words in text, words
+    training = text[text.index("## Training scores"):text.index("## Tuned values")]
+    for f in ("ekf", "ukf"):  # every filter's search: converged, stopped short or not checked, never silent
+        row = next(x for x in training.splitlines() if x.startswith(f"| {f} |"))
+        assert row.split("|")[-2].strip().startswith(("converged (", "stopped short", "not checked")), row
     assert (out / "figures" / "importance.png").stat().st_size > 1000
     rec = json.loads((out / "tune.json").read_text())
     assert set(rec["best"]["ukf"]["profile"]) == {p["key"] for p in rec["space"]["ukf"]}
