@@ -14,7 +14,7 @@ TUNE = [  # (name, type, default, flag, help)
     ("runs", int, 20, "--runs", "Training runs per track and trial (the same realizations for every trial and filter)."),
     ("filters_", str, "ekf,ukf,ukf-nespm", "--filters", "Comma list of the filters to tune, each with the same budget."),
     ("trials", int, 50, "--trials", "Trials per filter (the budget; a rerun with more continues the studies)."),
-    ("objective", str, "rmse-consistent", "--objective", "rmse-consistent (the most accurate settings whose ANEES lies in its band), rmse, or consistency (every block's ANEES and sensor's ANIS near its expectation)."),
+    ("objective", str, "rmse-consistent", "--objective", "rmse-consistent (the most accurate settings whose ANEES lies in its band), rmse, consistency (every block's ANEES and sensor's ANIS near its expectation), or innovation (the filter's innovation likelihood: no truth read; docs/tuning.md)."),
     ("level", Optional[str], None, "--level", "With rmse-consistent: tracks (default; the common level of Q, R and P0 set in closed form so the geometric mean over the training tracks of each track's ANEES is its expectation, the search sets their ratios) or off (the level searched with the factors, a band penalty on the ANEES)."),
     ("level_runs", int, 100, "--level-runs", "With --level tracks: training runs per track the best settings' level is fitted on (more runs than the trials' make the level's sampling spread small)."),
     ("sampler", str, "tpe", "--sampler", "Optuna sampler of the global search: tpe (seeded, multivariate) or cmaes (needs the cmaes package)."),
