@@ -14,35 +14,18 @@ import dataclasses
 import numpy as np
 import pytest
 
-from nespm_cli.data.corruption import NOMINAL_ACC_NOISE, NOMINAL_GYRO_NOISE
-from nespm_cli.experiments.spec import Spec, validate
-from nespm_cli.filters import FilterConfig
+from nespm_cli.experiments.spec import validate
 from nespm_cli.filters.engine import SensorRecord
 from nespm_cli.tuning.innovation import innovation_score, likelihood, per_sensor, sensor_sums
 from nespm_cli.tuning.objective import OBJECTIVES, leveled, score, trial_statistics
 from nespm_cli.tuning.run import run_tune
 from nespm_cli.tuning.spec import TuneSpec, level_bases
 
-TRUE_DVL_STD = 0.02  # the synthetic DVL's noise [m/s]
-TOLD_DVL_STD = 0.2 * TRUE_DVL_STD
-
-
-def mis_set_world(**kw) -> Spec:
-    """The recovery world: the EKF told the white noise x10 and the DVL std x0.2."""
-    kw = {"window": "0:90", **kw}
-    return Spec(filters=("ekf",), dvl="synthetic",
-                filter_acc_noise=10 * NOMINAL_ACC_NOISE, filter_gyro_noise=10 * NOMINAL_GYRO_NOISE,
-                sensor_options=(("dvl", "r_std", str(TOLD_DVL_STD)),),
-                filter_config=FilterConfig(acc_bias_rw=1e-5, gyro_bias_rw=1e-8), **kw)
-
+from test_tune_recovery import RANGES, TOLD_DVL_STD, TRUE_DVL_STD, mis_set_world
 
 def test_innovation_objective_recovers_mis_set_noise(tmp_path):
     spec = mis_set_world(tracks=(5,), runs=20)
-    off = ("acc_bias_rw_scale", "gyro_bias_rw_scale", "p0_vel_scale", "p0_att_scale", "p0_acc_bias_scale",
-           "p0_gyro_bias_scale")
-    ranges = (("*", "acc_noise_scale", 0.01, 10.0), ("*", "gyro_noise_scale", 0.01, 10.0),
-              ("*", "r_scale_dvl", 0.1, 30.0)) + tuple(("*", k, None, None) for k in off)
-    rec = run_tune(TuneSpec(spec, trials=50, objective="innovation", ranges=ranges), tmp_path / "t")
+    rec = run_tune(TuneSpec(spec, trials=50, objective="innovation", ranges=RANGES), tmp_path / "t")
     best = rec["best"]["ekf"]
     v = best["values"]
     acc = v["acc_noise_scale"] * 10  # tuned / true (seed 0: 1.003)

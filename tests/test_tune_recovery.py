@@ -26,15 +26,24 @@ TRUE_DVL_STD = 0.02  # the synthetic DVL's noise [m/s]
 TOLD_DVL_STD = 0.2 * TRUE_DVL_STD
 
 
-def test_consistency_objective_recovers_mis_set_noise(tmp_path):
-    spec = Spec(tracks=(5,), runs=6, filters=("ekf",), dvl="synthetic", window="0:90",
+OFF = ("acc_bias_rw_scale", "gyro_bias_rw_scale", "p0_vel_scale", "p0_att_scale", "p0_acc_bias_scale",
+       "p0_gyro_bias_scale")
+RANGES = (("*", "acc_noise_scale", 0.01, 10.0), ("*", "gyro_noise_scale", 0.01, 10.0),
+          ("*", "r_scale_dvl", 0.1, 30.0)) + tuple(("*", k, None, None) for k in OFF)  # the three mis-set factors
+
+
+def mis_set_world(**kw) -> Spec:
+    """The recovery world: the EKF told the white noise x10 and the DVL std x0.2 (also tests/test_tune_innovation.py)."""
+    kw = {"window": "0:90", **kw}
+    return Spec(filters=("ekf",), dvl="synthetic",
                 filter_acc_noise=10 * NOMINAL_ACC_NOISE, filter_gyro_noise=10 * NOMINAL_GYRO_NOISE,
                 sensor_options=(("dvl", "r_std", str(TOLD_DVL_STD)),),
-                filter_config=FilterConfig(acc_bias_rw=1e-5, gyro_bias_rw=1e-8))
-    off = ("acc_bias_rw_scale", "gyro_bias_rw_scale", "p0_vel_scale", "p0_att_scale", "p0_acc_bias_scale",
-           "p0_gyro_bias_scale")
-    ranges = (("*", "acc_noise_scale", 0.01, 10.0), ("*", "gyro_noise_scale", 0.01, 10.0),
-              ("*", "r_scale_dvl", 0.1, 30.0)) + tuple(("*", k, None, None) for k in off)
+                filter_config=FilterConfig(acc_bias_rw=1e-5, gyro_bias_rw=1e-8), **kw)
+
+
+def test_consistency_objective_recovers_mis_set_noise(tmp_path):
+    spec = mis_set_world(tracks=(5,), runs=6)
+    ranges = RANGES
     rec = run_tune(TuneSpec(spec, trials=50, objective="consistency", ranges=ranges), tmp_path / "t")
     best = rec["best"]["ekf"]
     v = best["values"]

@@ -89,18 +89,19 @@ def likelihood(sums: dict) -> float:
     return float(np.mean([v["nll"] for v in p.values()])) if p else float("inf")
 
 
+def outside(a: float, lo: float, hi: float) -> float:
+    """The log-distance of ``a`` (> 0) outside the band ``[lo, hi]``: ``log(a/hi)`` above, ``log(lo/a)``
+    below, 0 inside (the NEES and NIS bands' one rule)."""
+    return float(np.log(a / hi)) if a > hi else float(np.log(lo / a)) if a < lo else 0.0
+
+
 def nis_distance(sums: dict) -> float:
     """The mean over the sensors of the log-distance of the NIS per row outside its 95 % band ``χ²(D)/D``
     (D the sensor's rows; 0 inside); inf without any innovation."""
     p = per_sensor(sums)
     if not p:
         return float("inf")
-    d = []
-    for v in p.values():
-        lo, hi = nees_band(1, int(v["rows"]))
-        a = v["nis"]
-        d.append(np.log(a / hi) if a > hi else np.log(lo / a) if a < lo else 0.0)
-    return float(np.mean(d))
+    return float(np.mean([outside(v["nis"], *nees_band(1, int(v["rows"]))) for v in p.values()]))
 
 
 def innovation_score(sums: dict) -> float:
@@ -121,4 +122,4 @@ def innovation_summary(sums: dict) -> dict[str, float]:
 
 
 __all__ = ["SUM_KEYS", "add_sums", "innovation_score", "innovation_summary", "likelihood",
-           "nis_distance", "per_sensor", "sensor_sums"]
+           "nis_distance", "outside", "per_sensor", "sensor_sums"]

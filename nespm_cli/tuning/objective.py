@@ -22,8 +22,8 @@ The objectives (:data:`OBJECTIVES`):
   its 95 % band ``χ²(6R)/R`` (:func:`nespm_cli.experiments.metrics.nees_band`): the most accurate
   settings whose ANEES lies in its band (1 % outside doubles the score); outside it the penalty
   grows smoothly, so the search finds the band;
-* ``innovation``: no truth read: the filter's innovation likelihood with its NIS per sensor against
-  its χ² band (:mod:`nespm_cli.tuning.innovation`), from ``innovation`` (each sensor's sums of NIS,
+* ``innovation``: no truth read: the filter's innovation likelihood (:mod:`nespm_cli.tuning.innovation`;
+  the NIS per sensor against its χ² band is kept beside it, not scored), from ``innovation`` (each sensor's sums of NIS,
   log det S and rows over the runs the engine did not flag) and ``lost_numeric`` alone.
 
 The level (``--level``, :data:`LEVELS`): scaling every variance of Q, R and P0 by one factor ``c``
@@ -53,7 +53,7 @@ from nespm_cli.data.corruption import true_biases
 from nespm_cli.experiments.metrics import (STAT_BLOCKS, block_statistics, divergence, epoch_nis, nees_band,
                                           run_metrics)
 from nespm_cli.experiments.spec import Spec
-from nespm_cli.tuning.innovation import add_sums, innovation_score, innovation_summary, sensor_sums
+from nespm_cli.tuning.innovation import add_sums, innovation_score, innovation_summary, outside, sensor_sums
 
 OBJECTIVES = ("rmse-consistent", "rmse", "consistency", "innovation")
 LEVELS = ("tracks", "off")  # rmse-consistent: the level fitted over the tracks (default), or searched as the factors
@@ -152,8 +152,7 @@ def band_distance(stats: dict) -> float:
     a = stats["anees6"]
     if not np.isfinite(a):
         return float("inf")
-    lo, hi = nees_band(6, max(int(stats["runs"]), 1))
-    return float(np.log(a / hi)) if a > hi else float(np.log(lo / a)) if a < lo else 0.0
+    return outside(a, *nees_band(6, max(int(stats["runs"]), 1)))
 
 
 def fit_level(stats: dict) -> float:
