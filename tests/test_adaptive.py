@@ -1,7 +1,8 @@
 """Adaptive process noise (nespm_cli.filters.adaptive, anukf.md eqs 43-48) and the adaptive filters.
 
 Checked: Q is symmetric positive semi-definite for any network output (a property test,
-extreme and non-finite values included); with the nominal std and the default τ's it is
+extreme and non-finite values included; a non-finite or non-positive one is a fault that loses
+its run, tests/test_learned_failures.py); with the nominal std and the default τ's it is
 the fixed Q, and then ANEKF / ANUKF / ANUKF-NESPM reproduce EKF / UKF / UKF-NESPM to
 round-off; the τ options scale the blocks as eqs 44-47 say; windows are exactly the IMU
 steps of each DVL interval; the packaged weights read the injected noise level of run-time
@@ -57,9 +58,13 @@ def test_q_is_symmetric_psd_for_any_network_output(a, g, seed, mode):
     assert (vel >= lo**2 * nominal_vel * (1 - 1e-9)).all() and (vel <= hi**2 * nominal_vel * (1 + 1e-9)).all()
 
 
-def test_valid_std_replaces_non_finite_by_nominal_and_clips():
-    s = valid_std(np.array([np.nan, np.inf, -np.inf, -1.0, 0.0, 0.03, 1e9]), 0.03, (0.25, 24.0))
-    np.testing.assert_allclose(s, [0.03, 0.03, 0.03, 0.0075, 0.0075, 0.03, 0.72], rtol=0, atol=1e-15)
+def test_valid_std_marks_faults_and_clips_the_factor():
+    """One rule for every output: non-finite or <= 0 is a fault (NaN; the filter loses the run), a
+    finite positive one is clipped; with a reference the factor std/reference multiplies the nominal."""
+    s = valid_std(np.array([np.nan, np.inf, -np.inf, -1.0, 0.0, 0.03, 1e9, 1e-9]), 0.03, (0.25, 24.0))
+    np.testing.assert_allclose(s, [np.nan] * 5 + [0.03, 0.72, 0.0075], rtol=0, atol=1e-15)
+    s = valid_std(np.array([0.045, 1.0, -0.045]), 0.06, (0.25, 24.0), reference=0.03)  # --filter-acc-noise 0.06
+    np.testing.assert_allclose(s, [1.5 * 0.06, 24 * 0.06, np.nan], rtol=1e-15)
 
 
 def test_nominal_std_gives_the_fixed_q():

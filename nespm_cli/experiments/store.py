@@ -54,7 +54,8 @@ def write_json_atomic(obj, path: Path) -> None:
 # --- provenance --------------------------------------------------------------------------
 
 def versions() -> dict:
-    """Versions of Python, nespm and the numeric stack, for the manifest."""
+    """Versions of Python, nespm and the numeric stack, for the manifest (with onnx and onnxruntime
+    where installed: an ONNX noise model's numbers depend on onnxruntime's kernels)."""
     import joblib
     import pandas as pd
     import pyarrow
@@ -69,6 +70,15 @@ def versions() -> dict:
         import numba
 
         out["numba"] = numba.__version__
+    from importlib.metadata import PackageNotFoundError, version
+    from importlib.util import find_spec
+
+    for name in ("onnx", "onnxruntime"):  # the optional extra of ONNX noise models: metadata only, never imported
+        try:
+            if find_spec(name) is not None:
+                out[name] = version(name)
+        except (PackageNotFoundError, ValueError, ImportError):
+            pass
     return out
 
 

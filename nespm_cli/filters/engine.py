@@ -45,6 +45,7 @@ from nespm_cli.filters import adaptive_filters  # noqa: F401
 from nespm_cli.filters import ckf  # noqa: F401
 from nespm_cli.filters import iekf  # noqa: F401
 from nespm_cli.filters import adaptive_ekfs  # noqa: F401
+from nespm_cli.filters.adaptive import FAULT_REASON, model_faults
 from nespm_cli.filters.model import FilterConfig, NavState
 from nespm_cli.filters.protocol import ImuData
 from nespm_cli.filters.registry import filter_names, filter_source, get_filter, is_builtin
@@ -102,7 +103,11 @@ class FilterOutput:
     :class:`SensorRecord` of each sensor by name; ``noise_std`` the adaptive filters' network std
     ``(std_a, std_g)`` (R, N-1, 3), else None; ``smoothed`` the RTS-smoothed solution (a
     FilterOutput with no sensors) when ``run_filter(..., smooth=True)``, else None; ``lost_epoch``
-    (R,) the first epoch recorded after the filter flagged the run diverged (−1: never).
+    (R,) the first epoch recorded after the filter flagged the run diverged (−1: never);
+    ``lost_reason`` (R,) object, ``"noise-model"`` for a run lost to its noise model (a window
+    whose output is non-finite or <= 0, :func:`.adaptive.model_faults`, before any numeric
+    divergence), else ``""``; ``noise_faults`` (R,) int, how many windows of each run were such
+    faults (filters that ``needs_noise_std``), else None.
     """
 
     pos: np.ndarray
@@ -118,6 +123,8 @@ class FilterOutput:
     noise_std: tuple | None = None
     smoothed: "FilterOutput | None" = None
     lost_epoch: np.ndarray | None = None
+    lost_reason: np.ndarray | None = None  # (R,) object
+    noise_faults: np.ndarray | None = None
 
     @property
     def P6(self) -> np.ndarray:
@@ -189,6 +196,8 @@ def run_filter(
         raise NespmError(f"--smooth: filter {kind} has no RTS smoother (filters with one: "
                          f"{', '.join(n for n in filter_names() if getattr(get_filter(n), 'smoothable', False))})")
     filt = call(cls, "__init__", cfg, nav0, ImuData(f_meas, w_meas, dt), noise_std)
+    # (R, N-1) the windows whose noise-model output is unusable: each loses its run at the epoch closing it
+    faults = model_faults(*noise_std) if cls.needs_noise_std else None
     cov = cls.has_covariance
     builtin = is_builtin(kind)
     n = layout.n
@@ -253,6 +262,7 @@ def run_filter(
     imu_mode = cfg.time_update == "imu"
     rts = SmootherRecord() if smooth else None
     out.lost_epoch = np.full(R, -1, dtype=np.int64)
+    out.lost_reason = np.full(R, "", dtype=object)
     with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
         record(0)
         if rts is not None:
@@ -274,10 +284,16 @@ def run_filter(
                 rts.posterior(filt, epoch)
             if epoch is not None:
                 record(epoch)
+                if faults is not None and epoch > 0:  # the filter ran it on the nominal Q: lost, not the plain filter
+                    model = faults[:, epoch - 1] & (out.lost_epoch < 0)
+                    out.lost_epoch[model], out.lost_reason[model] = epoch, FAULT_REASON
                 out.lost_epoch[(out.lost_epoch < 0) & np.asarray(filt.diverged, dtype=bool)] = epoch
                 if progress is not None:
                     progress(epoch)
     out.diverged = np.asarray(call(lambda: filt.diverged, "diverged"), dtype=bool).reshape(R)
+    if faults is not None:
+        out.diverged = out.diverged | (out.lost_reason == FAULT_REASON)
+        out.noise_faults = faults.sum(axis=1).astype(np.int64)
     out.noise_std = filt.noise_std
     if rts is not None:
         t_epochs = np.concatenate([[0.0], np.cumsum(dt)])[epoch_index]
@@ -294,7 +310,8 @@ def smoothed_output(out: FilterOutput, rts: SmootherRecord, filt, t_epochs: np.n
     navs, P = rts.smooth(filt, N)
     sm = FilterOutput(pos=np.empty((R, N, 3)), v_n=np.empty((R, N, 3)), C_bn=np.empty((R, N, 3, 3)), P=P,
                       b_a=np.empty((R, N, 3)), b_g=np.empty((R, N, 3)), diverged=out.diverged.copy(),
-                      lost_epoch=out.lost_epoch.copy(),
+                      lost_epoch=out.lost_epoch.copy(), lost_reason=out.lost_reason.copy(),
+                      noise_faults=out.noise_faults,
                       dvl_used=out.dvl_used.copy(), layout=out.layout,
                       sensors={name: SensorRecord(r.t, np.zeros_like(r.used), np.full_like(r.nu, np.nan),
                                                   np.full_like(r.S, np.nan)) for name, r in out.sensors.items()})

@@ -18,6 +18,9 @@ from nespm_cli.learn.processnet import VALIDITY_CLIP
 from nespm_cli.learn.training import load_processnet, predict_noise_std
 
 WINDOW = 100  # IMU steps per ProcessNet window (anukf.md: w = 100)
+#: how a message names the option of the model file: its two spellings, one option (--noise-model
+#: and its alias --weights); :func:`nespm_cli.learn.noise_models.load_noise_model` puts the one typed
+OPTION = "--noise-model/--weights"
 
 
 def default_weights() -> Path:
@@ -42,15 +45,15 @@ def load_weights(path: str | None):
     """
     p = Path(path) if path else default_weights()
     if not p.is_file():
-        raise NespmError(f"--weights {p}: no such file (train one with `nespm train`)")
+        raise NespmError(f"{OPTION} {p}: no such file (train one with `nespm train`)")
     try:
         nets = load_processnet(p)
     except NespmError as exc:
         msg = str(exc)
-        raise NespmError(f"--weights {msg}" if msg.startswith(f"{p}:") else f"--weights {p}: {msg}") from None
+        raise NespmError(f"{OPTION} {msg}" if msg.startswith(f"{p}:") else f"{OPTION} {p}: {msg}") from None
     except Exception as exc:  # a corrupt or foreign .npz
-        raise NespmError(f"--weights {p}: not a ProcessNet file ({type(exc).__name__}: {exc})") from None
-    check_weights(nets[0], nets[1], f"--weights {p}")
+        raise NespmError(f"{OPTION} {p}: not a ProcessNet file ({type(exc).__name__}: {exc})") from None
+    check_weights(nets[0], nets[1], f"{OPTION} {p}")
     return nets
 
 
@@ -85,9 +88,10 @@ def check_weights(acc_net, gyro_net, name: str) -> None:
     Checks, per network: every parameter a finite floating-point array and the normalizer's
     scales finite and positive; then on :func:`reference_windows` (1x and 4x the nominal noise
     std) the predicted std, in multiples of the nominal std
-    (:data:`nespm_cli.data.corruption.NOMINAL_ACC_NOISE`, ``NOMINAL_GYRO_NOISE``), must be finite,
-    not all at or beyond the validity clip :data:`nespm_cli.learn.processnet.VALIDITY_CLIP`
-    (the filters would replace every value by a bound), and larger on average at 4x than at 1x.
+    (:data:`nespm_cli.data.corruption.NOMINAL_ACC_NOISE`, ``NOMINAL_GYRO_NOISE``), must be finite
+    and > 0 (the rule of every noise model's output, :func:`output_problem`), not all at or beyond
+    the validity clip :data:`nespm_cli.learn.processnet.VALIDITY_CLIP` (the filters would replace
+    every value by a bound), and larger on average at 4x than at 1x.
     Mean outputs at 1x / 4x: the packaged weights 1.05 / 4.06 (acc), 1.04 / 4.07 (gyro); weights of
     `nespm train --tracks 1 --test-tracks 5 --runs 2 --epochs 1` 3.40 / 3.82 and 3.66 / 4.20. About
     30 ms (0.1 s with the reference track built), once per process (:func:`load_weights` is cached).
@@ -118,9 +122,9 @@ def check_weights(acc_net, gyro_net, name: str) -> None:
             raise NespmError(f"{what}: {exc}") from None
         except Exception as exc:  # a network the file describes but that cannot run
             raise NespmError(f"{what}: cannot run on {WINDOW}-sample windows ({type(exc).__name__}: {exc})") from None
-        if not np.isfinite(p).all():
-            raise NespmError(f"{what}: {int((~np.isfinite(p)).sum())} of {p.size} outputs on the reference windows "
-                             "are non-finite")
+        bad = output_problem(p)
+        if bad:
+            raise NespmError(f"{what}: on the reference windows {bad}")
         if not ((p > lo) & (p < hi)).any():
             raise NespmError(f"{what}: every output on the reference windows is at or beyond the validity clip "
                              f"{lo:g}-{hi:g} x nominal (range {p.min():.4g}-{p.max():.4g}); the adaptive filters "
@@ -130,6 +134,23 @@ def check_weights(acc_net, gyro_net, name: str) -> None:
             raise NespmError(f"{what}: does not read the noise level: mean output {m1:.4g} x nominal at "
                              f"{REFERENCE_LEVELS[0]:g}x the nominal noise, {m4:.4g} at {REFERENCE_LEVELS[-1]:g}x "
                              "(must increase)")
+
+
+def output_problem(y: np.ndarray) -> str:
+    """The one rule of a noise model's output (``std`` or ``q_scale``, any kind of model): every value
+    finite and > 0. Returns ``""`` when ``y`` obeys it, else what breaks it ("2 of 240 outputs are
+    non-finite (NaN or inf) and 1 is <= 0 (...)"). The filters apply the same rule at run time
+    (:func:`nespm_cli.filters.adaptive.model_faults`: the run is lost)."""
+    y = np.asarray(y, dtype=float)
+    with np.errstate(invalid="ignore"):
+        nonfinite = int(y.size - np.count_nonzero(np.isfinite(y)))
+        nonpos = int(np.count_nonzero(np.isfinite(y) & ~(y > 0)))
+    counts = [(n, what) for n, what in ((nonfinite, "non-finite (NaN or inf)"), (nonpos, "<= 0")) if n]
+    if not counts:
+        return ""
+    parts = [f"{n}{f' of {y.size} outputs' if i == 0 else ''} {'is' if n == 1 else 'are'} {what}"
+             for i, (n, what) in enumerate(counts)]
+    return " and ".join(parts) + " (every output must be finite and > 0)"
 
 
 def interval_windows(x: np.ndarray, epoch_index: np.ndarray, window: int = WINDOW) -> np.ndarray:

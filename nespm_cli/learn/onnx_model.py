@@ -17,7 +17,10 @@ The contract (checked at load, before any run; every breach is one line naming t
   variance (std = nominal · sqrt(factor)); float32 or float64;
 * optional metadata ``nespm.rate_hz`` (default 100): the IMU rate the model was made for.
 
-A run on the 40 reference windows of :func:`nespm_cli.learn.noise_model.reference_windows` must give finite values of the declared shape.
+A run on the 40 reference windows of :func:`nespm_cli.learn.noise_model.reference_windows` must give
+values of the declared shape, every one finite and > 0 (the rule of every output, ``std`` or
+``q_scale``: :func:`~nespm_cli.learn.noise_model.output_problem`); at run time a window that breaks
+it loses its run (:mod:`nespm_cli.filters.adaptive_filters`).
 """
 from __future__ import annotations
 
@@ -26,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from nespm_cli.errors import NespmError
-from nespm_cli.learn.noise_model import IMU_RATE_HZ, NoiseModel
+from nespm_cli.learn.noise_model import IMU_RATE_HZ, OPTION, NoiseModel, output_problem
 
 INPUT = "imu"
 OUTPUTS = {"std": 6, "q_scale": 2}
@@ -60,7 +63,7 @@ class OnnxNoiseModel(NoiseModel):
 
     def __init__(self, path, threads: int = 1, reference: np.ndarray | None = None):
         p = Path(path).expanduser()
-        what = f"--noise-model {p}"
+        what = f"{OPTION} {p}"
         ort = _import("onnxruntime", what)
         if not p.is_file():
             raise NespmError(f"{what}: no such file")
@@ -103,7 +106,7 @@ class OnnxNoiseModel(NoiseModel):
 
     def _check_run(self, what: str, reference: np.ndarray | None) -> None:
         """Run once on ``reference`` (L, K, >= W, 6) windows (their last W steps; None or too
-        short: zeros (2, 2, W, 6)); the output must have the declared shape and be finite."""
+        short: zeros (2, 2, W, 6)); the output must have the declared shape and be finite and > 0."""
         ok = reference is not None and reference.shape[-2] >= self.window
         x = reference[..., -self.window:, :] if ok else np.zeros((2, 2, self.window, 6))
         try:
@@ -115,10 +118,9 @@ class OnnxNoiseModel(NoiseModel):
         if raw.shape != (x.shape[0] * x.shape[1], width):
             raise NespmError(f"{what}: output {self.output!r} has shape {list(raw.shape)} on "
                              f"{x.shape[0] * x.shape[1]} windows, expected [{x.shape[0] * x.shape[1]}, {width}]")
-        bad = int(raw.size - np.count_nonzero(np.isfinite(raw)))
-        if bad or (self.output == "q_scale" and not (raw > 0).all()):
-            raise NespmError(f"{what}: output {self.output!r} on the reference windows has {bad} non-finite value(s)"
-                             f"{'' if bad else ' or a factor <= 0'} of {raw.size}")
+        bad = output_problem(raw)  # one rule for std and q_scale: finite and > 0
+        if bad:
+            raise NespmError(f"{what}: output {self.output!r} on the reference windows: {bad}")
 
     def _run(self, x: np.ndarray) -> np.ndarray:
         """(K, W, 6) -> (K, width) raw model output, float64, in chunks of :data:`BATCH`."""
@@ -133,9 +135,10 @@ class OnnxNoiseModel(NoiseModel):
         x = np.asarray(windows)
         lead = x.shape[:-2]
         y = self._run(x.reshape((-1,) + x.shape[-2:]))
-        if self.output == "q_scale":
+        if self.output == "q_scale":  # a factor <= 0 gives NaN or 0: a fault for the filters, as a std <= 0
             nominal = np.array([NOMINAL_ACC_NOISE, NOMINAL_GYRO_NOISE])
-            y = np.repeat(nominal * np.sqrt(y), 3, axis=-1)
+            with np.errstate(invalid="ignore"):
+                y = np.repeat(nominal * np.sqrt(y), 3, axis=-1)
         return y.reshape(lead + (6,))
 
 
