@@ -53,7 +53,7 @@ PARAMS = ("lever_arm_x", "lever_arm_y", "lever_arm_z", "scale_factor",
 PRIOR_STD = np.array([5.0, 5.0, 5.0, 0.1, 0.1, 0.1, 0.1])
 
 
-def _gt_at(track: Track, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def gt_at(track: Track, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``(u, w)`` (..., 3): ``C_bn^T v_n`` [m/s] and ``w_nb^b`` [rad/s] at ``times`` (...,) [s]."""
     t = np.asarray(track.t, dtype=float)
     shape = np.shape(times)
@@ -116,7 +116,8 @@ def fit_dvl_to_gt(track: Track, max_offset: float = 2.0, step: float = 0.01, gn_
     ``resid_rms_after`` [m/s] (after the full fit, epochs used); ``epochs_used``;
     ``inflation`` (the autocorrelation factor applied to every std); ``undetermined`` (names
     from :data:`PARAMS`, plus ``"time_offset"``, the track does not determine; their std is
-    None, see the module docstring).
+    None, see the module docstring); ``time_offset_at_edge`` (the grid minimum is an end of the
+    search, whatever the curvature) and ``max_offset_s`` (the search's half-width [s]).
 
     Raises NespmError when fewer than 20 epochs remain inside the search margins.
     """
@@ -129,7 +130,7 @@ def fit_dvl_to_gt(track: Track, max_offset: float = 2.0, step: float = 0.01, gn_
     _, r0 = dvl_lever_arm_fit(track)
     prior_w = max(float(np.sqrt(np.nanmean(r0**2))) if np.isfinite(r0).any() else 0.0, 1e-4) / PRIOR_STD  # prior rows weighted like the data
     taus = np.round(np.arange(-max_offset, max_offset + step / 2, step), 10)
-    u, w = _gt_at(track, t[ok][None, :] - taus[:, None])  # (G, K, 3)
+    u, w = gt_at(track, t[ok][None, :] - taus[:, None])  # (G, K, 3)
     G, K = u.shape[:2]
     J = np.concatenate([skew(w), u[..., None], skew(u)], axis=-1).reshape(G, 3 * K, 7)
     b = (dvl[ok][None] - u).reshape(G, 3 * K)
@@ -144,7 +145,7 @@ def fit_dvl_to_gt(track: Track, max_offset: float = 2.0, step: float = 0.01, gn_
     tau = float(taus[g] if edge else taus[g] + np.clip(-a1 / (2 * a2), taus[lo] - taus[g], taus[hi - 1] - taus[g]))
 
     # Gauss-Newton on the exact model at tau, from the linearized solution at the grid minimum
-    u, w = _gt_at(track, t[ok] - tau)
+    u, w = gt_at(track, t[ok] - tau)
     lever, scale, mis = theta[g, :3].copy(), float(theta[g, 3]), theta[g, 4:].copy()
     for it in range(gn_iters + 1):  # the last pass only evaluates residual and covariance
         R, z = exp_so3(-mis), dvl_velocity(np.eye(3), u, w, lever)
@@ -168,6 +169,7 @@ def fit_dvl_to_gt(track: Track, max_offset: float = 2.0, step: float = 0.01, gn_
         "resid_std_before": _floats(r0.std(axis=0)), "resid_std_after": _floats(r.std(axis=0)),
         "resid_rms_after": float(np.sqrt(np.mean(r**2))), "epochs_used": int(K),
         "inflation": infl, "undetermined": names,
+        "time_offset_at_edge": bool(g in (0, G - 1)), "max_offset_s": float(max_offset),
     }
 
 
@@ -179,7 +181,7 @@ def dvl_residual(track: Track, fit: dict) -> np.ndarray:
     """
     t = np.asarray(track.t, dtype=float)
     tau = float(fit["time_offset_s"])
-    u, w = _gt_at(track, t - tau)
+    u, w = gt_at(track, t - tau)
     out = np.asarray(track.dvl, dtype=float) - _model(
         u, w, np.asarray(fit["lever_arm"], dtype=float), float(fit["scale_factor"]),
         np.radians(np.asarray(fit["misalignment_deg"], dtype=float)))

@@ -7,8 +7,10 @@
 * ``dvl``: the :mod:`dvl_gt` fit (lever arm, scale factor, misalignment, time offset, residuals);
 * ``corrections``: the :class:`~nespm_cli.data.corrections.Corrections` the data justify, as a
   dict, and ``options``: the same as command-line options;
-* ``verdict``: ``consistent``, ``consistent after corrections`` or ``inconsistent``, and
-  ``findings``: one sentence per thing found.
+* ``verdict``: ``consistent``, ``consistent after corrections`` or ``inconsistent``;
+  ``verdict_reasons``: why inconsistent, short, with the numbers (empty otherwise); and
+  ``findings``: one sentence per thing found (the DVL's reasons first, :mod:`dvl_verdict`);
+  ``dvl["judged"]``: the DVL's own noise, the bound, its RMS speed and the frame test.
 
 Rules (each written once here; docs/checking-data.md explains them):
 
@@ -20,7 +22,9 @@ Rules (each written once here; docs/checking-data.md explains them):
   ``OFFSET_SIGMAS`` of its 1-sigma; an offset at the edge of the search is a finding;
 * windows: inconsistent or unresolved windows (:func:`imu_gt.windows`) that touch the first or
   last :data:`TRIM_FRACTION` of the track without a gap are cut by a suggested ``window``;
-  any other is a finding, and an inconsistent one makes the verdict ``inconsistent``.
+  any other is a finding, and an inconsistent one makes the verdict ``inconsistent``;
+* the DVL: a residual, scale factor, offset at the edge of its search or frame that
+  :func:`dvl_verdict.judge_dvl` finds makes the verdict ``inconsistent``.
 """
 from __future__ import annotations
 
@@ -30,9 +34,11 @@ import math
 import numpy as np
 
 from nespm_cli.checks import dvl_gt, imu_gt
+from nespm_cli.checks.dvl_verdict import judge_dvl
 from nespm_cli.data.corrections import IDENTITY_AXES, Corrections, apply_corrections
 from nespm_cli.data.corruption import NOMINAL_ACC_NOISE, NOMINAL_GYRO_NOISE
 from nespm_cli.data.track import Track
+from nespm_cli.errors import NespmError
 
 AXES_RATIO = 0.7
 OFFSET_MIN_S = 0.02
@@ -93,6 +99,9 @@ def trim_window(track: Track, wins: list[dict]) -> tuple[tuple | None, list[dict
 
 def check_track(track: Track) -> dict:
     """The consistency check of one track (see the module docstring for the keys)."""
+    if not getattr(track, "truth", True):  # a track spec without [gt]: nothing to check the sensors against
+        raise NespmError(f"track {track.number}: no ground truth ([gt] in the track spec): nespm check compares "
+                         "the sensors with it")
     findings: list[str] = []
     dvl = dvl_gt.fit_dvl_to_gt(track)
     corr = Corrections()
@@ -136,17 +145,23 @@ def check_track(track: Track) -> dict:
     if significant(dvl["time_offset_s"], dvl["time_offset_std_s"]):
         corr = dataclasses.replace(corr, dvl_time_offset=round(dvl["time_offset_s"], 2))
         findings.append(f"DVL time offset {dvl['time_offset_s']:+.2f} +- {dvl['time_offset_std_s']:.2f} s")
+    judged = judge_dvl(track, dvl)
+    reasons = list(judged["reasons"])
     if imu is not None and imu["time_offset"]["at_edge"]:
-        verdict = "inconsistent"
-    elif left:
+        reasons.append(f"IMU offset at the edge of the +-{imu_gt.OFFSETS[-1]:g} s search")
+    if left:
+        reasons.append("IMU and GT disagree in " + ", ".join(f"{w['start']:.0f}-{w['end']:.0f} s" for w in left))
+    if reasons:
         verdict = "inconsistent"
     elif corr.is_identity:
         verdict = "consistent"
     else:
         verdict = "consistent after corrections"
+    findings[:0] = judged["findings"]  # the DVL's reasons first: they name the likely cause
+    dvl = {**dvl, "judged": {k: v for k, v in judged.items() if k not in ("findings", "reasons")}}
     out = {"track": int(track.number), "source": track.source, "imu": imu, "dvl": dvl,
            "corrections": {**dataclasses.asdict(corr), "window": None if corr.window is None else list(corr.window)},
-           "options": corr.options(), "verdict": verdict, "findings": findings}
+           "options": corr.options(), "verdict": verdict, "verdict_reasons": reasons, "findings": findings}
     bad = non_finite(out, skip=PLOT_ONLY)
     if bad:
         findings.append(f"{len(bad)} figure(s) not finite (not determined by these data), written as null in "

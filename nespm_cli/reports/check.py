@@ -14,6 +14,26 @@ from nespm_cli.reports.markdown import fmt, md_table
 DEG_H = 180.0 / math.pi * 3600.0  # rad/s -> deg/h
 
 
+def verdict_text(r: dict) -> str:
+    """The verdict with its reasons, short (``inconsistent (DVL looks like NED velocity; DVL residual 1.19 m/s)``)."""
+    reasons = r.get("verdict_reasons") or []
+    return f"{r['verdict']} ({'; '.join(reasons)})" if reasons else r["verdict"]
+
+
+def frame_text(d: dict) -> str:
+    """The DVL's own noise, the bound and the frame test of :func:`checks.dvl_verdict.judge_dvl`, one sentence."""
+    j = d.get("judged")
+    if not j:
+        return ""
+    f = j["frame"]
+    cand = ", ".join(f"{name} {fmt(f[k]['rms'], '.3f')}" for k, name in
+                     (("body", "as body"), ("ned", "as NED"), ("enu", "as ENU"))) + \
+        f", best other body axes ({f['axes']['axes'] or '-'}) {fmt(f['axes']['rms'], '.3f')}"
+    return (f"DVL's own noise {fmt(j['noise'], '.4f')} m/s (from its second difference), bound {fmt(j['bound'], '.3f')} "
+            f"m/s, RMS speed {fmt(j['speed_rms'], '.2f')} m/s; frame test, RMS residual at each reading's best "
+            f"offset: {cand} m/s.")
+
+
 def summary_rows(result: dict) -> list[list[str]]:
     """One row per track: verdict, IMU axes, IMU offset, worst gyro correlation, attitude drift,
     DVL offset, lever arm, scale factor, misalignment, DVL residual, and the options."""
@@ -30,7 +50,7 @@ def summary_rows(result: dict) -> list[list[str]]:
         sf = dvl["scale_factor"]
         mis = dvl["misalignment_deg"]
         rows.append([
-            str(r["track"]), r["verdict"], *imu_cells,
+            str(r["track"]), verdict_text(r), *imu_cells,
             f"{dvl['time_offset_s']:+.2f} ± {fmt(dvl['time_offset_std_s'], '.2f')}",
             "(" + ", ".join(f"{x:.2f}" for x in dvl["lever_arm"]) + ")",
             f"{100 * sf:+.2f}", "(" + ", ".join(f"{x:+.2f}" for x in mis) + ")",
@@ -51,6 +71,8 @@ def summary_table(result: dict) -> str:
 
 def track_section(r: dict, fig_names: list[str]) -> str:
     lines = [f"## Track {r['track']}: {r['verdict']}", "", f"Source: `{r['source']}`", ""]
+    if r.get("verdict_reasons"):
+        lines += [f"**Inconsistent:** {'; '.join(r['verdict_reasons'])} (the findings below say why and what to set).", ""]
     lines += [f"- {f}" for f in r["findings"]]
     lines.append("")
     if r["options"]:
@@ -83,6 +105,8 @@ def track_section(r: dict, fig_names: list[str]) -> str:
               f"({vec(d.get('misalignment_deg'), '+.3f')}) ± ({vec(d.get('misalignment_std_deg'), '.3g')}) deg; residual std "
               f"({vec(d.get('resid_std_before'), '.3f')}) m/s after the lever arm alone, "
               f"({vec(d.get('resid_std_after'), '.3f')}) after all four. Undetermined: {und}.", ""]
+    if d.get("judged"):
+        lines += [frame_text(d), ""]
     lines += [f"![{n}]({n})" for n in fig_names]
     lines.append("")
     return "\n".join(lines)
