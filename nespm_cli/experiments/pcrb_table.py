@@ -46,6 +46,10 @@ from nespm_cli.sensors.channels import build_channel
 EFFICIENCY_BLOCKS = (("vel", "vel_err", None), ("att", "att_err", None), ("hpos", "hpe", ("dpN", "dpE")))
 #: the blocks reported from their per-axis RMS (``--save-series axes``)
 AXES_BLOCKS = ("pos", "ba", "bg")
+#: the blocks averaged only from CONVERGED_S after the first epoch: the biases, whose bound falls by decades in
+#: the first seconds (the accelerometer bias's variance to 1/5400 of its prior in 10 s on tracks 5 and 6)
+CONVERGED_BLOCKS = ("ba", "bg")
+CONVERGED_S = 10.0  # [s]
 RUN_BLOCK = 256  # patterns per Riccati batch (memory: RUN_BLOCK x N x n floats of diagonal)
 RUNS_PER_PASS = 2000  # runs whose channels are built at once (R x K x m floats per sensor)
 
@@ -207,33 +211,90 @@ def add_pcrb(epochs: pd.DataFrame, cells: list, keys: tuple = ()) -> tuple[pd.Da
     return out, status
 
 
-def efficiency(epochs: pd.DataFrame, keys: tuple = ()) -> pd.DataFrame:
-    """Per (keys, track, filter, block): ``rmse`` the RMS over the runs (not lost) and the epochs of the
-    block's error (the velocity error norm as eq 50, the attitude's Euler-angle norm, the horizontal
-    position; with ``--save-series axes`` also the bias and 3-D position blocks from their per-axis
-    RMS), ``root_pcrb`` the root of the bound's trace of that block averaged over the epochs, and
-    ``efficiency`` = rmse / root_pcrb (1: the filter reaches the bound; below 1 only by sampling, or
-    for a smoothed ``-rts`` result, which the filtering bound does not bound). NaN where the bound is
-    unknown or the block absent."""
+def window_mask(t: np.ndarray, epoch: np.ndarray, block: str, converged_s: float = CONVERGED_S) -> np.ndarray:
+    """The epochs a block's efficiency averages over (docs/pcrb.md, "Efficiency in the report"): every GT
+    epoch after t = 0 (``epoch > 0``, the t = 0 rule of docs/report.md), and for a bias block
+    (:data:`CONVERGED_BLOCKS`) only those at least ``converged_s`` [s] after the first epoch ``t`` [s]."""
+    t, epoch = np.asarray(t, float), np.asarray(epoch)
+    mask = epoch > 0
+    if block in CONVERGED_BLOCKS and mask.any():
+        mask &= t - t[np.argmin(epoch)] >= converged_s - 1e-9
+    return mask
+
+
+def window_text(block: str, converged_s: float = CONVERGED_S) -> str:
+    """The window of :func:`window_mask` in words, for the tables: ``t > 0`` or ``t ≥ 10 s``."""
+    return f"t ≥ {converged_s:g} s" if block in CONVERGED_BLOCKS else "t > 0"
+
+
+def efficiency(epochs: pd.DataFrame, keys: tuple = (), runs: pd.DataFrame | None = None,
+               converged_s: float = CONVERGED_S) -> pd.DataFrame:
+    """Per (keys, track, filter, block): the efficiency over the epochs of :func:`window_mask` (after t = 0;
+    a bias block from ``converged_s`` on: its bound falls by decades in the first seconds, and an average
+    over them is the prior's, not the filter's).
+
+    ``rmse`` the root of the block's mean square error over the runs (not lost) and the window's epochs
+    (the velocity error norm as eq 50, the attitude's Euler-angle norm, the horizontal position; with
+    ``--save-series axes`` also the bias and 3-D position blocks from their per-axis RMS), ``root_pcrb``
+    the root of the bound's trace of that block averaged over the same epochs, ``efficiency`` =
+    rmse / root_pcrb (1: the filter reaches the bound; below 1 only by sampling, or for a smoothed
+    ``-rts`` result, which the filtering bound does not bound); NaN where the bound is unknown or the
+    block absent. ``window`` says which epochs (:func:`window_text`), ``epochs`` how many.
+
+    The sampling interval: ``runs`` holds per (keys, track, filter, run) ``mse_<block>``, each run's mean
+    square error of the block over the same window (:func:`nespm_cli.reports.efficiency_runs.run_mse`);
+    the runs are independent, so the MSE's standard error is their sample std / √R and, to first order,
+    ``rmse_3sigma`` = 3 · se / (2 · rmse) [the block's SI unit], ``efficiency_lo`` / ``efficiency_hi`` =
+    (rmse ∓ rmse_3sigma) / root_pcrb; NaN without ``runs`` or with fewer than 2 runs."""
     rows = []
     blocks = list(EFFICIENCY_BLOCKS) + [(b, None, BLOCKS[b][2]) for b in AXES_BLOCKS]
-    for key, g in epochs.groupby([*keys, "track", "filter"], sort=True):
+    group = [*keys, "track", "filter"]
+    spread = {}
+    if runs is not None and not runs.empty:
+        for key, g in runs.groupby(group, sort=False):
+            spread[key if isinstance(key, tuple) else (key,)] = g
+    for key, g in epochs.groupby(group, sort=True):
+        key = key if isinstance(key, tuple) else (key,)
+        g = g.sort_values("epoch")
         for block, col, comps in blocks:
             labels = comps or BLOCKS[block][2]
             cols = [f"pcrb_{lab}" for lab in labels]
             if col is not None:
-                mse = (g[f"{col}_mean"] ** 2 + g[f"{col}_std"] ** 2).mean() if f"{col}_std" in g else np.nan
+                if f"{col}_std" not in g:
+                    continue
+                ms = g[f"{col}_mean"] ** 2 + g[f"{col}_std"] ** 2  # population std: the mean square over runs
             elif all(f"rms_{lab}" in g for lab in labels):
-                mse = sum(g[f"rms_{lab}"] ** 2 for lab in labels).mean()
+                ms = sum(g[f"rms_{lab}"] ** 2 for lab in labels)
             else:
                 continue
-            bound = g[cols].sum(axis=1, min_count=len(cols)).mean() if all(c in g for c in cols) else np.nan
+            w = window_mask(g["t"].to_numpy(), g["epoch"].to_numpy(), block, converged_s)
+            mse = float(ms.to_numpy(float)[w].mean()) if w.any() else np.nan
+            bound = (float(g[cols].sum(axis=1, min_count=len(cols)).to_numpy(float)[w].mean())
+                     if w.any() and all(c in g for c in cols) else np.nan)
             rmse = float(np.sqrt(mse))
             root = float(np.sqrt(bound)) if np.isfinite(bound) else np.nan
-            rows.append({**dict(zip([*keys, "track", "filter"], key)), "block": block, "rmse": rmse,
-                         "root_pcrb": root, "efficiency": rmse / root if root and np.isfinite(root) else np.nan})
-    return pd.DataFrame(rows, columns=[*keys, "track", "filter", "block", "rmse", "root_pcrb", "efficiency"])
+            eff = rmse / root if root and np.isfinite(root) else np.nan
+            half = _rmse_3sigma(spread.get(key), block, rmse)
+            rows.append({**dict(zip(group, key)), "block": block, "window": window_text(block, converged_s),
+                         "epochs": int(w.sum()), "rmse": rmse, "rmse_3sigma": half, "root_pcrb": root,
+                         "efficiency": eff, "efficiency_lo": (rmse - half) / root if np.isfinite(eff) else np.nan,
+                         "efficiency_hi": (rmse + half) / root if np.isfinite(eff) else np.nan})
+    return pd.DataFrame(rows, columns=[*group, "block", "window", "epochs", "rmse", "rmse_3sigma", "root_pcrb",
+                                       "efficiency", "efficiency_lo", "efficiency_hi"])
 
 
-__all__ = ["EFFICIENCY_BLOCKS", "add_pcrb", "bound_columns", "bound_layout", "efficiency", "track_bound",
-           "true_sensor", "unknown_columns", "unknown_reason"]
+def _rmse_3sigma(runs: pd.DataFrame | None, block: str, rmse: float) -> float:
+    """3 standard errors of ``rmse`` from the runs' own mean square errors ``mse_<block>`` (NaN: none)."""
+    col = f"mse_{block}"
+    if runs is None or col not in runs or not np.isfinite(rmse) or rmse <= 0:
+        return np.nan
+    x = runs[col].to_numpy(float)
+    x = x[np.isfinite(x)]
+    if x.size < 2:
+        return np.nan
+    return float(3.0 * x.std(ddof=1) / np.sqrt(x.size) / (2.0 * rmse))
+
+
+__all__ = ["CONVERGED_BLOCKS", "CONVERGED_S", "EFFICIENCY_BLOCKS", "add_pcrb", "bound_columns", "bound_layout",
+           "efficiency", "track_bound", "true_sensor", "unknown_columns", "unknown_reason", "window_mask",
+           "window_text"]

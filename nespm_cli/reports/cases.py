@@ -128,14 +128,15 @@ def _pooled_rms(x: pd.Series) -> float:
 
 def case_table(cases: list[Case]) -> pd.DataFrame:
     """One row per (case, filter), over the runs no filter of that case lost: ``vrmse`` [m/s] and
-    ``hpe_rms`` [m] (eq 51 over tracks), ``hpe_final`` [m], ``hpe_final_pct`` [% of the distance
+    ``hpe_rms`` [m] (eq 51 over tracks; over the epochs after t = 0, :func:`stats.posterior_view`, where the
+    folder has those sums), ``hpe_final`` [m], ``hpe_final_pct`` [% of the distance
     travelled], ``drift_m_per_h``, ``cep50`` / ``r95`` [m] (final horizontal error, per track then
     averaged), ``vert_rms`` [m] (RMS over runs of the per-run vertical RMS; NaN without a
     position block), ``nis_<sensor>`` (mean per-run NIS of each sensor of the case), ``lost`` and
     ``runs`` (this filter's own losses)."""
     rows = []
     for c in cases:
-        m = c.metrics
+        m = posterior_view(c.metrics)  # the t = 0 rule (docs/report.md)
         kept = m[~lost_by_any(m)]
         nis_cols = [col for col in m.columns if col.startswith("nis_")]
         for f in dict.fromkeys(m["filter"]):

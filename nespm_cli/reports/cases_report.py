@@ -112,7 +112,7 @@ def write_compare_report(folders, out: str | Path, labels=None, reference: str |
         "numbers are over the runs no filter of that case lost; `lost` counts the filter's own losses. "
         "DT = distance travelled; drift = final horizontal error per hour of track; CEP50 and R95 of the final "
         "horizontal error; NIS: mean per run (its chi-square expectation is the sensor's dimension); the RMS "
-        "values over every epoch including t = 0, the papers' definition. "
+        "values over the epochs after t = 0 (docs/report.md, \"The t = 0 rule\"). "
         "Definitions: docs/report.md.",
         "",
         "## Cases",

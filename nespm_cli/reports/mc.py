@@ -18,6 +18,7 @@ from nespm_cli.experiments.progress import phase
 from nespm_cli.reports.block_consistency import CONSISTENT_SHARE, block_consistency, check_share
 from nespm_cli.reports.comparisons import compare_filters
 from nespm_cli.reports.mc_figures import figure_notes, plot_track_figures
+from nespm_cli.reports.efficiency_runs import needs_series, series_files
 from nespm_cli.reports.pcrb import pcrb_md
 from nespm_cli.reports.mc_markdown import beside_md, folder_label, render_report
 from nespm_cli.reports.results import load_results, scenario_of
@@ -90,7 +91,8 @@ def write_mc_report(out_dir: Path, reference: str | None = None, n_boot: int = 2
                          consistency=block_consistency(epochs, manifest, share=consistent_share),
                          consistency_by_track=block_consistency(epochs, manifest, by_track=True,
                                                                 share=consistent_share),
-                         pcrb=pcrb_md(epochs, manifest))
+                         pcrb=pcrb_md(epochs, manifest, metrics,
+                                      series_files(out_dir, manifest) if needs_series(epochs) else ()))
     path = out_dir / "report.md"
     write_text_atomic(path, text)
     return path

@@ -26,6 +26,7 @@ from nespm_cli.reports.sweep_data import (
     sweep_values,
 )
 from nespm_cli.reports.sweep_figures import plot_sweep_figures
+from nespm_cli.reports.efficiency_runs import needs_series, series_files
 from nespm_cli.reports.pcrb import SECTION as PCRB_SECTION, pcrb_md
 from nespm_cli.reports.sweep_markdown import render_sweep_report
 from nespm_cli.reports.sweep_tables import (
@@ -76,7 +77,8 @@ def write_sweep_report(out_dir: Path, baseline: str | None = None, n_boot: int =
                                practical_pct=practical_pct, all_runs=all_runs)
     epochs_path = out_dir / "epochs.parquet"  # the bound per swept value (docs/pcrb.md)
     epochs = pd.read_parquet(epochs_path) if epochs_path.is_file() else None
-    text = text.rstrip("\n") + f"\n\n{PCRB_SECTION}\n\n{pcrb_md(epochs, manifest)}\n"
+    files = series_files(out_dir, manifest) if needs_series(epochs) else ()
+    text = text.rstrip("\n") + f"\n\n{PCRB_SECTION}\n\n{pcrb_md(epochs, manifest, metrics, files)}\n"
     path = out_dir / "report.md"
     write_text_atomic(path, text)
     return path

@@ -127,9 +127,9 @@ def render_sweep_report(
         *([all_runs_section(metrics, base, n_boot, seed, value_label=label)]
           if all_runs == "median" and vt.attrs["any_lost"] else []),
         "## Caveats\n\n" + caveats_md(caveats(metrics, comps, min_pairs)),
-        "## Track-averaged VRMSE [m/s] (eqs 50–51)\n\n"
+        "## Track-averaged VRMSE [m/s] (eqs 50–51, after t = 0)\n\n"
         + _metric_md(table, "vrmse", filters, label) + fig("sweep_vrmse"),
-        "## Track-averaged MRMSE [rad] (eqs 51–52)\n\n"
+        "## Track-averaged MRMSE [rad] (eqs 51–52, after t = 0)\n\n"
         + _metric_md(table, "mrmse", filters, label) + fig("sweep_mrmse"),
         "## Mean NEES (6 DOF)\n\n"
         f"95 % consistency band for {n} runs: **[{blo:.2f}, {bhi:.2f}]** "

@@ -25,6 +25,7 @@ from nespm_cli.reports.stats import (
     paired_improvement,
     paired_run_counts,
     percentile_ci,
+    posterior_view,
     resample_counts,
     rmse,
     track_average,
@@ -51,6 +52,7 @@ def filter_bootstrap(
     """
     keys = list(METRICS) + ["nees"]
     out = {k: np.full(max(n_boot, 0), np.nan) for k in keys}
+    metrics = posterior_view(metrics)  # the t = 0 rule, as the table's point
     d = metrics[(metrics["filter"] == filt) & ~lost_by_any(metrics)]  # the runs no filter lost
     if d.empty or n_boot < 1:
         return out
@@ -82,7 +84,7 @@ def sweep_table(metrics: pd.DataFrame, n_boot: int = 2000, seed: int = 0) -> pd.
     """One row per (value, filter), values ascending, filters in order of appearance.
 
     Columns: ``value``, ``filter``; ``vrmse``, ``mrmse`` (track average, eqs 50-52, over the
-    non-diverged runs, as :func:`tables.filter_table`) and ``nees`` (mean per-run NEES of the
+    non-diverged runs and the epochs after t = 0, as :func:`tables.filter_table`) and ``nees`` (mean per-run NEES of the
     non-diverged runs), each with ``<key>_lo`` / ``<key>_hi`` (95 % bootstrap percentile
     interval, :func:`filter_bootstrap`); ``diverged``, ``runs``, ``div_rate`` =
     diverged / runs with its 95 % Wilson interval ``div_rate_lo`` / ``div_rate_hi``.
@@ -132,8 +134,10 @@ def improvement_table(
     the same resample for both) and ``<key>_ci_excludes_0`` flags an interval without 0;
     ``pairs_min`` is the fewest paired runs on a track and ``<key>_significant`` = excludes 0
     and ``pairs_min >= min_pairs``. ``attrs["baseline"]`` names the baseline. This table is
-    the only source of the improvements of the sweep report's table and figure.
+    the only source of the improvements of the sweep report's table and figure. Errors after t = 0
+    (:func:`stats.posterior_view`, the t = 0 rule of docs/report.md).
     """
+    metrics = posterior_view(metrics)
     base = default_baseline(metrics, baseline)
     rows = []
     for v in sweep_values(metrics):

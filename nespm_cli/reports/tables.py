@@ -4,7 +4,9 @@ error, NEES consistency.
 
 Every error number is over the runs no filter lost (:func:`stats.lost_by_any`): per track
 ``VRMSE = sqrt(sum(sse_vel) / sum(n_samples))`` (eq 50), MRMSE likewise with ``sse_att`` (eq 52),
-the RMS horizontal position error with ``sse_hpe``; the track average is eq 51. Improvements and
+the RMS horizontal position error with ``sse_hpe``; the track average is eq 51. The sums are the
+posterior ones, over the epochs after t = 0 (:func:`stats.posterior_view`; docs/report.md, "The t = 0
+rule"), unless ``with_t0`` asks for the papers' every-epoch sums (the published tables only). Improvements and
 their intervals are over the runs the pair kept (:func:`stats.paired_improvement`,
 :func:`stats.paired_bootstrap`). docs/report.md defines every column.
 """
@@ -23,6 +25,7 @@ from nespm_cli.reports.stats import (
     MIN_PAIRED_RUNS,
     lost_by_any,
     nees_check,
+    posterior_view,
     paired_bootstrap,
     paired_improvement,
     paired_run_counts,
@@ -32,7 +35,7 @@ from nespm_cli.reports.stats import (
 )
 
 __all__ = ["DEFAULT_REFERENCE", "default_reference", "filter_table", "horizontal_table", "nees_consistency",
-           "track_table"]
+           "rule_view", "track_table"]
 
 DEFAULT_REFERENCE = "ukf-nespm"
 
@@ -88,8 +91,19 @@ def _track_rmse(sums: pd.DataFrame, col: str) -> np.ndarray:
     return np.array([rmse([e], [n]) for e, n in zip(sums[col], sums["n_samples"])], dtype=float)
 
 
-def track_table(metrics: pd.DataFrame) -> pd.DataFrame:
-    """Per (track, filter): VRMSE, MRMSE (eqs 50, 52), mean NEES, diverged count and runs.
+def rule_view(metrics: pd.DataFrame, with_t0: bool = False) -> pd.DataFrame:
+    """``metrics`` as the tables read them: :func:`stats.posterior_view` (the t = 0 rule), or with ``with_t0``
+    the papers' every-epoch sums (``attrs["posterior"]`` False), for a number set beside a published one."""
+    if with_t0:
+        out = metrics.copy(deep=False)
+        out.attrs["posterior"] = False
+        return out
+    return posterior_view(metrics)
+
+
+def track_table(metrics: pd.DataFrame, with_t0: bool = False) -> pd.DataFrame:
+    """Per (track, filter): VRMSE, MRMSE (eqs 50, 52), mean NEES, diverged count and runs; the errors over
+    the epochs after t = 0 (:func:`rule_view`; ``with_t0``: every epoch, the papers' definition).
 
     Rows are sorted by track, filters in order of appearance; the NEES is the mean of the
     per-run ``nees`` over the non-diverged runs, ``nees_n`` the number of those runs with a
@@ -99,6 +113,7 @@ def track_table(metrics: pd.DataFrame) -> pd.DataFrame:
     ``hpe_final_pct`` (means over the non-diverged runs) and ``distance``; NaN otherwise.
     """
     check_metrics(metrics)
+    metrics = rule_view(metrics, with_t0)
     s = _sums(metrics).reset_index()
     order = {f: i for i, f in enumerate(filters_in_order(metrics))}
     s = s.assign(_o=s["filter"].map(order)).sort_values(["track", "_o"]).drop(columns="_o")
@@ -124,12 +139,14 @@ def track_table(metrics: pd.DataFrame) -> pd.DataFrame:
     out["nees_lo"] = [b[0] for b in bands]
     out["nees_hi"] = [b[1] for b in bands]
     out["consistency"] = [b[2] for b in bands]
-    return out.reset_index(drop=True)
+    out = out.reset_index(drop=True)
+    out.attrs["posterior"] = bool(metrics.attrs["posterior"])
+    return out
 
 
 def filter_table(
     metrics: pd.DataFrame, reference: str | None, n_boot: int = 2000, seed: int = 0,
-    min_pairs: int = MIN_PAIRED_RUNS,
+    min_pairs: int = MIN_PAIRED_RUNS, with_t0: bool = False,
 ) -> pd.DataFrame:
     """One row per filter (order of appearance): track-averaged metrics and improvements.
 
@@ -143,13 +160,16 @@ def filter_table(
     Improvements are percent, point and interval over the runs that diverged in neither the
     row nor the reference, NaN on the reference row; the interval is the 2.5/97.5 percentile
     of :func:`paired_bootstrap`; ``_significant`` = excludes 0 and ``pairs_min >= min_pairs``.
-    ``attrs["reference"]`` names the reference filter.
+    ``attrs["reference"]`` names the reference filter. The errors and improvements are over the epochs
+    after t = 0 (:func:`rule_view`; ``attrs["posterior"]`` False for a folder without those sums, or with
+    ``with_t0``: every epoch, the papers' definition, for the published tables).
     """
     check_metrics(metrics)
     if n_boot < 0:
         raise NespmError(f"n_boot must be >= 0, got {n_boot}")
+    metrics = rule_view(metrics, with_t0)
     ref = default_reference(metrics, reference)
-    tt = track_table(metrics)
+    tt = track_table(metrics, with_t0)
     ok = metrics[~lost_by_any(metrics)]
     rows = []
     for name in filters_in_order(metrics):
@@ -207,6 +227,7 @@ def filter_table(
     table = table[columns]
     table.attrs["reference"] = ref
     table.attrs["min_pairs"] = int(min_pairs)
+    table.attrs["posterior"] = bool(metrics.attrs["posterior"])
     return table
 
 
@@ -214,7 +235,8 @@ def horizontal_table(metrics: pd.DataFrame) -> pd.DataFrame | None:
     """Per filter, track averages of the horizontal position error, then per (track, filter):
     columns ``track`` (``None`` on the track-average rows), ``filter``, ``distance`` [m],
     ``hpe_final`` [m], ``hpe_rms`` [m], ``hpe_final_pct`` [%], ``diverged``, ``runs``.
-    ``None`` when the metrics lack the HPE columns (a folder written before them)."""
+    ``None`` when the metrics lack the HPE columns (a folder written before them). The RMS HPE is over the
+    epochs after t = 0 (:func:`rule_view`); the final HPE is the last epoch's."""
     if not has_hpe(metrics):
         return None
     tt = track_table(metrics)
