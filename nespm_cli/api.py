@@ -68,6 +68,7 @@ def report_tables(folder: str | Path, reference: str | None = None, n_boot: int 
     from nespm_cli.reports.all_runs import all_runs_table
     from nespm_cli.reports.block_consistency import block_consistency
     from nespm_cli.reports.comparisons import compare_filters
+    from nespm_cli.reports.efficiency_runs import needs_series, series_files
     from nespm_cli.reports.pcrb import efficiency_table
     from nespm_cli.reports.sweep_data import default_baseline
     from nespm_cli.reports.sweep_tables import improvement_table, sweep_table
@@ -88,7 +89,9 @@ def report_tables(folder: str | Path, reference: str | None = None, n_boot: int 
             "horizontal": horizontal_table(m),
             "verdict": verdict_table(m, ref, n_boot=n_boot, seed=seed, comps=comps, consistency=blocks),
             "comparisons": comps, "all_runs": all_runs_table(m, ref, n_boot=n_boot, seed=seed),
-            "nees": nees_consistency(m), "consistency": blocks, "efficiency": efficiency_table(res.epochs)}
+            "nees": nees_consistency(m), "consistency": blocks,
+            "efficiency": efficiency_table(res.epochs, m, series_files(Path(folder), res.manifest)
+                                           if needs_series(res.epochs) else ())}
 
 
 def compare(folders, labels=None, reference: str | None = None, n_boot: int = 2000) -> dict[str, pd.DataFrame]:
