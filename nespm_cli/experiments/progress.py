@@ -284,24 +284,59 @@ class Status:
             self._status = None
 
 
+def kernels_for(filters, layout=None) -> tuple[str, ...]:
+    """The kernels (:data:`nespm_cli.filters.kernels.KERNELS`) that running ``filters`` (names) with the error-state ``layout``
+    uses: the points for the sigma-point NESPM filters, Φ_inv for the iekf, the free-inertial loop
+    for ins, and Φ of the common error for every other error-state filter and always (the PCRB's
+    Φ along the truth). ``layout``: a :class:`~nespm_cli.nav.state.StateLayout` (default the papers'
+    12 states). A name that is not a registered filter adds nothing."""
+    from nespm_cli.errors import NespmError
+    from nespm_cli.filters.ins import InsFilter
+    from nespm_cli.filters.kernels import KERNELS, transition_kernel
+    from nespm_cli.filters.protocol import ErrorStateFilter
+    from nespm_cli.filters.registry import get_filter
+    from nespm_cli.filters.ukf import UKFNespm
+    from nespm_cli.nav.state import LAYOUT_12
+
+    layout = LAYOUT_12 if layout is None else layout
+    need = {transition_kernel(False, layout)}
+    for name in filters:
+        try:
+            cls = get_filter(name)
+        except (NespmError, KeyError):
+            continue
+        if not isinstance(cls, type) or not issubclass(cls, ErrorStateFilter):
+            continue
+        if issubclass(cls, UKFNespm):
+            need.add("points")
+        elif issubclass(cls, InsFilter):
+            need.add("strapdown")
+        elif getattr(cls, "invariant_error", False):
+            need.add(transition_kernel(True, layout))
+    return tuple(k for k in KERNELS if k in need)
+
+
 COMPILING = "compiling the filters' kernels (once per machine; later runs load them from the disk cache)"
 
 
-def compile_kernels(label: str, enabled: bool = True, stream: TextIO | None = None) -> float | None:
+def compile_kernels(label: str, enabled: bool = True, stream: TextIO | None = None,
+                    kernels: tuple[str, ...] | None = None) -> float | None:
     """The numba kernels' compilation as its own phase, before the chunks start (and so before any
-    ETA): where the compiled kernels are in use and numba's disk cache does not hold them yet
-    (:func:`nespm_cli.filters.kernels.kernels_cached`), say so (``<label>: compiling ...``, a status
-    on a terminal, a line off one) and compile them here (:func:`~nespm_cli.filters.kernels.warm_up`);
-    the workers then load them from the cache instead of each compiling its own. Returns the seconds
-    it took, or None when there was nothing to compile (nothing is said then). ``enabled=False``
+    ETA): where the compiled kernels are in use and the per-user cache does not hold the ``kernels``
+    the command uses (names of :data:`nespm_cli.filters.kernels.KERNELS`, e.g. from
+    :func:`~nespm_cli.filters.kernels.kernels_for`; default all), say so (``<label>: compiling ...``,
+    a status on a terminal, a line off one) and compile them here
+    (:func:`~nespm_cli.filters.kernels.warm_up`); the workers then load them from the cache instead of
+    each compiling its own. With the cache warm this is a few file tests: nothing is said or loaded.
+    Returns the seconds it took, or None when there was nothing to compile. ``enabled=False``
     compiles without a word."""
     from nespm_cli.filters.kernels import kernels_cached, warm_up
 
-    if kernels_cached() is not False:
+    if (kernels_cached() if kernels is None else kernels_cached(kernels)) is not False:
         return None
     with Status(label, enabled=enabled, stream=stream) as status:
         status(COMPILING)
-        seconds = warm_up()
+        seconds = warm_up() if kernels is None else warm_up(kernels)
     if enabled:
         print(f"{label}: kernels compiled in {fmt_seconds(seconds)}", file=status.stream, flush=True)
     return seconds

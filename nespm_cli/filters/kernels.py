@@ -24,6 +24,13 @@ installed, ``numba`` requires it, ``numpy`` never uses it. It is read from the c
 :func:`use_kernels`, else from the environment variable ``NESPM_KERNELS`` (which the CLI's
 ``--kernels`` sets, so that worker processes inherit it). It never changes a result beyond
 round-off (tests: 1e-9), so it is not part of an experiment's identity (like ``--jobs``).
+
+Compiled once per user, machine and kernel text (:func:`nespm_cli.nav.kernels.cache_folder`), and
+only what is used: each kernel (:data:`KERNELS`) compiles on its first call, the first process to
+need it holding a lock in the cache folder so that concurrent workers do not compile it twice, and
+is then marked ready there, so :func:`kernels_cached` is a few file tests. A command compiles what
+its filters need up front (:func:`warm_up` with :func:`nespm_cli.experiments.progress.kernels_for`),
+saying so; ``nespm warm-up`` does it ahead of time (CI images).
 """
 from __future__ import annotations
 
@@ -98,13 +105,39 @@ def _f64(a: np.ndarray) -> np.ndarray:
     return a if a.dtype == np.float64 else a.astype(np.float64)
 
 
+#: the compiled kernels by name (what :func:`warm_up`, :func:`kernels_cached` and the ready marks in
+#: the cache folder speak of): the free-inertial loop, Φ of the common error (12 or any layout; the
+#: 15 states with F's zeros skipped), Φ_inv of the iekf (12 / 15 states), the sigma/cubature points
+KERNELS = ("strapdown", "transition", "transition-position", "transition-invariant", "transition-invariant-position",
+           "points")
+
+
+def run_kernel(name: str, kernel, *args):
+    """``kernel(*args)``: the first call of kernel ``name`` in a process that finds it not yet compiled
+    holds its lock in the cache folder, so concurrent workers compile it once (the others wait, then
+    load it), and marks it ready (:func:`nespm_cli.nav.kernels.first_use`); later calls go straight in."""
+    from nespm_cli.nav import kernels as nk
+
+    if name in nk.READY:
+        return kernel(*args)
+    with nk.first_use(name):
+        return kernel(*args)
+
+
 def strapdown(pos, v_n, C_bn, b_a, b_g, f, w, dt, j0: int, j1: int) -> None:
     """Free-inertial steps ``[j0, j1)`` of R runs, in place on ``pos``, ``v_n`` (R, 3), ``C_bn``
     (R, 3, 3) (C-contiguous float64); IMU ``f``, ``w`` (R, M, 3) minus ``b_a``, ``b_g`` (R, 3);
     ``dt`` (M,) [s]. Same numbers as :func:`nespm_cli.nav.strapdown.na_cycle` step by step."""
     from nespm_cli.nav import kernels as nk
 
-    nk.strapdown_span(pos, v_n, C_bn, b_a, b_g, _f64(f), _f64(w), _f64(dt), j0, j1)
+    run_kernel("strapdown", nk.strapdown_span, pos, v_n, C_bn, b_a, b_g, _f64(f), _f64(w), _f64(dt), j0, j1)
+
+
+def transition_kernel(invariant: bool, layout: StateLayout) -> str:
+    """The name (:data:`KERNELS`) of the kernel :func:`transition` runs for ``invariant`` and ``layout``."""
+    if invariant:
+        return "transition-invariant-position" if layout.has("pos") else "transition-invariant"
+    return "transition-position" if layout.offsets().tolist() == [0, 3, 6, 9, 12] else "transition"
 
 
 def transition(pos, v_n, C_bn, b_a, b_g, f, w, dt, j0: int, j1: int, invariant: bool = False,
@@ -117,17 +150,18 @@ def transition(pos, v_n, C_bn, b_a, b_g, f, w, dt, j0: int, j1: int, invariant: 
     from nespm_cli.filters import transition_kernel as tk
 
     Phi = np.empty((pos.shape[0], layout.n, layout.n))
-    if invariant and layout.has("pos"):
+    name, off = transition_kernel(invariant, layout), layout.offsets()
+    args = (pos, v_n, C_bn, b_a, b_g, _f64(f), _f64(w), _f64(dt), j0, j1, Phi)
+    if name == "transition-invariant-position":
         if origin is None:
             raise NespmError("kernels.transition: the invariant error with a position block needs the origin")
-        tk.transition_span_invariant_position(pos, v_n, C_bn, b_a, b_g, _f64(f), _f64(w), _f64(dt), j0, j1, Phi,
-                                              layout.offsets(), np.ascontiguousarray(origin, dtype=np.float64))
-        return Phi
-    off = layout.offsets()
-    if not invariant and off.tolist() == [0, 3, 6, 9, 12]:  # the 15 states: F's zeros skipped
-        tk.transition_span_position(pos, v_n, C_bn, b_a, b_g, _f64(f), _f64(w), _f64(dt), j0, j1, Phi)
-        return Phi
-    tk.transition_span(pos, v_n, C_bn, b_a, b_g, _f64(f), _f64(w), _f64(dt), j0, j1, Phi, bool(invariant), off)
+        run_kernel(name, tk.transition_span_invariant_position, *args, off, np.ascontiguousarray(origin, dtype=np.float64))
+    elif name == "transition-position":  # the 15 states: F's zeros skipped
+        run_kernel(name, tk.transition_span_position, *args)
+    elif name == "transition-invariant":
+        run_kernel(name, tk.transition_span, *args, True, off)
+    else:
+        run_kernel(name, tk.transition_span_common, *args, off)
     return Phi
 
 
@@ -149,16 +183,17 @@ def points_through_cycle(pos, v_n, C_bn, b_a, b_g, X, f, w, dt, j0: int, j1: int
     args = (pos, v_n, C_bn, b_a, b_g, np.ascontiguousarray(X, dtype=float), _f64(f), _f64(w), _f64(dt), j0, j1)
     dp = np.zeros((R, S, 3))
     if S <= pk.L:  # the points in SIMD lanes; the same bits as the scalar kernels below
-        pk.points_span_soa(*args, *out, dp, layout.offsets())
-    elif not layout.has("pos"):
+        run_kernel("points", pk.points_span_soa, *args, *out, dp, layout.offsets())
+    elif not layout.has("pos"):  # more than 32 points (a plugin's layout): compiled where first used
         tk.points_span(*args, *out, layout.offsets())
     else:
         tk.points_span_position(*args, *out, dp, layout.offsets())
     return (*out, dp)
 
 
-def warm_up() -> float:
-    """Compile (or load from the on-disk cache) every kernel on a tiny input; returns seconds.
+def warm_up(names=None) -> float:
+    """Compile (or load from the on-disk cache) the kernels ``names`` (default: all of :data:`KERNELS`)
+    on a tiny input; returns seconds. Each is marked ready in the cache folder.
 
     The first call on a machine compiles (benchmarks/README.md gives the cost); later processes
     load the cached machine code. Nothing needs to call it: the kernels compile on first use.
@@ -170,35 +205,31 @@ def warm_up() -> float:
     pos, v = np.array([[0.5, 0.1, -10.0]]), np.array([[1.0, 0.0, 0.0]])
     C, b = np.eye(3)[None].copy(), np.zeros((R, 3))
     f, w, dt = np.tile([0.0, 0.0, -9.8], (R, M, 1)), np.zeros((R, M, 3)), np.full(M, 0.01)
-    strapdown(pos.copy(), v.copy(), C.copy(), b, b, f, w, dt, 0, M)
-    for invariant in (False, True):
-        transition(pos.copy(), v.copy(), C.copy(), b, b, f, w, dt, 0, M, invariant)
-    transition(pos.copy(), v.copy(), C.copy(), b, b, f, w, dt, 0, M, False, LAYOUT_15)
-    transition(pos.copy(), v.copy(), C.copy(), b, b, f, w, dt, 0, M, True, LAYOUT_15, pos)
-    for layout in (LAYOUT_12, LAYOUT_15):
-        points_through_cycle(pos, v, C, b, b, np.zeros((R, 2 * layout.n, layout.n)), f, w, dt, 0, M, layout)
+    for name in KERNELS if names is None else names:
+        if name == "strapdown":
+            strapdown(pos.copy(), v.copy(), C.copy(), b, b, f, w, dt, 0, M)
+        elif name == "points":
+            points_through_cycle(pos, v, C, b, b, np.zeros((R, 24, 12)), f, w, dt, 0, M, LAYOUT_12)
+        elif name.startswith("transition"):
+            layout = LAYOUT_15 if name.endswith("position") else LAYOUT_12
+            transition(pos.copy(), v.copy(), C.copy(), b, b, f, w, dt, 0, M, "invariant" in name, layout, pos)
+        else:
+            raise NespmError(f"warm_up: unknown kernel {name!r}; choose from {', '.join(KERNELS)}")
     return time.perf_counter() - t0
 
 
-def kernels_cached() -> bool | None:
-    """Whether numba's on-disk cache holds machine code of every kernel :func:`warm_up` compiles, for
-    this source (its index exists and its source stamp matches): True, False, or None where the
-    compiled kernels are not in use or cannot be cached here (then every process compiles its own).
-
-    Imports numba and the kernel modules (about 0.4 s), compiles nothing; reads numba's cache index
-    (``Dispatcher._cache``, numba internals: any surprise there counts as not cached).
+def kernels_cached(names=None) -> bool | None:
+    """Whether the kernels ``names`` (default: all of :data:`KERNELS`) are compiled into the per-user
+    cache folder for this CPU (their ready marks, :func:`nespm_cli.nav.kernels.is_ready`): True,
+    False, or None where the compiled kernels are not in use or cannot be cached here (then every
+    process compiles its own). Imports numba (~0.3 s; the mc parent imports it anyway), compiles
+    nothing, reads no cache index: a few file tests.
     """
     if not compiled_enabled():
         return None
-    from nespm_cli.filters import transition_kernel as tk
     from nespm_cli.nav import kernels as nk
 
-    if nk.NO_CACHE:
+    marks = [nk.is_ready(name) for name in (KERNELS if names is None else names)]
+    if any(m is None for m in marks):
         return None
-    entries = (nk.strapdown_span, tk.transition_span, tk.transition_span_position,
-               tk.transition_span_invariant_position, tk.points_span,
-               tk.points_span_position)
-    try:
-        return all(bool(d._cache._cache_file._load_index()) for d in entries)
-    except Exception:  # noqa: BLE001 - another numba's internals: compile up front, as on a new machine
-        return False
+    return all(marks)

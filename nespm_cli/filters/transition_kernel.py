@@ -1,20 +1,17 @@
 """Compiled loops over one time-update span (numba; called through :mod:`.kernels`).
 
-``transition_span`` is ``ErrorStateFilter.transition`` (model.system_matrix + na_cycle per
-IMU step) and ``points_span`` the sigma/cubature-point propagation of ukf-nespm.md eqs 35-38,
-one run (and point) at a time, the loops over runs and points innermost in machine code.
-Shapes as in :mod:`.kernels`; the error state is any layout of model.py, passed as ``off``:
-the first index of the ``[pos, vel, att, ba, bg]`` blocks (-1 for an absent one,
-``nav.state.StateLayout.offsets``), ``n`` states in all.
+``transition_span`` is ``ErrorStateFilter.transition`` (model.system_matrix + na_cycle per IMU step)
+and ``points_span`` the sigma/cubature-point propagation of ukf-nespm.md eqs 35-38, one run (and
+point) at a time. Shapes as in :mod:`.kernels`; the error state is any layout of model.py, passed as
+``off``: the first index of the ``[pos, vel, att, ba, bg]`` blocks (-1 for an absent one,
+``nav.state.StateLayout.offsets``).
 
 Φ = Π (I + F dt): F has non-zero rows only for the position, velocity and attitude blocks, so Φ
-keeps its bias rows [0 I]; only the rows that change are formed (``transition_span``): for the
-papers' 12 states the same sums, in the same order, as the dense product's top six rows; for the
-15 states ``[dp, dv, dpsi, b_a, b_g]``, ``transition_span_position`` forms the same Φ bit for bit
-with F's structural zeros skipped (benchmarks/README.md: 1.8x faster than the generic loop). The
-iekf's right-invariant error with position (15 states, docs/iekf.md) has its own loop,
-``transition_span_invariant_position``: F_inv's ρ_p row is dense in ρ_v, φ and b_g, and it needs
-each run's origin (the group position is the solution's NED offset from it).
+keeps its bias rows [0 I]; only the rows that change are formed (``transition_span_common``; the
+same sums, in the same order, as the dense product's top six rows); for the 15 states ``[dp, dv,
+dpsi, b_a, b_g]`` ``transition_span_position`` forms the same Φ bit for bit with F's structural zeros
+skipped. The iekf's right-invariant error has ``transition_span`` (12 states) and
+``transition_span_invariant_position`` (15: F_inv's ρ_p row is dense, and it needs each run's origin).
 """
 from __future__ import annotations
 
@@ -245,21 +242,42 @@ def set_identity(P):
             P[i, k] = 1.0 if i == k else 0.0
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def rows_step(M, P, top, p, vo, h):
+    """One step of Φ's changing rows in place on ``P`` (n, n) from ``M`` = ``I + F dt`` (``top`` scratch)."""
+    n, e = P.shape[1], vo + 6  # e: the first bias column
+    for i in range(vo, e):
+        for k in range(n):
+            s = 0.0
+            for c in range(vo, e):
+                s += M[i, c] * P[c, k]
+            if k >= e:
+                s += M[i, k]  # the bias rows of Φ are identity rows
+            top[i, k] = s
+    if p >= 0:
+        g = M[vo + 2, p + 2]
+        for k in range(n):
+            top[vo + 2, k] += g * P[p + 2, k]
+        for i in range(3):
+            for k in range(n):
+                P[p + i, k] += h * P[vo + i, k]  # Φ_v before this step's update
+    for i in range(vo, e):
+        for k in range(n):
+            P[i, k] = top[i, k]
+
+
 @njit(cache=True, error_model="numpy")
 def transition_span(pos, v, C, b_a, b_g, f, w, dt, j0, j1, Phi, invariant, off):
     """Steps ``[j0, j1)`` in place on the solution; Φ (R, n, n) = Π (I + F dt) into ``Phi`` for the
     layout ``off`` (``invariant``: F_inv of the right-invariant error, iekf.py, 12 states; with the
-    position block: :func:`transition_span_invariant_position`).
+    position block: :func:`transition_span_invariant_position`; the common error runs
+    :func:`transition_span_common`, this loop without the branch, which compiles in less time).
 
-    Only the rows of Φ that change are formed. The velocity and attitude rows ``va = v .. v+5``
-    (adjacent in every layout): ``Φ_va ← M_va,va Φ_va + M_va,bias`` (the bias rows of Φ are
-    identity rows) ``+ M[vD, pD] Φ_pD`` (the vertical gravity gradient, with a position block);
-    the position rows ``Φ_p ← Φ_p + dt Φ_v`` (dp' = dv). For the papers' 12 states these are the
-    sums, in the order, of the dense product's top six rows.
-    """
+    Only the rows of Φ that change are formed: the velocity and attitude rows ``va = v .. v+5``
+    ``Φ_va ← M_va,va Φ_va + M_va,bias`` (the bias rows of Φ are identity rows) ``+ M[vD, pD] Φ_pD``
+    (the vertical gravity gradient, with a position block); the position rows ``Φ_p ← Φ_p + dt Φ_v``.
+    For the papers' 12 states the sums, in the order, of the dense product's top six rows."""
     n = Phi.shape[1]
-    p, vo = off[0], off[1]
-    e = vo + 6  # first bias column
     S = np.empty((5, 3, 3))
     M = np.zeros((n, n))
     top = np.empty((n, n))
@@ -274,24 +292,26 @@ def transition_span(pos, v, C, b_a, b_g, f, w, dt, j0, j1, Phi, invariant, off):
                 invariant_top_s(x, M, dt[j], S)
             else:
                 system_rows_s(x, f0, f1, f2, M, dt[j], off)
-            for i in range(vo, e):
-                for k in range(n):
-                    s = 0.0
-                    for c in range(vo, e):
-                        s += M[i, c] * P[c, k]
-                    if k >= e:
-                        s += M[i, k]  # the bias rows of Φ are identity rows
-                    top[i, k] = s
-            if p >= 0:
-                g = M[vo + 2, p + 2]
-                for k in range(n):
-                    top[vo + 2, k] += g * P[p + 2, k]
-                for i in range(3):
-                    for k in range(n):
-                        P[p + i, k] += dt[j] * P[vo + i, k]  # Φ_v before this step's update
-            for i in range(vo, e):
-                for k in range(n):
-                    P[i, k] = top[i, k]
+            rows_step(M, P, top, off[0], off[1], dt[j])
+            x = cycle_t(x, f0, f1, f2, w[r, j, 0] - bg0, w[r, j, 1] - bg1, w[r, j, 2] - bg2, dt[j])
+        store_t(x, pos[r], v[r], C[r])
+
+
+@njit(cache=True, error_model="numpy")
+def transition_span_common(pos, v, C, b_a, b_g, f, w, dt, j0, j1, Phi, off):
+    """:func:`transition_span` of the common error (model.system_matrix, any layout ``off``), unbranched."""
+    n = Phi.shape[1]
+    M = np.zeros((n, n))
+    top = np.empty((n, n))
+    for r in range(pos.shape[0]):
+        P = Phi[r]
+        set_identity(P)
+        x = load_t(pos[r], v[r], C[r])
+        ba0, ba1, ba2, bg0, bg1, bg2 = b_a[r, 0], b_a[r, 1], b_a[r, 2], b_g[r, 0], b_g[r, 1], b_g[r, 2]
+        for j in range(j0, j1):
+            f0, f1, f2 = f[r, j, 0] - ba0, f[r, j, 1] - ba1, f[r, j, 2] - ba2
+            system_rows_s(x, f0, f1, f2, M, dt[j], off)
+            rows_step(M, P, top, off[0], off[1], dt[j])
             x = cycle_t(x, f0, f1, f2, w[r, j, 0] - bg0, w[r, j, 1] - bg1, w[r, j, 2] - bg2, dt[j])
         store_t(x, pos[r], v[r], C[r])
 
@@ -367,16 +387,11 @@ def transition_span_position(pos, v, C, b_a, b_g, f, w, dt, j0, j1, Phi):
 
 @njit(cache=True, error_model="numpy")
 def transition_span_invariant_position(pos, v, C, b_a, b_g, f, w, dt, j0, j1, Phi, off, origin):
-    """:func:`transition_span` for the right-invariant error with the position block (iekf.py,
-    15 states): Φ_inv (R, n, n) = Π (I + F_inv dt) into ``Phi``, F_inv on the solution before each
-    step (:func:`invariant_position_blocks_s`) at the group position, the solution's NED offset
-    from the run's ``origin`` (R, 3) ``[lat, lon, h]`` (nav.earth.ned_offset about it).
-
-    Only the rows of ρ_p, ρ_v, φ change (the bias rows of Φ stay identity rows), column by
-    column: ``Φ_top[:, k] ← Φ_top[:, k] + dt (F_top,top Φ_top[:, k] + F_top,k)``, the last term for
-    the bias columns only, with the zero blocks of F_inv skipped (the dense product's numbers, to
-    round-off: tests/test_kernels.py).
-    """
+    """:func:`transition_span` for the right-invariant error with position (iekf.py, 15 states): Φ_inv
+    (R, n, n) = Π (I + F_inv dt) into ``Phi``, F_inv (:func:`invariant_position_blocks_s`) at the group
+    position, the NED offset from the run's ``origin`` (R, 3) ``[lat, lon, h]``. Only the rows of ρ_p,
+    ρ_v, φ change, column by column: ``Φ_top[:, k] += dt (F_top,top Φ_top[:, k] + F_top,k)`` (the last
+    term for the bias columns only), F_inv's zero blocks skipped (tests/test_kernels.py)."""
     n = Phi.shape[1]
     p, vo, a, ba, bg = off[0], off[1], off[2], off[3], off[4]
     S = np.empty((16, 3, 3))
@@ -448,9 +463,8 @@ def point_start(pos, v, C, b_a, b_g, X, r, s, off):
 
 @njit(cache=True, error_model="numpy")
 def points_span(pos, v, C, b_a, b_g, X, f, w, dt, j0, j1, pos_o, v_o, C_o, off):
-    """The mean and the 2n offsets ``X`` (R, 2n, n) of each run through steps ``[j0, j1)``
-    (ukf-nespm.md eqs 35-38) into ``pos_o``, ``v_o`` (R, 2n+1, 3), ``C_o`` (R, 2n+1, 3, 3), for a
-    layout without a position block (position unperturbed, eq 35)."""
+    """The mean and the offsets ``X`` (R, 2n, n) of each run through steps ``[j0, j1)`` (eqs 35-38) into
+    ``pos_o``, ``v_o`` (R, 2n+1, 3), ``C_o`` (R, 2n+1, 3, 3); no position block (position unperturbed)."""
     for r in range(pos.shape[0]):
         for s in range(X.shape[1] + 1):
             x, ba0, ba1, ba2, bg0, bg1, bg2, _, _, _ = point_start(pos, v, C, b_a, b_g, X, r, s, off)
@@ -463,9 +477,8 @@ def points_span(pos, v, C, b_a, b_g, X, f, w, dt, j0, j1, pos_o, v_o, C_o, off):
 @njit(cache=True, error_model="numpy")
 def points_span_position(pos, v, C, b_a, b_g, X, f, w, dt, j0, j1, pos_o, v_o, C_o, dp_o, off):
     """:func:`points_span` for a layout with a position block: point s starts at ``pos ⊕ dp``, and
-    its position offset from point 0, NED [m], goes into ``dp_o`` (R, 2n+1, 3): its initial ``dp``
-    plus the trapezoid integral of its velocity's difference from point 0's (eqs 28-30 in
-    deviation form, free of the cancellation of differencing latitudes)."""
+    its position offset from point 0, NED [m], into ``dp_o`` (R, 2n+1, 3): its ``dp`` plus the trapezoid
+    integral of its velocity's difference from point 0's (eqs 28-30 in deviation form)."""
     vc = np.empty((j1 - j0 + 1, 3))
     for r in range(pos.shape[0]):
         for s in range(X.shape[1] + 1):

@@ -6,9 +6,12 @@ same branches, on the scalars of one state, so a compiled loop over runs, sigma 
 IMU steps agrees with the reference: bit for bit for the cycle itself (the reference's 3x3
 products are elementwise sums in the same order, :mod:`.products`), and to 1e-9 on whole
 filter runs (tests/test_kernels.py; measured 0 for the sigma-point filters, ~1e-14 for the
-Φ-based ones). Each compiled function is cached on disk
-(``cache=True``: next to this file in ``__pycache__``, or in ``NUMBA_CACHE_DIR``), so a
-machine compiles once.
+Φ-based ones). Each compiled function is cached on disk (``cache=True``) in a per-user folder,
+:func:`cache_folder` (``$NESPM_CACHE_DIR``, else ``$NUMBA_CACHE_DIR``, else the platform's cache
+folder: ``$XDG_CACHE_HOME/nespm`` or ``~/.cache/nespm``), in a subfolder named by a hash of the
+kernels' source text (:data:`KERNEL_SOURCES`), so every install and clone of the same kernels on
+the machine shares one compile, and an edit to any of them (a constant, an inlined helper)
+compiles afresh; numba's own locations are the fallback where that folder is not writable.
 
 Why numba: it compiles this plain-Python arithmetic to machine code without a second
 language or a build step, it is maintained on PyPI with wheels for every platform NumPy has,
@@ -22,8 +25,17 @@ quantities (10, :func:`earth_t`); :func:`load_t` / :func:`store_t` convert from 
 """
 from __future__ import annotations
 
+import functools
+import hashlib
 import math
+import os
+import platform
+import sys
+import tempfile
 import warnings
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Iterator
 
 import numpy as np
 
@@ -42,23 +54,214 @@ class KernelCacheWarning(UserWarning):
     """numba found no writable place to cache the compiled kernels (printed as one warning line)."""
 
 
+ENV_CACHE = "NESPM_CACHE_DIR"
+#: the files (relative to the package) whose text the compiled kernels depend on: their code, what
+#: they inline, the earth constants they freeze. A new kernel module must be listed here.
+KERNEL_SOURCES = ("nav/earth.py", "nav/kernels.py", "filters/transition_kernel.py", "filters/points_kernel.py")
+#: the kernels (filters.kernels names) this process has already used: no cache check on later calls
+READY: set[str] = set()
+_folders: dict[tuple[str, str], Path | None] = {}
+
+
+def cache_base() -> Path:
+    """Where the per-user kernel cache lives: ``$NESPM_CACHE_DIR``, else ``$NUMBA_CACHE_DIR``, else the
+    platform's per-user cache folder (``$XDG_CACHE_HOME/nespm`` or ``~/.cache/nespm``; macOS
+    ``~/Library/Caches/nespm``; Windows ``%LOCALAPPDATA%\\nespm\\Cache``)."""
+    for var in (ENV_CACHE, "NUMBA_CACHE_DIR"):
+        if os.environ.get(var):
+            return Path(os.environ[var]).expanduser()
+    if sys.platform == "win32":
+        return Path(os.environ.get("LOCALAPPDATA") or "~/AppData/Local").expanduser() / "nespm" / "Cache"
+    if sys.platform == "darwin":
+        return Path("~/Library/Caches/nespm").expanduser()
+    xdg = os.environ.get("XDG_CACHE_HOME", "")
+    return (Path(xdg) if os.path.isabs(xdg) else Path("~/.cache").expanduser()) / "nespm"
+
+
+@functools.lru_cache(maxsize=None)
+def source_key() -> str:
+    """16 hex digits of SHA-256 over :data:`KERNEL_SOURCES` (their text, not their path or mtime), the
+    Python minor version and numba's version: the name of the cache subfolder and numba's source stamp."""
+    root = Path(__file__).resolve().parent.parent
+    h = hashlib.sha256(f"py{sys.version_info[0]}.{sys.version_info[1]} numba {getattr(numba, '__version__', '')}".encode())
+    for rel in KERNEL_SOURCES:
+        h.update(rel.encode() + b"\0")
+        h.update((root / rel).read_bytes())
+    return h.hexdigest()[:16]
+
+
+def cache_folder() -> Path | None:
+    """The kernels' cache folder, ``cache_base()/kernels-<source_key()>``, created on the first call
+    (the first kernel module's import) and checked writable; None where it cannot be (numba's own
+    locations then, or no cache: :func:`njit`). Never raises."""
+    key = (str(cache_base()), source_key())
+    if key not in _folders:
+        folder = cache_base() / f"kernels-{key[1]}"
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+            tempfile.TemporaryFile(dir=folder).close()
+        except (OSError, ValueError):
+            folder = None
+        _folders[key] = folder
+    return _folders[key]
+
+
+class FolderLocator:
+    """A numba cache locator (the interface of ``numba.core.caching``'s locators) that puts a kernel of
+    ``<dir>/<module>.py`` in ``cache_folder()/<dir>``, stamped with :func:`source_key` instead of the
+    file's own hash: a clone at another path with the same kernels finds it."""
+
+    def __init__(self, py_func, folder: Path, py_file: str) -> None:
+        self._lineno = py_func.__code__.co_firstlineno
+        self._path = str(folder / Path(py_file).parent.name)
+
+    def ensure_cache_path(self) -> None:
+        os.makedirs(self._path, exist_ok=True)
+
+    def get_cache_path(self) -> str:
+        return self._path
+
+    def get_source_stamp(self) -> str:
+        return source_key()
+
+    def get_disambiguator(self) -> str:
+        return str(self._lineno)
+
+    @classmethod
+    def from_function(cls, py_func, py_file: str):
+        folder = cache_folder()
+        if folder is None or not os.path.isfile(py_file):
+            return None
+        locator = cls(py_func, folder, py_file)
+        try:
+            locator.ensure_cache_path()
+        except OSError:
+            return None
+        return locator
+
+
+@functools.lru_cache(maxsize=None)
+def folder_cache_class():
+    """numba's ``FunctionCache`` with :class:`FolderLocator` as its only locator (None: numba's
+    internals are not what this was written against; its default cache is kept)."""
+    try:
+        from numba.core import caching
+
+        impl = type("FolderCacheImpl", (caching.CompileResultCacheImpl,), {"_locator_classes": [FolderLocator]})
+        return type("FolderFunctionCache", (caching.FunctionCache,), {"_impl_class": impl})
+    except (ImportError, AttributeError, TypeError):  # pragma: no cover - another numba
+        return None
+
+
+def use_folder_cache(dispatcher) -> bool:
+    """Point a ``cache=True`` dispatcher's on-disk cache at :func:`cache_folder` (what
+    ``Dispatcher.enable_caching`` does with numba's locators); False where that folder or numba's
+    internals are not available (the dispatcher keeps numba's default locations)."""
+    cls = folder_cache_class()
+    if cls is None or cache_folder() is None:
+        return False
+    try:
+        dispatcher._cache = cls(dispatcher.py_func)
+    except (RuntimeError, AttributeError, OSError):  # no locator, or another numba
+        return False
+    return True
+
+
+@functools.lru_cache(maxsize=None)
+def cpu_tag() -> str:
+    """8 hex digits naming this machine's CPU (architecture, model and flags where /proc/cpuinfo tells):
+    numba keys its machine code by the CPU, so a cache folder shared by two machines keeps one
+    readiness mark per CPU."""
+    text = f"{platform.system()} {platform.machine()} {platform.processor()}"
+    try:
+        with open("/proc/cpuinfo", encoding="ascii", errors="replace") as fh:
+            seen = set()
+            for line in fh:
+                key = line.split(":", 1)[0].strip()
+                if key in ("model name", "flags", "Features", "CPU part") and key not in seen:
+                    seen.add(key)
+                    text += line
+    except OSError:
+        pass
+    return hashlib.sha256(text.encode()).hexdigest()[:8]
+
+
+def ready_mark(name: str) -> Path | None:
+    """The file that says kernel ``name`` (a filters.kernels name) is compiled into the cache folder
+    for this CPU; None where kernels are not cached in the folder (then nothing is marked)."""
+    folder = cache_folder()
+    if folder is None or NO_CACHE:
+        return None
+    return folder / "ready" / f"{name}-{cpu_tag()}"
+
+
+def is_ready(name: str) -> bool | None:
+    """Whether kernel ``name`` is compiled and cached here (a file test, no numba call); None: no cache."""
+    mark = ready_mark(name)
+    return None if mark is None else (name in READY or mark.exists())
+
+
+@contextmanager
+def first_use(name: str) -> Iterator[None]:
+    """Around a call of kernel ``name``: the first in this process whose kernel is not marked ready
+    holds a lock file in the cache folder (other processes wait instead of compiling the same
+    kernel at the same time, then load it) and marks the kernel ready after the call. Later calls,
+    and calls where the kernel is marked, pass straight through."""
+    mark = None if name in READY else ready_mark(name)
+    if mark is None or mark.exists():
+        yield
+        READY.add(name)
+        return
+    with _lock(mark.parent.parent / "locks" / f"{name}.lock"):
+        yield
+        try:
+            mark.parent.mkdir(exist_ok=True)
+            mark.touch()
+        except OSError:
+            pass
+    READY.add(name)
+
+
+@contextmanager
+def _lock(path: Path) -> Iterator[None]:
+    """An exclusive advisory lock on ``path`` (fcntl; no lock where there is none, or on an OS error)."""
+    try:
+        import fcntl
+
+        path.parent.mkdir(exist_ok=True)
+        fh = open(path, "a")
+    except (ImportError, OSError):
+        yield
+        return
+    try:
+        fcntl.flock(fh, fcntl.LOCK_EX)
+        yield
+    finally:
+        fh.close()  # releases the lock
+
+
 def njit(*args, **kwargs):
-    """``numba.njit`` that falls back to ``cache=False`` when numba finds no writable cache location
-    (a read-only install and no writable ``NUMBA_CACHE_DIR``): the kernels then compile in every
-    process instead of failing (:data:`NO_CACHE` says why). Without numba: the plain function."""
+    """``numba.njit``, with ``cache=True`` cached in :func:`cache_folder` (numba's default locations
+    where it is not writable). Falls back to ``cache=False`` when numba finds no writable cache
+    location at all (a read-only install and no writable ``NUMBA_CACHE_DIR``): the kernels then compile
+    in every process instead of failing (:data:`NO_CACHE` says why). Without numba: the plain function."""
     if numba is None:  # pragma: no cover
         return args[0] if args and callable(args[0]) else (lambda f: f)
 
     def deco(f):
         try:
-            return numba.njit(**kwargs)(f)
+            dispatcher = numba.njit(**kwargs)(f)
+            if kwargs.get("cache"):
+                use_folder_cache(dispatcher)
+            return dispatcher
         except RuntimeError as exc:
             if not kwargs.get("cache") or "cannot cache" not in str(exc):
                 raise
             if not NO_CACHE:
                 NO_CACHE.append(str(exc))
                 warnings.warn("numba cannot cache the compiled kernels here (no writable cache location; set "
-                              "NUMBA_CACHE_DIR to a writable folder): they compile in every process (~6 s each)",
+                              "NESPM_CACHE_DIR or NUMBA_CACHE_DIR to a writable folder): they compile in every process "
+                              "(seconds each)",
                               KernelCacheWarning, stacklevel=3)
             return numba.njit(**{**kwargs, "cache": False})(f)
     return deco(args[0]) if args and callable(args[0]) else deco

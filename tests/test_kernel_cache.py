@@ -1,0 +1,154 @@
+"""The per-user kernel cache (nav.kernels.cache_folder, filters.kernels.kernels_cached / warm_up):
+a second command with the cache warm neither says nor does any compiling; the cache folder is named
+by the kernels' text (a clone elsewhere shares it, an edit does not); an unwritable folder falls back
+without a traceback; the kernels a command needs per filter and layout; the common-error Φ kernel
+(split from the iekf's branch for its compile time) gives the generic loop's bits."""
+from __future__ import annotations
+
+import re
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from conftest import console_script, env_without_data_dir
+from nespm_cli.experiments.progress import kernels_for
+from nespm_cli.filters import kernels
+from nespm_cli.nav.state import LAYOUT_12, LAYOUT_15
+
+PACKAGE = Path(kernels.__file__).resolve().parents[1]
+
+needs_numba = pytest.mark.skipif(not kernels.numba_installed(), reason="numba not installed")
+
+
+def _folder_files(folder: Path) -> dict[str, int]:
+    """Every file under ``folder`` with its mtime [ns]: what a compile would add to or rewrite."""
+    return {str(p.relative_to(folder)): p.stat().st_mtime_ns for p in folder.rglob("*") if p.is_file()}
+
+
+@needs_numba
+def test_warm_cache_no_compile_line_and_nothing_compiled(tmp_path):
+    """First `mc` on an empty NESPM_CACHE_DIR says it compiles (and fills the folder); the same
+    command again says nothing about compiling and writes nothing into the cache folder."""
+    env = {**env_without_data_dir(), "NESPM_CACHE_DIR": str(tmp_path / "cache"), "NESPM_KERNELS": "auto"}
+    argv = [*console_script(), "mc", "--tracks", "5", "--runs", "1", "--window", "0:20", "--filters", "ekf", "--jobs", "1"]
+    first = subprocess.run([*argv, "--out", str(tmp_path / "a")], env=env, capture_output=True, text=True)
+    assert first.returncode == 0, first.stderr
+    assert "mc: compiling the filters' kernels" in first.stderr
+    folders = list((tmp_path / "cache").glob("kernels-*"))
+    assert len(folders) == 1
+    before = _folder_files(folders[0])
+    assert any(name.endswith(".nbi") for name in before) and any(name.startswith("ready") for name in before)
+    second = subprocess.run([*argv, "--out", str(tmp_path / "b")], env=env, capture_output=True, text=True)
+    assert second.returncode == 0, second.stderr
+    assert "compil" not in second.stderr, second.stderr
+    assert _folder_files(folders[0]) == before  # loaded, not compiled: no index or machine code rewritten
+
+
+def _folder_of(package_parent: Path, env: dict) -> str:
+    code = "from nespm_cli.nav.kernels import cache_folder; print(cache_folder())"
+    out = subprocess.run([sys.executable, "-c", code], cwd=package_parent, env={**env, "PYTHONPATH": str(package_parent)},
+                         capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    return out.stdout.strip()
+
+
+@needs_numba
+def test_cache_folder_named_by_kernel_text_not_path(tmp_path):
+    """A copy of the package elsewhere (a clone, a reinstall) maps to the same cache folder; an edit
+    of a kernel source (here a constant's module) maps to another."""
+    env = {**env_without_data_dir(), "NESPM_CACHE_DIR": str(tmp_path / "cache")}
+    clone = tmp_path / "clone"
+    shutil.copytree(PACKAGE, clone / "nespm_cli", ignore=shutil.ignore_patterns("__pycache__"))
+    here = _folder_of(PACKAGE.parent, env)
+    assert here.startswith(str(tmp_path / "cache" / "kernels-"))
+    assert _folder_of(clone, env) == here
+    earth = clone / "nespm_cli" / "nav" / "earth.py"
+    earth.write_text(earth.read_text() + "\n# edited\n")
+    assert _folder_of(clone, env) != here
+
+
+def test_unwritable_cache_folder_falls_back(tmp_path, monkeypatch):
+    """NESPM_CACHE_DIR under a regular file: no folder, no ready marks, kernels_cached None (every
+    process compiles or uses numba's own place), and the compile check says nothing; no exception."""
+    from nespm_cli.experiments.progress import compile_kernels
+    from nespm_cli.nav import kernels as nk
+
+    if not kernels.compiled_enabled():
+        pytest.skip("the compiled kernels are not in use here")
+    blocker = tmp_path / "file"
+    blocker.write_text("not a folder")
+    monkeypatch.setenv("NESPM_CACHE_DIR", str(blocker / "cache"))
+    assert nk.cache_base() == blocker / "cache"
+    assert nk.cache_folder() is None and nk.ready_mark("transition") is None
+    assert kernels.kernels_cached(("transition",)) is None
+    assert compile_kernels("mc", stream=None, kernels=("transition",)) is None
+
+
+def test_platform_default_and_override(monkeypatch, tmp_path):
+    """NESPM_CACHE_DIR wins over NUMBA_CACHE_DIR, which wins over $XDG_CACHE_HOME/nespm."""
+    from nespm_cli.nav import kernels as nk
+
+    for var in ("NESPM_CACHE_DIR", "NUMBA_CACHE_DIR"):
+        monkeypatch.delenv(var, raising=False)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    if sys.platform.startswith("linux"):
+        assert nk.cache_base() == tmp_path / "xdg" / "nespm"
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "numba"))
+    assert nk.cache_base() == tmp_path / "numba"
+    monkeypatch.setenv("NESPM_CACHE_DIR", str(tmp_path / "nespm"))
+    assert nk.cache_base() == tmp_path / "nespm"
+
+
+def test_kernels_per_filter_and_layout():
+    assert kernels_for(["ekf", "ukf", "ukf-nespm"]) == ("transition", "points")
+    assert kernels_for(["ekf", "anekf", "iae-ekf", "sh-ekf", "vb-ekf", "ckf"]) == ("transition",)
+    assert kernels_for(["ins"]) == ("strapdown", "transition")  # + the PCRB's Φ
+    assert kernels_for(["iekf"]) == ("transition", "transition-invariant")
+    assert kernels_for(["iekf", "ckf-nespm"], LAYOUT_15) == (
+        "transition-position", "transition-invariant-position", "points")
+    assert kernels_for(["no-such-filter"]) == ("transition",)
+    with pytest.raises(Exception, match="unknown kernel"):
+        kernels.warm_up(["no-such-kernel"])
+
+
+def test_kernel_sources_list_every_compiled_module():
+    """The cache key hashes nav.kernels.KERNEL_SOURCES: every module that compiles with njit is in it."""
+    from nespm_cli.nav.kernels import KERNEL_SOURCES
+
+    compiled = {p.relative_to(PACKAGE).as_posix() for p in PACKAGE.rglob("*.py")
+                if re.search(r"^@njit", p.read_text(encoding="utf-8"), re.M)}
+    assert compiled <= set(KERNEL_SOURCES)
+    assert all((PACKAGE / rel).is_file() for rel in KERNEL_SOURCES)
+
+
+@needs_numba
+@pytest.mark.parametrize("layout", [LAYOUT_12, LAYOUT_15], ids=["12", "15"])
+def test_common_transition_kernel_bit_identical_to_generic(layout):
+    """transition_span_common (what ekf/ukf run) against transition_span(invariant=False): same bits."""
+    from nespm_cli.filters import transition_kernel as tk
+
+    rng = np.random.default_rng(7)
+    R, M, n = 6, 120, layout.n
+    pos = np.column_stack([rng.uniform(-1.3, 1.3, R), rng.uniform(-3, 3, R), rng.uniform(-500, 10, R)])
+    v = 3.0 * rng.standard_normal((R, 3))
+    C = np.stack([np.linalg.qr(rng.standard_normal((3, 3)))[0] for _ in range(R)])
+    b_a, b_g = 0.05 * rng.standard_normal((R, 3)), 1e-3 * rng.standard_normal((R, 3))
+    f = np.tile([0.0, 0.0, -9.8], (R, M, 1)) + 0.5 * rng.standard_normal((R, M, 3))
+    w = 0.05 * rng.standard_normal((R, M, 3))
+    dt = rng.uniform(0.005, 0.02, M)
+    out = []
+    for common in (False, True):
+        s = [pos.copy(), v.copy(), C.copy()]
+        Phi = np.empty((R, n, n))
+        if common:
+            tk.transition_span_common(*s, b_a, b_g, f, w, dt, 2, M, Phi, layout.offsets())
+        else:
+            tk.transition_span(*s, b_a, b_g, f, w, dt, 2, M, Phi, False, layout.offsets())
+        out.append((Phi, *s))
+    for a, b in zip(*out):
+        assert np.array_equal(a, b)
+    assert np.abs(out[0][0] - np.eye(n)).max() > 1e-3  # Φ did move
