@@ -8,7 +8,7 @@ RUNS   ?= 100
 JOBS   ?= 2
 DATA_OPT := $(if $(DATA),--data-dir $(DATA),)
 
-.PHONY: setup run tune-main test smoke aided sensors table1 table2 anukf-table1 anukf-table2 nespm-table1 weights sweep-misalignment sweep-heading gp-ukf bench bench-compare clean check-data recorded-table1 recorded-table2 recorded-anukf-table1 recorded-anukf-table2 recorded-nespm-table1 recorded-weights akit akit-data
+.PHONY: setup warm-up run tune-main test smoke aided sensors table1 table2 anukf-table1 anukf-table2 nespm-table1 weights sweep-misalignment sweep-heading gp-ukf bench bench-compare clean check-data recorded-table1 recorded-table2 recorded-anukf-table1 recorded-anukf-table2 recorded-nespm-table1 recorded-weights akit akit-data
 
 setup: $(VENV)/.installed
 
@@ -21,6 +21,11 @@ $(VENV)/.installed: pyproject.toml
 	$(BIN)/pip install --progress-bar on -e '.[test,dask,onnx]'
 	@echo "setup: done; the filters' kernels compile on the first run (about a minute, once per machine)"
 	touch $@
+
+# The filters' numba kernels compiled into the per-user cache (~/.cache/nespm, or $NESPM_CACHE_DIR): once
+# per machine and nespm version; CI images run it so that the first mc does not compile.
+warm-up: setup
+	$(NESPM) warm-up
 
 # The main job: EKF, UKF and UKF-NESPM on tracks 5 and 6, 100 MC runs, then the report.
 run: setup

@@ -19,6 +19,7 @@ from nespm_cli.cli.parsing import CORRUPTION_FIELDS, FILTER_FIELDS, build_spec, 
 from nespm_cli.cli.result_commands import compare, export, report
 from nespm_cli.cli.train_command import train
 from nespm_cli.cli.tune_command import tune
+from nespm_cli.cli.warmup_command import warm_up_cmd
 from nespm_cli.errors import NespmError
 
 __all__ = ["app", "main", "one_line", "os_error_line", "MAX_MESSAGE", "default", "DATA_DIR", "CORRUPTION_FIELDS",
@@ -41,6 +42,7 @@ for command in (tracks, check, corrupt, run, mc, sweep, tune, report, compare, e
     app.command()(command)
 app.command("import")(import_cmd)
 app.command("gp-ukf")(gp_ukf_cmd)
+app.command("warm-up")(warm_up_cmd)
 del command
 
 # the names this module had before it became a package (tests read them)
