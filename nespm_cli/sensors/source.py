@@ -32,6 +32,8 @@ import numpy as np
 from nespm_cli.errors import NespmError
 from nespm_cli.nav.state import NavState, StateLayout
 from nespm_cli.sensors.measurement import Measurement
+from nespm_cli.sensors.scenario import (OUTLIER_SUB, SCHEDULE_SUB, outlier_errors, parse_outliers, parse_schedule,
+                                        schedule_factor)
 
 SOURCES = ("synthetic", "recorded")
 MIN_VARIANCE = float(np.finfo(float).tiny)  # a std whose square is below the smallest normal double is refused
@@ -55,7 +57,11 @@ class SensorOptions:
       run (relative); both synthetic, unknown to the filter;
     * ``outage``: windows ``START:END[,START:END]`` [s since the first epoch] with no measurement;
     * ``dropout``: probability that a measurement is lost, independently per run and time;
-    * ``lever_arm``: ``X,Y,Z`` [m, body] of the sensor from the IMU.
+    * ``lever_arm``: ``X,Y,Z`` [m, body] of the sensor from the IMU;
+    * ``noise_schedule``: factors on ``std`` in time (``step:T=F,...``, ``ramp:T=F,...``,
+      ``dynamic:SEG:LO:HI``); ``outliers``: heavy-tailed extra errors on a fraction of samples
+      (``FRACTION:SCALE``, ``t:NU:FRACTION[:SCALE]``, ``:burst=L``); both synthetic, unknown to
+      the filter (:mod:`nespm_cli.sensors.scenario`).
     """
 
     source: str = "synthetic"
@@ -68,6 +74,8 @@ class SensorOptions:
     outage: str = ""
     dropout: float = 0.0
     lever_arm: tuple = (0.0, 0.0, 0.0)
+    noise_schedule: str = ""
+    outliers: str = ""
 
 
 @dataclass(frozen=True)
@@ -216,20 +224,51 @@ class Sensor:
         """The filter's noise covariance (m, m)."""
         return np.eye(self.dim) * self.r_std() ** 2
 
+    def noise_factor(self, t: np.ndarray, seed: int, track: int, runs: np.ndarray) -> np.ndarray | None:
+        """(R, K) the ``noise_schedule`` factor on the white noise std at times ``t`` (K,) [s since
+        the first epoch] (a dynamic one from each run's :data:`SCHEDULE_SUB` sub-stream), or None
+        without a schedule."""
+        sched = parse_schedule(self.opt.noise_schedule, f"--sensor-option {self.name}.noise_schedule")
+        if sched is None:
+            return None
+        dynamic = sched.kind == "dynamic"  # only a dynamic schedule draws
+        return schedule_factor(sched, t, [self.rng(seed, track, int(r), sub=SCHEDULE_SUB) if dynamic else None
+                                          for r in runs])
+
+    def true_std(self, t: np.ndarray, seed: int, track: int, runs: np.ndarray) -> np.ndarray:
+        """(R, K) the white noise std the synthesis draws with at times ``t`` (K,) [s since the first
+        epoch]: ``noise_std() x`` the schedule's factor (what an oracle filter is told; outliers aside)."""
+        f = self.noise_factor(t, seed, track, runs)
+        return np.full((len(runs), len(t)), self.noise_std()) if f is None else self.noise_std() * f
+
+    def outlier_draws(self, t: np.ndarray, seed: int, track: int, runs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(errors (R, K, m), mask (R, K))``: the ``outliers`` extra errors at times ``t`` (K,)
+        and which samples carry one, from each run's :data:`OUTLIER_SUB` sub-stream (zeros, no
+        draw, without outliers)."""
+        model = parse_outliers(self.opt.outliers, f"--sensor-option {self.name}.outliers")
+        gens = [self.rng(seed, track, int(r), sub=OUTLIER_SUB) if model is not None else None for r in runs]
+        return outlier_errors(model, len(t), self.dim, self.noise_std(), gens)
+
     def synthesize(self, truth: Truth, seed: int, track: int, runs: np.ndarray) -> np.ndarray:
-        """Synthetic records (R, K, m): true values x (1 + scale error) + bias + white noise, each
-        run from its own stream (noise first, then bias and scale, so an option never moves the
-        noise draws)."""
+        """Synthetic records (R, K, m): true values x (1 + scale error) + bias + white noise (its std
+        times the ``noise_schedule`` factor) + ``outliers``, each run from its own stream (noise
+        first, then bias and scale, so an option never moves the noise draws; the schedule and the
+        outliers from their own sub-streams)."""
         clean = self.true_values(truth)
         K, m = clean.shape
+        runs = np.asarray(runs, dtype=np.int64)
+        factor = self.noise_factor(truth.t, seed, track, runs)
         out = np.empty((len(runs), K, m))
         for i, r in enumerate(runs):
             g = self.rng(seed, track, int(r))
             noise = g.standard_normal((K, m))
-            out[i] = clean + self.noise_std() * noise
+            std = self.noise_std() if factor is None else self.noise_std() * factor[i][:, None]
+            out[i] = clean + std * noise
             if self.opt.bias or self.opt.scale:
                 bias, scale = g.standard_normal(m) * self.opt.bias, g.standard_normal() * self.opt.scale
                 out[i] = out[i] + clean * scale + bias
+        if self.opt.outliers:
+            out = out + self.outlier_draws(truth.t, seed, track, runs)[0]
         return out
 
 
@@ -289,6 +328,11 @@ def options_of(sensor_cls: type, raw: dict) -> SensorOptions:
         kw[key] = convert(value, fields[key], where)
     opt = sensor_cls.Options(**kw)
     check_options(sensor_cls.name, opt)
+    own = sensor_cls.synthesize is not Sensor.synthesize and not getattr(sensor_cls, "noise_scenarios", False)
+    for key in ("noise_schedule", "outliers"):
+        if getattr(opt, key, "") and own:
+            raise NespmError(f"--sensor-option {sensor_cls.name}.{key}: {sensor_cls.name} draws its noise its own way "
+                             "and does not apply noise scenarios yet (sensors with the common synthesis do: dvl, depth)")
     return opt
 
 
@@ -354,6 +398,12 @@ def check_options(name: str, opt: SensorOptions) -> None:
     if lever.shape != (3,) or not np.all(np.isfinite(lever)) or np.abs(lever).max() > LEVER_LIMIT:
         raise bad("lever_arm", f"must be three finite numbers within +-{LEVER_LIMIT:g} m")
     parse_windows(opt.outage, f"--sensor-option {name}.outage")
+    schedule = parse_schedule(opt.noise_schedule, f"--sensor-option {name}.noise_schedule={opt.noise_schedule!r}")
+    outliers = parse_outliers(opt.outliers, f"--sensor-option {name}.outliers={opt.outliers!r}")
+    for key, given in (("noise_schedule", schedule), ("outliers", outliers)):
+        if given is not None and opt.source != "synthetic":
+            raise bad(key, f"applies to a synthetic {name} only (its source is {opt.source}); "
+                           f"add --sensor-option {name}.source=synthetic" + (" or --dvl synthetic" if name == "dvl" else ""))
 
 
 __all__ = ["Channel", "Context", "LEVER_LIMIT", "SOURCES", "Sensor", "SensorOptions", "TrackInfo", "Truth", "availability", "check_options",
