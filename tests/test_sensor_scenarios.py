@@ -206,3 +206,13 @@ def test_config_tables_take_the_scenarios(tmp_path):
     assert rc == 0, err
     dvl = next(iter(json.loads((tmp_path / "o" / "manifest.json").read_text())["sensors"].values()))["dvl"]
     assert (dvl["source"], dvl["noise_schedule"], dvl["outliers"]) == ("synthetic", "step:0=1,30=4", "0.05:10:burst=2")
+
+
+def test_run_line_names_the_scenario():
+    """The report's Run line names a sensor's noise scenario as given; none when unset."""
+    from nespm_cli.reports.markdown import sensors_text
+
+    cells = {"all": {"dvl": {"source": "synthetic", "noise_schedule": "step:0=1,120=4", "outliers": "0.05:10"},
+                     "depth": {"source": "synthetic", "noise_schedule": "", "outliers": ""}}}
+    text = sensors_text({"options": {"sensors": ["dvl", "depth"]}, "sensors": cells})
+    assert text == "dvl (noise_schedule step:0=1,120=4, outliers 0.05:10, synthetic), depth (synthetic)"

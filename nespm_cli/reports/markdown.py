@@ -119,8 +119,12 @@ def layout_text(manifest: dict) -> str:
     return ", ".join(dict.fromkeys(states)) or DASH
 
 
+SCENARIO_KEYS = ("noise_schedule", "outliers")  # the sensor options a Run line names when set
+
+
 def sensors_text(manifest: dict) -> str:
-    """The sensors of the study (``--sensors``) in update order with their source (``dvl (recorded)``),
+    """The sensors of the study (``--sensors``) in update order with their source and noise scenario
+    (``dvl (noise_schedule step:0=1,120=4, synthetic)``),
     from the manifest's options and ``sensors`` cells; — when it records none."""
     names = list((manifest.get("options") or {}).get("sensors") or [])
     cells = [c for c in (manifest.get("sensors") or {}).values() if isinstance(c, dict)]
@@ -131,6 +135,8 @@ def sensors_text(manifest: dict) -> str:
 
     def source(n: str) -> str:
         got = {str(c[n].get("source")) for c in cells if isinstance(c.get(n), dict) and c[n].get("source")}
+        for key in SCENARIO_KEYS:  # a noise scenario (docs/sensors.md): its spec as given
+            got |= {f"{key} {c[n][key]}" for c in cells if isinstance(c.get(n), dict) and c[n].get(key)}
         return f" ({', '.join(sorted(got))})" if got else ""
 
     return ", ".join(n + source(n) for n in names)
