@@ -11,6 +11,9 @@ file's own column with the bench's quantity it became: ``column 'pitch_deg as Pi
 shown is the converted one; a leading ``-`` marks a column whose sign was changed, as ``v_up`` becoming
 ``V Down``).
 
+A spec without ``[gt]`` gives no GT arrays (``gt`` None) and its track's initial state instead
+(``init``, :func:`nespm_cli.data.track_spec.init_state`); its IMU is required.
+
 The spec-only checks: :func:`check_vertical_sign` (the GT's vertical position against its vertical
 velocity) and :func:`check_channel` (a depth or fix file's stamps, NaN rows, ranges as
 :mod:`nespm_cli.data.sensor_files` checks them, and its vertical's sign against the GT's).
@@ -29,7 +32,7 @@ from nespm_cli.data.plausibility import printable
 from nespm_cli.data.sensor_files import (DEPTH_COLUMNS, DEPTH_MAX, DEPTH_MIN, FIX_ALT_COLUMN, FIX_COLUMNS,
                                          MAX_ABS_FIX_ALT, TIME, check_stamps)
 from nespm_cli.data.track_spec import (DEPTH_SIGN_MIN, FRAME_KEYS, UP_KEYS, VELOCITY_KEYS, VERTICAL_SIGN_MIN,
-                                       TrackSpec, column_keys, scaled, spec_file, to_seconds)
+                                       TrackSpec, column_keys, init_state, scaled, spec_file, to_seconds)
 from nespm_cli.errors import NespmError
 from nespm_cli.nav.rotations import wrap_angle
 from nespm_cli.nav.state import position_plus
@@ -40,10 +43,11 @@ class SpecTrack:
     """One track's files read and converted to the A-KIT arrays (not yet checked). ``gt`` (N, 10), ``dvl``
     (K, 4), ``imu`` (M, 7) or None, column for column as in the A-KIT files; ``*_keys`` the spec key of each
     column (``gt.lat``), ``*_names`` the file's column it came from (``-`` in front: sign changed);
-    ``channels`` ``{name: (path, t (K,), z (K, m), keys, names)}`` for ``"depth"`` and ``"fix"``."""
+    ``channels`` ``{name: (path, t (K,), z (K, m), keys, names)}`` for ``"depth"`` and ``"fix"``. Without
+    ``[gt]``: ``gt_path`` and ``gt`` None, ``init`` the track's initial state (:func:`init_state`)."""
 
-    gt_path: Path
-    gt: np.ndarray
+    gt_path: Path | None
+    gt: np.ndarray | None
     gt_keys: tuple
     gt_names: tuple
     dvl_path: Path
@@ -55,6 +59,7 @@ class SpecTrack:
     imu_keys: tuple = ()
     imu_names: tuple = ()
     channels: dict = field(default_factory=dict)
+    init: dict | None = None
 
 
 WRAP_LIMIT = 2.0 * np.pi + 1e-6  # [rad] roll and yaw of a non-radian column up to one turn (0-360 deg) are wrapped
@@ -91,25 +96,10 @@ def read_spec_track(spec: TrackSpec, number: int) -> SpecTrack:
     """Track ``number``'s files (:func:`~nespm_cli.data.track_spec.spec_file`) read and converted. Refused in
     one line naming the file: a missing or unreadable file, every missing column at once, fewer than 2 data
     rows in the GT, DVL or IMU file, text that is not a number, infinity, NaN where it is not "no measurement"
-    (the DVL, depth and fix values may be NaN; times, the GT and the IMU may not)."""
-    gt_path = spec_file(spec, "gt", number)
-    c, _, names = _read(spec, "gt", gt_path, min_rows=2)
-    tab = spec.tables["gt"]
-    t = to_seconds(c["time"], tab["time_unit"], tab["time_zero"])
-    lat, lon, alt, pk = _position(spec, "gt", c)
-    vk = VELOCITY_KEYS[tab["velocity"]]
-    v = np.column_stack([scaled(c[k], "speed", tab["speed_unit"]) for k in vk])
-    sign_v = 1.0 if tab["velocity"] == "ned" else -1.0
-    v[:, 2] *= sign_v
-    euler = np.column_stack([scaled(c[k], "angle", tab["angle_unit"]) for k in ("roll", "pitch", "yaw")])
-    if tab["angle_unit"] != "rad":  # radians are the bench's: a radian column is checked as it is
-        euler[:, [0, 2]] = wrapped(euler[:, [0, 2]])
-    gt = np.column_stack([t, lon, lat, alt, v, euler])
-    order = ("time", pk[1], pk[0], pk[2]) + vk + ("roll", "pitch", "yaw")
-    signs = (1, 1, 1, 1 if pk[2] in UP_KEYS else -1, 1, 1, sign_v, 1, 1, 1)
-    out = {"gt_path": gt_path, "gt": gt, "gt_keys": tuple(f"gt.{k}" for k in order),
-           "gt_names": _signed(names, order, signs)}
-
+    (the DVL, depth and fix values may be NaN; times, the GT and the IMU may not). Without ``[gt]``: the
+    initial state of ``[init]`` instead of the GT (checked first), the IMU file required."""
+    out = _gt(spec, number) if spec.init is None else {"gt_path": None, "gt": None, "gt_keys": (), "gt_names": (),
+                                                        "init": init_state(spec, number)}
     dvl_path = spec_file(spec, "dvl", number)
     c, _, names = _read(spec, "dvl", dvl_path, nan_ok=("x", "y", "z"), min_rows=2)
     tab = spec.tables["dvl"]
@@ -135,6 +125,27 @@ def read_spec_track(spec: TrackSpec, number: int) -> SpecTrack:
         if name in spec.tables and (path := spec_file(spec, name, number)) is not None:
             channels[name] = _channel(spec, name, path)
     return SpecTrack(**out, channels=channels)
+
+
+def _gt(spec: TrackSpec, number: int) -> dict:
+    """The :class:`SpecTrack` fields of track ``number``'s GT file, read and converted."""
+    gt_path = spec_file(spec, "gt", number)
+    c, _, names = _read(spec, "gt", gt_path, min_rows=2)
+    tab = spec.tables["gt"]
+    t = to_seconds(c["time"], tab["time_unit"], tab["time_zero"])
+    lat, lon, alt, pk = _position(spec, "gt", c)
+    vk = VELOCITY_KEYS[tab["velocity"]]
+    v = np.column_stack([scaled(c[k], "speed", tab["speed_unit"]) for k in vk])
+    sign_v = 1.0 if tab["velocity"] == "ned" else -1.0
+    v[:, 2] *= sign_v
+    euler = np.column_stack([scaled(c[k], "angle", tab["angle_unit"]) for k in ("roll", "pitch", "yaw")])
+    if tab["angle_unit"] != "rad":  # radians are the bench's: a radian column is checked as it is
+        euler[:, [0, 2]] = wrapped(euler[:, [0, 2]])
+    gt = np.column_stack([t, lon, lat, alt, v, euler])
+    order = ("time", pk[1], pk[0], pk[2]) + vk + ("roll", "pitch", "yaw")
+    signs = (1, 1, 1, 1 if pk[2] in UP_KEYS else -1, 1, 1, sign_v, 1, 1, 1)
+    return {"gt_path": gt_path, "gt": gt, "gt_keys": tuple(f"gt.{k}" for k in order),
+            "gt_names": _signed(names, order, signs)}
 
 
 def _read(spec: TrackSpec, name: str, path: Path, nan_ok: tuple = (), min_rows: int = 0):
@@ -245,19 +256,22 @@ def check_vertical_sign(spec_path: Path, track: SpecTrack, gt_labels: tuple) -> 
             "map an altitude as alt (or up), a depth as depth (or down), or check the velocity's vertical")
 
 
-def check_channel(spec_path: Path, track: SpecTrack, name: str) -> tuple[np.ndarray, np.ndarray]:
+def check_channel(spec_path: Path, track: SpecTrack, name: str, t_ref: np.ndarray | None = None
+                  ) -> tuple[np.ndarray, np.ndarray]:
     """``(t, z)`` of the converted depth or fix file ``track.channels[name]``, checked against the GT (its
     time [s] and altitude [m, up]): stamps (strictly increasing, in the GT span), NaN in all values of a row
     or none, the vertical's sign (:func:`_vertical_fit`), then the ranges of
     :mod:`nespm_cli.data.sensor_files` (depth within [DEPTH_MIN, DEPTH_MAX] m, |lat| <= pi/2, |lon| <= pi,
-    |alt| <= MAX_ABS_FIX_ALT m)."""
+    |alt| <= MAX_ABS_FIX_ALT m). Without a GT (``track.gt`` None) the stamps are checked against the epochs
+    ``t_ref`` (N,) [s] and no sign against a GT."""
     path, t, z, keys, names = track.channels[name]
-    t_gt, alt_gt = track.gt[:, 0], track.gt[:, 3]
+    t_gt = track.gt[:, 0] if track.gt is not None else np.asarray(t_ref, dtype=float)
     bench = DEPTH_COLUMNS if name == "depth" else FIX_COLUMNS + ((FIX_ALT_COLUMN,) if z.shape[1] == 3 else ())
     lab = labels(names, bench)
-    stamps_checked(path, t, t_gt, track.gt_path.name, lab[0])
+    stamps_checked(path, t, t_gt, track.gt_path.name if track.gt is not None else "the DVL's epochs", lab[0])
     check_nan_rows(path, z, lab[1:], "no measurement at this stamp")
-    if name == "depth" or z.shape[1] == 3:
+    if track.gt is not None and (name == "depth" or z.shape[1] == 3):
+        alt_gt = track.gt[:, 3]
         j, sign = (0, -1.0) if name == "depth" else (2, 1.0)
         _vertical_fit(spec_path, path, z[:, j], sign * np.interp(t, t_gt, alt_gt), lab[j + 1], keys[j + 1],
                       track.gt_keys[3], name == "depth")

@@ -1,4 +1,5 @@
-"""The track: ground truth and DVL of one run, as every loader and generator returns it."""
+"""The track: ground truth and DVL of one run, as every loader and generator returns it (or, for recorded
+data without a ground truth, its initial state only: :attr:`Track.truth`)."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -27,6 +28,10 @@ class Track:
             measurement at that stamp: ``"depth"`` (m = 1, depth [m] positive down) and ``"fix"``
             (m = 2 or 3, ``[lat rad, lon rad(, alt m)]``), see :mod:`nespm_cli.data.sensor_files`.
             Empty for the embedded tracks and when a folder has no such file.
+        truth: False for a track without ground truth (a track spec without ``[gt]``, with ``[init]``;
+            docs/data.md): ``t`` are then the DVL's epochs, ``pos``, ``v_n``, ``euler`` hold the initial
+            state ``[init]`` in their first row and NaN in every other (nothing may be compared with them:
+            errors against the truth are not produced), ``imu`` is the recorded IMU (required).
     """
 
     number: int
@@ -38,6 +43,7 @@ class Track:
     imu: np.ndarray | None
     source: str
     channels: dict = field(default_factory=dict)
+    truth: bool = True
 
     def __post_init__(self) -> None:
         n = len(self.t)
@@ -54,11 +60,23 @@ class Track:
                 a.flags.writeable = False
                 object.__setattr__(self, name, a)
         object.__setattr__(self, "channels", {str(k): _channel(k, v) for k, v in dict(self.channels or {}).items()})
+        if not self.truth:
+            if self.imu is None:
+                raise ValueError("Track without truth needs its recorded imu")
+            known = np.isfinite(np.column_stack([self.pos, self.v_n, self.euler]))
+            if n == 0 or not known[0].all() or known[1:].any():
+                raise ValueError("Track without truth: pos, v_n, euler must hold the initial state in their "
+                                 "first row and NaN in every other")
 
     @property
     def C_bn(self) -> np.ndarray:
         """(N, 3, 3) body -> NED direction cosine matrices from :attr:`euler`."""
         return euler_to_dcm(self.euler)
+
+    @property
+    def initial(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(pos (3,), v_n (3,), euler (3,))`` at the first epoch: the truth's, or ``[init]`` without one."""
+        return self.pos[0], self.v_n[0], self.euler[0]
 
     @property
     def duration(self) -> float:

@@ -9,6 +9,11 @@ minus GT time), the position frame (``geodetic``, or ``ned`` / ``enu`` metres ab
 vertical's sign (by the key that names it: ``alt``/``up``/``altitude`` positive up, ``depth``/``down``
 positive down) and the IMU's and DVL's axes (``axes = "x,-y,-z"``, the ``--imu-axes`` syntax).
 
+Recorded data without a ground truth: a spec without ``[gt]`` gives, instead, the ``[init]`` table (the
+initial state: numbers, not columns; :data:`INIT_KEYS`, per track in ``[init.N]``) with a recorded
+``[imu]``; its tracks are the DVL files found, their epochs the DVL's stamps (:func:`truth_free`,
+:func:`init_state`; docs/data.md, "Recorded data without ground truth").
+
 This module reads and checks the spec (:func:`read_spec`) and finds each track's files
 (:func:`spec_tracks`, :func:`spec_file`, :func:`spec_files`); :mod:`nespm_cli.data.spec_reader` reads and
 converts them, and :func:`nespm_cli.data.tracks.load_track` checks the result as it checks an A-KIT folder.
@@ -98,13 +103,19 @@ SPEC_NAME = "nespm-data.toml"  # found automatically in the data folder
 UNIT = "a unit"
 FRAMES = ("geodetic", "ned", "enu")
 CHANNELS = ("gt", "dvl", "imu", "depth", "fix")
+#: ``[init]`` (a spec without ``[gt]``): the initial state at the first epoch, numbers in its own units
+INIT_KEYS = {"time": NUM, "lat": NUM, "lon": NUM, "alt": NUM, "depth": NUM, "v_north": NUM, "v_east": NUM,
+             "v_down": NUM, "roll": NUM, "pitch": NUM, "yaw": NUM, "angle_unit": UNIT, "length_unit": UNIT,
+             "speed_unit": UNIT}
+INIT_NEEDED = ("lat", "lon", "v_north", "v_east", "v_down", "roll", "pitch", "yaw")
+INIT_UNITS = {"angle_unit": "deg", "length_unit": "m", "speed_unit": "m/s"}  # its own defaults ([defaults] not)
 _FILE = {"file": STR, "time": STR, "time_unit": UNIT, "time_zero": NUM}
 _SENSOR = {**_FILE, "time_offset": NUM, "optional": BOOL}
 _POSITION = {"position": FRAMES, "lat": STR, "lon": STR, "alt": STR, "depth": STR, "north": STR, "east": STR,
              "down": STR, "up": STR, "angle_unit": UNIT, "length_unit": UNIT}
 #: every key of a spec: ``{table: {key: type or tuple of choices}}`` ("" is the top level)
 SCHEMA = {
-    "": {"track": INT, "defaults": TABLE, "origin": TABLE, **{name: TABLE for name in CHANNELS}},
+    "": {"track": INT, "defaults": TABLE, "origin": TABLE, "init": TABLE, **{name: TABLE for name in CHANNELS}},
     "defaults": {"time_unit": UNIT, "time_zero": NUM, "angle_unit": UNIT, "length_unit": UNIT, "speed_unit": UNIT,
                  "acceleration_unit": UNIT, "rate_unit": UNIT},
     "origin": {"lat_deg": NUM, "lon_deg": NUM, "alt_m": NUM},
@@ -115,6 +126,7 @@ SCHEMA = {
             "axes": STR, "acceleration_unit": UNIT, "rate_unit": UNIT},
     "depth": {**_SENSOR, "depth": STR, "altitude": STR, "length_unit": UNIT},
     "fix": {**_SENSOR, **_POSITION},
+    "init": INIT_KEYS,
 }
 #: position keys per frame: (horizontal keys, the vertical keys that may name the one vertical column)
 FRAME_KEYS = {"geodetic": (("lat", "lon"), ("alt", "depth")), "ned": (("north", "east"), ("down",)),
@@ -131,7 +143,9 @@ class TrackSpec:
     """A read and checked spec: its ``path``, the data ``folder`` (its parent), the channel ``tables``
     (``{name: {key: value}}`` with every default filled in), the ``origin`` ``[lat rad, lon rad, alt m]``
     (None without one), the track number ``track`` of file names without ``{N}`` and the keys the file itself
-    sets (``declared``: ``{"gt.angle_unit", ...}``, a ``[defaults]`` key counted in every table it fills)."""
+    sets (``declared``: ``{"gt.angle_unit", ...}``, a ``[defaults]`` key counted in every table it fills);
+    ``init`` the ``[init]`` table of a spec without ``[gt]`` (``{0: the keys for every track, N: track N's
+    own}``, checked; None with ``[gt]``)."""
 
     path: Path
     folder: Path
@@ -139,6 +153,12 @@ class TrackSpec:
     origin: np.ndarray | None = None
     track: int = 1
     declared: frozenset = frozenset()
+    init: dict | None = None
+
+    @property
+    def anchor(self) -> str:
+        """The table whose files define the tracks: ``"gt"``, or ``"dvl"`` without a ground truth."""
+        return "gt" if "gt" in self.tables else "dvl"
 
 
 # ----------------------------------------------------------------------------- reading the spec
@@ -162,7 +182,7 @@ def find_spec(folder: Path) -> Path | None:
 def read_spec(path: Path) -> TrackSpec:
     """The spec ``path``, checked, defaults filled in. Refused in one line naming ``path`` and the key: an
     unreadable or invalid TOML file, an unknown key, a value of the wrong type, a bad unit or choice, no
-    ``[gt]`` or ``[dvl]``, a missing ``file``/``time``/column key, keys of another position frame or velocity
+    ``[dvl]``, no ``[gt]`` without both ``[init]`` and ``[imu]`` (:func:`truth_free`), ``[init]`` with ``[gt]``, a missing ``file``/``time``/column key, keys of another position frame or velocity
     frame, two verticals (``alt`` and ``depth``), two keys naming one column, a bad ``axes``, a local frame
     without ``[origin]`` (or an origin outside ±90°/±180°), a non-finite number, a file pattern that is
     absolute, climbs out of the folder (``..``), holds braces other than ``{N}``, or has ``{N}`` in some
@@ -170,10 +190,8 @@ def read_spec(path: Path) -> TrackSpec:
     path = Path(path)
     raw = read_toml(path, "the track spec")
     _keys(path, "", raw)
-    parts = {name: _keys(path, name, raw[name]) for name in SCHEMA if name and name in raw}
-    for name in ("gt", "dvl"):
-        if name not in parts:
-            raise NespmError(f"{path}: no [{name}] table (the ground truth and the DVL are required; docs/data.md)")
+    init = truth_free(path, raw)
+    parts = {name: _keys(path, name, raw[name]) for name in SCHEMA if name and name != "init" and name in raw}
     defaults = {**{f"{k}_unit": u for k, u in SI.items()}, "time_zero": 0.0, **parts.get("defaults", {})}
     tables, declared = {}, set()
     for name in CHANNELS:
@@ -188,7 +206,83 @@ def read_spec(path: Path) -> TrackSpec:
             tables[name] = _columns_checked(path, name, tab)
     origin = _origin(path, parts.get("origin"), tables)
     track = _patterns(path, raw.get("track"), tables)
-    return TrackSpec(path, path.parent, tables, origin, track, frozenset(declared))
+    return TrackSpec(path, path.parent, tables, origin, track, frozenset(declared), init)
+
+
+def truth_free(path: Path, raw: dict) -> dict | None:
+    """The ``[init]`` of a spec without ``[gt]`` (``{0: keys, N: track N's keys}``, each key checked), or None
+    with ``[gt]``. Refused in one line naming the table: no ``[dvl]``; no ``[gt]`` and no ``[init]`` or no
+    ``[imu]`` (the filters start from ``[init]`` and run on the recorded IMU); ``[init]`` beside ``[gt]``."""
+    if "dvl" not in raw:
+        raise NespmError(f"{path}: no [dvl] table (the DVL is required; docs/data.md)")
+    if "gt" in raw:
+        if "init" in raw:
+            raise NespmError(f"{path}: key 'init': applies only without [gt] (with a ground truth its first epoch "
+                             "is the initial state); remove one of them")
+        return None
+    for name, why in (("init", "the initial state at the first epoch: lat, lon, depth or alt, v_north, v_east, "
+                               "v_down, roll, pitch, yaw"), ("imu", "the recorded IMU the filters run on")):
+        if name not in raw:
+            raise NespmError(f"{path}: no [gt] table and no [{name}] table (without a ground truth give [init] "
+                             f"and [imu]; [{name}]: {why}; docs/data.md)")
+    raw_init = raw["init"]
+    if not isinstance(raw_init, dict):
+        raise NespmError(f"{path}: key 'init' must be a table ([init])")
+    own = {k: v for k, v in raw_init.items() if not (isinstance(v, dict) and k.isdigit())}
+    out = {0: _init_keys(path, "init", own)}
+    for k, v in raw_init.items():
+        if k not in own:
+            if int(k) < 1:
+                raise NespmError(f"{path}: key 'init.{k}': a track number is at least 1")
+            out[int(k)] = _init_keys(path, f"init.{k}", v)
+    return out
+
+
+def _init_keys(path: Path, name: str, table: dict) -> dict:
+    """One ``[init]`` (or ``[init.N]``) table's keys checked (types, units, one vertical)."""
+    def unit(key: str, value, full: str) -> bool:
+        if INIT_KEYS[key] != UNIT:
+            return False
+        why = unit_error(unit_kind(key), value)
+        if why:
+            raise NespmError(f"{path}: key '{full}': {printable(why, 120)}")
+        return True
+
+    tab = checked_table(path, name, table, INIT_KEYS, special=unit)
+    if "alt" in tab and "depth" in tab:
+        raise NespmError(f"{path}: key '{name}.alt' and '{name}.depth' are both given: one vertical, alt (positive "
+                         "up) or depth (positive down)")
+    return tab
+
+
+def init_state(spec: TrackSpec, number: int) -> dict:
+    """Track ``number``'s initial state from ``[init]`` (its ``[init.N]`` over the common keys): ``{"time": s or
+    None, "pos": [lat rad, lon rad, alt m up], "v_n": (3,) m/s NED, "euler": (3,) rad}``. Refused in one line
+    naming the key: a missing key, a latitude beyond ±90°, a longitude beyond ±180°, a pitch beyond ±90°, a roll
+    or yaw beyond one turn, a speed of 20 m/s or more."""
+    own = (spec.init or {}).get(number, {})
+    tab = {**INIT_UNITS, **spec.init[0], **own}
+    where = f"init.{number}" if own else "init"
+    for key in INIT_NEEDED + (("depth",) if "alt" not in tab and "depth" not in tab else ()):
+        if key not in tab:
+            raise NespmError(f"{spec.path}: key '{where}.{key}' is missing (track {number}'s initial state needs "
+                             "lat, lon, depth or alt, v_north, v_east, v_down, roll, pitch, yaw)")
+    ang = factor("angle", tab["angle_unit"])
+    lat, lon, roll, pitch, yaw = (float(tab[k]) * ang for k in ("lat", "lon", "roll", "pitch", "yaw"))
+    up = float(tab["alt"]) if "alt" in tab else -float(tab["depth"])
+    v_n = np.array([float(tab[k]) for k in ("v_north", "v_east", "v_down")]) * factor("speed", tab["speed_unit"])
+    for key, value, limit in (("lat", lat, math.pi / 2), ("lon", lon, math.pi), ("pitch", pitch, math.pi / 2),
+                              ("roll", roll, 2 * math.pi), ("yaw", yaw, 2 * math.pi)):
+        if abs(value) > limit + 1e-12:
+            raise NespmError(f"{spec.path}: key '{where}.{key}': {tab[key]!r} {tab['angle_unit']} is beyond "
+                             f"±{math.degrees(limit):g} degrees (angle_unit = {tab['angle_unit']!r})")
+    if np.linalg.norm(v_n) >= 20.0:
+        raise NespmError(f"{spec.path}: key '{where}.v_north': the initial speed {np.linalg.norm(v_n):.4g} m/s is "
+                         "20 m/s or more (speed_unit?)")
+    wrap = lambda a: math.remainder(a, 2 * math.pi)  # noqa: E731  (-pi, pi]
+    return {"time": None if "time" not in tab else float(tab["time"]),
+            "pos": np.array([lat, lon, up * factor("length", tab["length_unit"])]),
+            "v_n": v_n, "euler": np.array([wrap(roll), pitch, wrap(yaw)])}
 
 
 def _keys(path: Path, name: str, table) -> dict:
@@ -306,7 +400,7 @@ def _patterns(path: Path, track, tables: dict) -> int:
         b = next(n for n, v in with_n.items() if not v)
         raise NespmError(f"{path}: key '{b}.file' has no {{N}} but '{a}.file' has: the patterns of one folder are all "
                          "per track ({N}) or all one track's")
-    if track is not None and with_n["gt"]:
+    if track is not None and any(with_n.values()):
         raise NespmError(f"{path}: key 'track' applies only to file names without {{N}} (theirs is the track number)")
     track = 1 if track is None else track
     if track < 1:
@@ -335,26 +429,29 @@ def _matches(spec: TrackSpec, name: str) -> dict[int, list[str]]:
 
 
 def spec_tracks(spec: TrackSpec) -> list[int]:
-    """The track numbers whose GT file the spec's ``gt.file`` finds (sorted); none is one line."""
-    found = sorted(_matches(spec, "gt"))
+    """The track numbers whose GT file the spec's ``gt.file`` finds (without ``[gt]``: its DVL files), sorted;
+    none is one line."""
+    a = spec.anchor
+    found = sorted(_matches(spec, a))
     if not found:
-        raise NespmError(f"{spec.path}: key 'gt.file': no file matches {spec.tables['gt']['file']!r} in {spec.folder}")
+        raise NespmError(f"{spec.path}: key '{a}.file': no file matches {spec.tables[a]['file']!r} in {spec.folder}")
     return found
 
 
 def spec_file(spec: TrackSpec, name: str, number: int) -> Path | None:
     """The file of table ``name`` for track ``number``; None when it is missing and ``optional``. Refused: no
-    GT file (no such track), a missing file of another table, two files of one track (``run7``, ``run07``)."""
+    GT file (no such track; without ``[gt]`` no DVL file), a missing file of another table (a truth-free
+    spec's IMU file too, whatever its ``optional``), two files of one track (``run7``, ``run07``)."""
     pat = spec.tables[name]["file"]
     found = _matches(spec, name).get(number, [])
     if len(found) > 1:
         raise NespmError(f"{spec.path}: key '{name}.file': {found[0]} and {found[1]} are both track {number}; keep one")
     if found:
         return spec.folder / found[0]
-    if name == "gt":
-        have = ", ".join(map(str, sorted(_matches(spec, "gt")))) or "none"
-        raise NespmError(f"{spec.path}: no track {number} (key 'gt.file' {pat!r} finds tracks: {have})")
-    if spec.tables[name]["optional"]:
+    if name == spec.anchor:
+        have = ", ".join(map(str, sorted(_matches(spec, name)))) or "none"
+        raise NespmError(f"{spec.path}: no track {number} (key '{name}.file' {pat!r} finds tracks: {have})")
+    if spec.tables[name]["optional"] and not (name == "imu" and spec.init is not None):
         return None
     raise NespmError(f"{spec.path}: key '{name}.file': no file {pat.replace('{N}', str(number))!r} for track {number} "
                      f"in {spec.folder} (set {name}.optional = true if some tracks have none)")
@@ -362,7 +459,11 @@ def spec_file(spec: TrackSpec, name: str, number: int) -> Path | None:
 
 def spec_files(spec: TrackSpec, number: int, imu: bool = False) -> list[Path]:
     """The files track ``number`` is read from: the spec itself, the GT and DVL file, the IMU file with
-    ``imu`` (required then: no ``[imu]`` table or no file is one line), then the depth and fix files found."""
+    ``imu`` (required then: no ``[imu]`` table or no file is one line), then the depth and fix files found.
+    Without ``[gt]``: the spec, the DVL and the IMU file (always: the track is read with it), then the others."""
+    if spec.init is not None:
+        return [spec.path, spec_file(spec, "dvl", number), spec_file(spec, "imu", number)] + \
+            [p for n in ("depth", "fix") if n in spec.tables and (p := spec_file(spec, n, number))]
     files = [spec.path, spec_file(spec, "gt", number), spec_file(spec, "dvl", number)]
     if imu:
         if "imu" not in spec.tables:

@@ -165,7 +165,8 @@ def load_track(number: int, data_dir: str | Path | None = None, *, warnings: str
 
     The files are those of :func:`track_files` (folder and file names may carry leading zeros), or those
     a track spec in the folder names, converted first (docs/data.md; the checks below run on the converted
-    arrays, plus the spec's sign checks of :mod:`nespm_cli.data.spec_reader`). Raises :class:`NespmError`
+    arrays, plus the spec's sign checks of :mod:`nespm_cli.data.spec_reader`; a spec without ``[gt]`` gives a
+    track without truth, ``Track.truth`` False: :func:`_truth_free_track`). Raises :class:`NespmError`
     (one line, naming the file and first bad data row / column) on an unknown track number, two folders or
     files of one track, a missing or empty file, a missing column, non-numeric text, NaN/inf, time not
     strictly increasing, GT/DVL epochs that differ, |lat| > pi/2, |lon| > pi, or a speed >= 20 m/s (a DVL
@@ -208,6 +209,8 @@ def _load_spec_track(spec: TrackSpec, number: int, warnings: str | None) -> Trac
     """:func:`load_track` through a track spec: the files converted (:mod:`~nespm_cli.data.spec_reader`), then
     the A-KIT checks on the arrays (messages naming the user's file and column) and the spec's sign checks."""
     sp = spec_reader.read_spec_track(spec, number)
+    if sp.gt is None:
+        return _truth_free_track(spec, sp, number)
     gt_cols, dvl_cols = spec_reader.labels(sp.gt_names, GT_COLUMNS), spec_reader.labels(sp.dvl_names, DVL_COLUMNS)
     _check_gt(sp.gt_path, sp.gt, gt_cols)
     spec_reader.check_vertical_sign(spec.path, sp, gt_cols)
@@ -221,6 +224,35 @@ def _load_spec_track(spec: TrackSpec, number: int, warnings: str | None) -> Trac
     return _track(number, sp.gt_path, sp.gt, sp.dvl_path, dvl, sp.imu, channels, warnings, names, sp.imu_path,
                   spec_reader.labels(sp.imu_names, IMU_COLUMNS) if sp.imu is not None else IMU_COLUMNS,
                   ("imu.acceleration_unit", "imu.rate_unit"), spec_reader.angle_hint(spec))
+
+
+def _truth_free_track(spec: TrackSpec, sp, number: int) -> Track:
+    """A track of a spec without ``[gt]`` (``Track.truth`` False): its epochs the DVL's stamps from the initial
+    state's time (``init.time``, else the first DVL stamp; an ``init.time`` that is no DVL stamp is an epoch
+    without a measurement), the DVL, IMU and channel files checked as usual against those epochs (no check
+    against a truth), ``pos``, ``v_n``, ``euler`` the initial state in the first row and NaN after."""
+    dvl_cols = spec_reader.labels(sp.dvl_names, DVL_COLUMNS)
+    check_dvl_nan(sp.dvl_path, sp.dvl[:, 1:4], dvl_cols[1:4])
+    _check_time(sp.dvl_path, sp.dvl[:, 0], dvl_cols[0])
+    _check_speed(sp.dvl_path, sp.dvl[:, 1:4], dvl_cols[1:4])
+    t0 = float(sp.dvl[0, 0]) if sp.init["time"] is None else sp.init["time"]
+    dvl = sp.dvl[sp.dvl[:, 0] >= t0 - EPOCH_TOL]
+    if len(dvl) < 3 or float(dvl[-1, 0]) <= t0:
+        raise NespmError(f"{spec.path}: key 'init.time': {t0!r} s leaves {len(dvl)} DVL stamps of {sp.dvl_path.name} "
+                         f"({float(sp.dvl[0, 0])!r} .. {float(sp.dvl[-1, 0])!r} s) from it; the track needs at least 3")
+    if abs(float(dvl[0, 0]) - t0) > EPOCH_TOL:
+        dvl = np.vstack([np.r_[t0, np.full(3, np.nan)], dvl])
+    t = dvl[:, 0]
+    try:
+        check_imu(sp.imu_path, sp.imu, sp.dvl_path, t, spec_reader.labels(sp.imu_names, IMU_COLUMNS))
+    except NespmError as exc:  # its span against the DVL's epochs, not a GT
+        raise NespmError(str(exc).replace("GT epoch", "epoch").replace("the GT span", "the DVL's epochs")) from None
+    channels = {name: spec_reader.check_channel(spec.path, sp, name, t) for name in sp.channels}
+    nan = np.full((len(t), 3), np.nan)
+    pos, v_n, euler = nan.copy(), nan.copy(), nan.copy()
+    pos[0], v_n[0], euler[0] = sp.init["pos"], sp.init["v_n"], sp.init["euler"]
+    return Track(number=number, t=t, pos=pos, v_n=v_n, euler=euler, dvl=dvl[:, 1:4], imu=sp.imu,
+                 source=str(sp.dvl_path.parent), channels=channels, truth=False)
 
 
 def _track(number, gt_path: Path, gt, dvl_path: Path, dvl, imu, channels: dict, warnings, names=None, imu_path=None,
@@ -257,8 +289,12 @@ def write_akit(track: Track, folder: str | Path) -> Path:
     """Write ``track`` as ``folder/TrajectoryN/{GT,DVL[,IMU,DEPTH,FIX]}_trajectoryN.csv``; return that folder.
 
     Full precision (``%.17g``), exact headers, so :func:`load_track` reads back the same floats;
-    each file is written atomically (:func:`nespm_cli.data.atomic.write_atomic`).
+    each file is written atomically (:func:`nespm_cli.data.atomic.write_atomic`). A track without ground truth
+    is refused (one line): the A-KIT layout needs its GT file.
     """
+    if not track.truth:
+        raise NespmError(f"track {track.number}: has no ground truth (a track spec without [gt]); the A-KIT layout "
+                         "needs its GT file")
     tdir = Path(folder) / f"Trajectory{track.number}"
     tdir.mkdir(parents=True, exist_ok=True)
     gt = np.column_stack([track.t, track.pos[:, 1], track.pos[:, 0], track.pos[:, 2], track.v_n, track.euler])
@@ -409,8 +445,18 @@ def track_summary(track: Track) -> dict:
     ``lever_arm_std`` (x, y, z) [m] (:func:`lever_arm_std`); ``yaw_rate_rms_dps`` [deg/s];
     ``lever_arm_warning``: None, or why the track's turns cannot determine the lever arm
     (RMS yaw rate below :data:`LEVER_MIN_TURN_DPS`, or an x/y std above :data:`LEVER_MAX_STD`).
+    A track without ground truth: only ``track``, ``duration_s``, ``epochs``, ``imu`` are numbers, every figure
+    of the truth NaN, and ``lever_arm_warning`` says so.
     """
     t = np.asarray(track.t)
+    if not track.truth:
+        nan, nan3 = float("nan"), (float("nan"),) * 3
+        return {"track": int(track.number), "duration_s": track.duration, "epochs": int(len(t)), "imu": True,
+                **{k: nan for k in ("distance_m", "mean_speed", "max_yaw_rate_dps", "depth_min", "depth_max",
+                                    "dvl_resid_std", "yaw_rate_rms_dps")},
+                "dvl_resid_std_xyz": nan3, "lever_arm": nan3, "lever_arm_std": nan3,
+                "lever_arm_warning": f"track {track.number}: no ground truth (its track spec has no [gt]): distance, "
+                                     "speed, depth, DVL residual and lever arm are not known"}
     v = np.asarray(track.v_n)
     hspeed = np.hypot(v[:, 0], v[:, 1])
     distance = float(np.sum(0.5 * (hspeed[1:] + hspeed[:-1]) * np.diff(t)))

@@ -66,8 +66,17 @@ def file_stamp(path: Path) -> tuple:
 @lru_cache(maxsize=16)
 def prepared_version(number: int, data_dir: str | None, imu: str, corrections: Corrections,
                      stamp: tuple, imu_rate: float = DEFAULT_IMU_RATE) -> tuple[Track, ImuTruth]:
-    """:func:`prepared` of one version (``stamp``) of the track's files."""
-    track = apply_corrections(read_track(number, data_dir, imu), corrections)
+    """:func:`prepared` of one version (``stamp``) of the track's files. A track without ground truth keeps
+    its first epoch (its initial state): a ``--window`` or time offset that drops it is one line."""
+    track = read_track(number, data_dir, imu)
+    try:
+        track = apply_corrections(track, corrections)
+    except ValueError:  # Track: a track without truth lost the epoch of its initial state
+        if track.truth:
+            raise
+        raise NespmError(f"track {number}: --window or a time offset drops its first epoch ({float(track.t[0])!r} s), "
+                         "where its initial state ([init]) is given and no ground truth after it; start the window "
+                         "at or before it") from None
     if imu == "synthetic":
         return track, synthesize(track, substeps_for(track, imu_rate))
     return track, from_recorded(track)

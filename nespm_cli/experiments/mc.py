@@ -30,9 +30,10 @@ from nespm_cli.experiments.chunks import chunk_problem, concat_parquet, write_ch
 from nespm_cli.experiments.inputs import READ_HASHES, verify_read
 from nespm_cli.experiments.pcrb_table import add_pcrb
 from nespm_cli.experiments.metrics import (alive_metrics, block_statistics, divergence, epoch_errors, epoch_nis,
-                                          lost_epoch, run_metrics, sensor_nis)
-from nespm_cli.experiments.spec import (Spec, couple_filter, filter_config, filter_config_of, load_filters,
-                                        needs_noise_std, track_inputs, validate)
+                                          lost_epoch, run_metrics, sensor_nis, truth_free_epochs,
+                                          truth_free_metrics)
+from nespm_cli.experiments.spec import (NO_TRUTH, Spec, couple_filter, filter_config, filter_config_of, has_truth,
+                                        load_filters, needs_noise_std, track_inputs, validate)
 from nespm_cli.experiments.progress import compile_kernels
 from nespm_cli.experiments.suite import load_sensors, sensor_plugin_files, sensor_suite, suite_record
 from nespm_cli.experiments.store import (GROWABLE, ResultsFolder, Task, chunk_firsts, file_hashes, run_blocks,
@@ -60,7 +61,8 @@ def simulate(spec: Spec, number: int, runs: np.ndarray, filters=None, clean: boo
     done so far (filters run one after the other, each over the track's N-1 epoch intervals).
     ``reuse``: a dict the caller keeps across calls whose spec differs only in its filters and their
     options (``nespm tune``'s trials): the realization, IMU, initial solution and sensor channels of
-    ``(number, runs, clean)`` are built once and read from it after (the same arrays: bit-identical).
+    ``(number, runs, clean)`` are built once and read from it after (the same arrays: bit-identical). On a
+    track without ground truth (``truth.known`` False) the errors are None: nothing to measure them against.
     """
     key = (number, tuple(int(r) for r in runs), bool(clean))
     if reuse is not None and key in reuse:
@@ -88,10 +90,11 @@ def simulate(spec: Spec, number: int, runs: np.ndarray, filters=None, clean: boo
                          progress=step, channels=channels, smooth=name in (spec.smooth if smooth is None else smooth))
         if name in adaptive:
             t0 -= net_seconds / len(adaptive)  # the shared network pass, split
-        err = epoch_errors(out, v_t, C_t, p_t)
+        err = epoch_errors(out, v_t, C_t, p_t) if truth.known else None
         secs = time.perf_counter() - t0
         if out.smoothed is not None:  # its seconds: the filter's with the recording and the backward pass
-            results[smoothed_name(name)] = (out.smoothed, epoch_errors(out.smoothed, v_t, C_t, p_t), secs)
+            results[smoothed_name(name)] = (out.smoothed, epoch_errors(out.smoothed, v_t, C_t, p_t)
+                                            if truth.known else None, secs)
         results[name] = (out, err, secs)
     return results, truth, real
 
@@ -209,27 +212,31 @@ def run_chunk(cell: Cell, number: int, first: int, out_dir: str, last: int | Non
     for name, (out, err, secs) in results.items():
         if name not in needed:
             continue
-        div, why, inconsistent = divergence(err, out.diverged, t_rel, spec.divergence)
-        m = run_metrics(err, div)
-        m.update(alive_metrics(err, lost_epoch(err, why, out.lost_epoch, t_rel, spec.divergence), t_rel))
-        m.update(sensor_nis(out))
-        m["diverged_reason"] = why
-        m["inconsistent"] = inconsistent
-        m["drift_m_per_h"] = m["hpe_final"] / max(float(t_rel[-1]), 1e-9) * 3600.0
+        errors = {}  # per epoch: error norms, per-block NEES and 1/2/3-sigma coverage (none without a truth)
+        if err is None:  # no ground truth: the innovations only, no error (metrics.truth_free_metrics)
+            m = truth_free_metrics(out)
+            div = m["diverged"]
+        else:
+            div, why, inconsistent = divergence(err, out.diverged, t_rel, spec.divergence)
+            m = run_metrics(err, div)
+            m.update(alive_metrics(err, lost_epoch(err, why, out.lost_epoch, t_rel, spec.divergence), t_rel))
+            m.update(sensor_nis(out))
+            m["diverged_reason"] = why
+            m["inconsistent"] = inconsistent
+            m["drift_m_per_h"] = m["hpe_final"] / max(float(t_rel[-1]), 1e-9) * 3600.0
+            errors = {"vel_err": err.vel.ravel(), "att_err": err.att.ravel(), "nees": err.nees.ravel(),
+                      "north_err": err.ne[..., 0].ravel(), "east_err": err.ne[..., 1].ravel(),
+                      **{k: v.ravel() for k, v in block_statistics(out, truth.v_n[e], truth.C_bn[e], truth.pos[e],
+                                                                   bias_true, axes=spec.save_series == "axes").items()}}
         m.update(q_factors(out.noise_std, cfg, len(runs)))
         df = pd.DataFrame({**extra, "track": number, "filter": name, "run": runs, "scenario": spec.scenario,
                            "schedule": spec.corruption.schedule, "seed": spec.seed, **m,
                            "seconds": secs / len(runs), "kernels": kernel_backend()})
-        R, N = err.vel.shape
-        # per-block NEES and 1/2/3-sigma coverage, per-sensor NIS per epoch (NaN where not defined)
-        blocks = {k: v.ravel() for k, v in block_statistics(out, truth.v_n[e], truth.C_bn[e], truth.pos[e], bias_true,
-                                                             axes=spec.save_series == "axes").items()}
-        blocks.update({k: v.ravel() for k, v in epoch_nis(out, t_rel).items()})
+        R, N = len(runs), len(e)
+        errors.update({k: v.ravel() for k, v in epoch_nis(out, t_rel).items()})  # per-sensor NIS (NaN: none)
         series = pd.DataFrame({
             **extra, "track": number, "filter": name, "run": np.repeat(runs, N), "epoch": np.tile(np.arange(N), R),
-            "t": np.tile(t_rel, R), "vel_err": err.vel.ravel(), "att_err": err.att.ravel(),
-            "nees": err.nees.ravel(), "north_err": err.ne[..., 0].ravel(), "east_err": err.ne[..., 1].ravel(),
-            **blocks, "dvl_used": np.tile(out.dvl_used, R), "diverged": np.repeat(div, N),
+            "t": np.tile(t_rel, R), **errors, "dvl_used": np.tile(out.dvl_used, R), "diverged": np.repeat(div, N),
         })
         # series first: a metrics file marks the chunk complete
         write_chunk(series, chunks / chunk_name("series", number, name, first, tag), cell.experiment)
@@ -378,8 +385,13 @@ def run_cells(cells: list[Cell], options: dict, out_dir: str | Path, execution: 
     folder.run(run_chunk_keyed, todo, ex, label, detail=chunk_detail([t.args[4] - t.args[2] for t in todo]))
     recover_timings(folder.manifest["chunk_seconds"], tasks, out / "chunks")
     metrics, epochs = assemble(folder, tasks, tuple(k for k, _ in cells[0].columns))
-    epochs = add_true_track(epochs, first)
-    epochs, folder.manifest["pcrb"] = add_pcrb(epochs, cells, tuple(k for k, _ in cells[0].columns))  # docs/pcrb.md
+    if has_truth(first):
+        epochs = add_true_track(epochs, first)
+        epochs, folder.manifest["pcrb"] = add_pcrb(epochs, cells, tuple(k for k, _ in cells[0].columns))  # docs/pcrb.md
+    else:  # no ground truth: innovation statistics only (no error, no bound); the manifest says so
+        epochs = truth_free_epochs(epochs)
+        folder.manifest["pcrb"] = {"status": "unknown", "reason": NO_TRUTH, "seconds": 0.0}
+        folder.manifest["ground_truth"] = False
     write_parquet_atomic(epochs, out / "epochs.parquet")
     folder.finish(chunks=len(tasks))
     return metrics

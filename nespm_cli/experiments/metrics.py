@@ -9,7 +9,9 @@
   travelled" figure); vertical error ``down`` [m] (nav − truth, positive down);
 * per-block NEES (:func:`block_nees`): the NEES of any block of the filter's layout (position,
   velocity, attitude, biases), ``dof`` 3 each;
-* per-sensor NIS (:func:`sensor_nis`): ``νᵀ S⁻¹ ν`` of every applied measurement, mean per run.
+* per-sensor NIS (:func:`sensor_nis`): ``νᵀ S⁻¹ ν`` of every applied measurement, mean per run;
+  the innovation likelihood (:func:`innovation_terms`, :func:`truth_free_metrics`): all a run without
+  ground truth (``ImuTruth.known`` False) is measured by, its errors not produced.
 
 The t = 0 rule (docs/filters.md, "Epochs in the metrics"): the papers' columns (``sse_vel``,
 ``sse_att``, ``sse_hpe``, ``n_samples``, ``vrmse``, ``mrmse``) sum over every GT epoch including the
@@ -193,6 +195,54 @@ def sensor_nis(out) -> dict[str, np.ndarray]:
         with np.errstate(all="ignore"):
             res[f"nis_{name}"] = np.where(count > 0, m * total / np.maximum(count, 1), np.nan)
     return res
+
+
+def innovation_terms(rec) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``(nis, logdet, rows, ok)`` (R, K) of one sensor's record (:class:`nespm_cli.filters.engine.SensorRecord`):
+    each measurement's NIS, ``log det S``, rows (a masked row, e.g. a lost beam, enters with ν = 0 and a unit
+    uncoupled S row: no row, nothing added) and whether it counts: applied with a finite, positive-definite S
+    and at least one row. The one rule of the innovation likelihood ``½ Σ (νᵀ S⁻¹ ν + log det S)`` per row
+    (``nespm tune --objective innovation``, :func:`truth_free_metrics`); NIS and log det are 0 where not ok."""
+    nis = rec.nis()  # (R, K), NaN where not applied or S singular
+    rows = rec.dof().astype(float)
+    eye = np.eye(rec.S.shape[-1])
+    with np.errstate(all="ignore"):
+        finite = np.isfinite(rec.S).all(axis=(-2, -1)) & np.isfinite(nis)
+        sign, logdet = np.linalg.slogdet(np.where(finite[..., None, None], rec.S, eye))
+    ok = finite & (sign > 0) & (rows > 0)
+    return np.where(ok, nis, 0.0), np.where(ok, logdet, 0.0), rows, ok
+
+
+def truth_free_metrics(out) -> dict[str, np.ndarray]:
+    """A run's numbers without ground truth, (R,) each: ``diverged`` (the engine's numeric flag alone: the
+    attitude rule needs the truth), ``diverged_reason`` (``numeric`` or ``""``), ``inconsistent`` (False: the
+    NEES test needs the truth), per sensor ``nis_<sensor>`` (:func:`sensor_nis`) and ``nll_<sensor>`` the
+    negative log-likelihood per row of its innovations ``½ (Σ NIS + Σ log det S) / Σ rows`` (without
+    ½ log 2π; NaN without a row), and ``innovation_nll`` their mean over the sensors. No error column:
+    there is nothing to measure an error against."""
+    bad = np.asarray(out.diverged, dtype=bool)
+    res = {"diverged": bad, "diverged_reason": np.where(bad, "numeric", "").astype(object),
+           "inconsistent": np.zeros(len(bad), dtype=bool), **sensor_nis(out)}
+    nll = []
+    for name, rec in getattr(out, "sensors", {}).items():
+        nis, logdet, rows, ok = innovation_terms(rec)
+        n = np.where(ok, rows, 0.0).sum(axis=1)
+        with np.errstate(all="ignore"):
+            res[f"nll_{name}"] = np.where(n > 0, 0.5 * (nis.sum(axis=1) + logdet.sum(axis=1)) / n, np.nan)
+        nll.append(res[f"nll_{name}"])
+    with np.errstate(all="ignore"):
+        res["innovation_nll"] = np.mean(nll, axis=0) if nll else np.full(len(bad), np.nan)
+    return res
+
+
+#: the epochs table's columns that hold errors against the truth (dropped without one)
+ERROR_PREFIXES = ("vel_err", "att_err", "nees", "north_", "east_", "hpe", "cover", "rms_", "sig_", "nci_", "pcrb_")
+
+
+def truth_free_epochs(epochs):
+    """The epochs table (``epochs.parquet``) of a study without ground truth: the columns of errors
+    (:data:`ERROR_PREFIXES`, NaN there) left out; the NIS per sensor, ``dvl_used`` and ``n_runs`` kept."""
+    return epochs[[c for c in epochs.columns if not c.startswith(ERROR_PREFIXES)]]
 
 
 @dataclass(frozen=True)

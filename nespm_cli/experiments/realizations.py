@@ -12,7 +12,7 @@ from nespm_cli.data.corruption import check_seed, CorruptionConfig, draw, imu_er
 from nespm_cli.errors import NespmError
 from nespm_cli.experiments.inputs import prepared
 from nespm_cli.experiments.store import write_json_atomic, write_parquet_atomic
-from nespm_cli.data.tracks import available_tracks, resolve_data_dir
+from nespm_cli.data.tracks import available_tracks, load_track, resolve_data_dir
 
 
 def write_realizations(tracks, runs: int, seed: int, config: CorruptionConfig, out: str | Path,
@@ -57,7 +57,9 @@ def write_realizations(tracks, runs: int, seed: int, config: CorruptionConfig, o
     out.mkdir(parents=True, exist_ok=True)
     rows = []
     for n in tracks:
-        _, truth = prepared(n, str(d) if d else None, "synthetic")
+        # the IMU grid the errors are drawn on: the synthesized one, or a track without ground truth's recorded one
+        imu = "synthetic" if d is None or load_track(n, d).truth else "recorded"
+        _, truth = prepared(n, str(d) if d else None, imu)
         duration = float(truth.t[-1] - truth.t[0])
         real = draw(seed, n, np.arange(runs), duration, config)
         from nespm_cli.data.corruption import to_rows

@@ -9,9 +9,9 @@ import pandas as pd
 
 from nespm_cli.errors import NespmError
 from nespm_cli.experiments.mc import simulate
-from nespm_cli.experiments.spec import Spec, track_inputs, validate
+from nespm_cli.experiments.spec import NO_TRUTH, Spec, track_inputs, validate
 from nespm_cli.experiments.store import write_parquet_atomic
-from nespm_cli.experiments.metrics import divergence, run_metrics, sensor_nis
+from nespm_cli.experiments.metrics import divergence, run_metrics, sensor_nis, truth_free_metrics
 from nespm_cli.nav.rotations import dcm_to_euler
 from nespm_cli.nav.state import parse_layout
 
@@ -24,6 +24,10 @@ def run_single(spec: Spec, track: int, filt: str, run: int, clean: bool = False,
 
     ``out`` (optional): per-epoch time series as Parquet (CSV if it ends in .csv) with
     true and estimated velocity and attitude, errors, covariance diagonal and biases.
+
+    On a track without ground truth (a track spec without ``[gt]``) the summary holds the innovation
+    statistics only (:func:`nespm_cli.experiments.metrics.truth_free_metrics`: NIS and likelihood per
+    sensor) and ``note`` says so; the series has no truth and no error column.
     """
     from nespm_cli.experiments.spec import load_filters
     from nespm_cli.filters.registry import filter_names
@@ -57,35 +61,45 @@ def run_single(spec: Spec, track: int, filt: str, run: int, clean: bool = False,
     results, truth, real = simulate(spec, track, np.array([run]), [filt], clean=clean, progress=progress)
     o, err, secs = results[filt]
     e0 = truth.epoch_index
-    div, why, inconsistent = divergence(err, o.diverged, truth.t[e0] - truth.t[e0[0]], spec.divergence)
-    m = run_metrics(err, div)
-    m.update(sensor_nis(o))
+    if err is None:  # no ground truth: the innovations only
+        m = truth_free_metrics(o)
+        why, inconsistent = m.pop("diverged_reason"), m.pop("inconsistent")
+    else:
+        div, why, inconsistent = divergence(err, o.diverged, truth.t[e0] - truth.t[e0[0]], spec.divergence)
+        m = run_metrics(err, div)
+        m.update(sensor_nis(o))
     summary = {"track": track, "filter": filt, "run": run, "clean": clean, "scenario": spec.scenario,
                "schedule": spec.corruption.schedule, **{k: (bool(v[0]) if k == "diverged" else (int(v[0]) if k in ("n_samples", "n_post") else float(v[0])))
                                              for k, v in m.items()}}
     summary = {k: (None if isinstance(v, float) and not np.isfinite(v) else v) for k, v in summary.items()}
     summary["diverged_reason"] = str(why[0])
     summary["inconsistent"] = bool(inconsistent[0])
+    if err is None:
+        summary["note"] = NO_TRUTH
     if out:
         e = truth.epoch_index
-        ts = pd.DataFrame({"t": truth.t[e] - truth.t[e[0]], "dvl_used": o.dvl_used,
-                           "vel_err": err.vel[0], "att_err": err.att[0], "nees": err.nees[0]})
-        for i, c in enumerate("NED"):
-            ts[f"v{c}_true"] = truth.v_n[e][:, i]
-            ts[f"v{c}_est"] = o.v_n[0, :, i]
+        ts = pd.DataFrame({"t": truth.t[e] - truth.t[e[0]], "dvl_used": o.dvl_used})
+        if err is not None:
+            ts["vel_err"], ts["att_err"], ts["nees"] = err.vel[0], err.att[0], err.nees[0]
         eu_t, eu_e = dcm_to_euler(truth.C_bn[e]), dcm_to_euler(o.C_bn[0])
+        for i, c in enumerate("NED"):
+            if err is not None:
+                ts[f"v{c}_true"] = truth.v_n[e][:, i]
+            ts[f"v{c}_est"] = o.v_n[0, :, i]
         for i, c in enumerate(("roll", "pitch", "yaw")):
-            ts[f"{c}_true"] = eu_t[:, i]
+            if err is not None:
+                ts[f"{c}_true"] = eu_t[:, i]
             ts[f"{c}_est"] = eu_e[:, i]
         for i, c in enumerate("xyz"):
             ts[f"ba_{c}_est"] = o.b_a[0, :, i]
             ts[f"bg_{c}_est"] = o.b_g[0, :, i]
-            if not clean:
+            if not clean and err is not None:
                 ts[f"ba_{c}_true"] = real.b_a[0, i]
                 ts[f"bg_{c}_true"] = real.b_g[0, i]
         for i, c in enumerate(parse_layout(o.layout).labels):  # dvN ... bgZ, with dpN, dpE, dpD first for 15 states
             ts[f"sigma_{c}"] = np.sqrt(o.P_diag[0, :, i])
-        ts["north_err"], ts["east_err"], ts["down_err"] = err.ne[0, :, 0], err.ne[0, :, 1], err.down[0]
+        if err is not None:
+            ts["north_err"], ts["east_err"], ts["down_err"] = err.ne[0, :, 0], err.ne[0, :, 1], err.down[0]
         for name, rec in o.sensors.items():  # per sensor: measurements applied and their NIS, per epoch interval
             ts[f"{name}_count"] = np.bincount(np.searchsorted(ts["t"].to_numpy(), rec.t[rec.used[0]], side="left"),
                                               minlength=len(ts))[: len(ts)]

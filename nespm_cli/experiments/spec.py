@@ -380,6 +380,16 @@ def track_inputs(spec: Spec, number: int) -> tuple[Track, ImuTruth]:
     return prepared(number, spec.data_dir, spec.imu, corrections_for(spec, number), spec.imu_rate)
 
 
+#: what a study on tracks without ground truth reports, in one line (docs/data.md)
+NO_TRUTH = "no ground truth: innovation statistics only"
+
+
+def has_truth(spec: Spec, tracks: tuple | None = None) -> bool:
+    """Whether every track of ``spec`` (``tracks``: these) has a ground truth (``ImuTruth.known``); a track
+    spec without ``[gt]`` gives tracks without one (docs/data.md): their runs have innovations, no errors."""
+    return all(track_inputs(spec, n)[1].known for n in (spec.tracks if tracks is None else tracks))
+
+
 def filter_config(spec: Spec) -> FilterConfig:
     """The tuning the filters run with: ``spec.filter_config`` told the truth about the corruption
     (:func:`couple_filter`, unless ``tell_filter`` is False), the filters' own white noise

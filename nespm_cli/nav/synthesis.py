@@ -34,6 +34,9 @@ class ImuTruth:
         f_b, w_ib_b: (M, 3) clean specific force [m/s^2] and angular rate [rad/s] of step j.
         epoch_index: (N,) index into ``t`` of every GT epoch.
         exact: True when the IMU was synthesized (truth is exact), False for a recorded IMU.
+        known: False for a track without ground truth (``Track.truth`` False): ``pos``, ``v_n``, ``C_bn``
+            hold the initial state at the first epoch's sample and NaN at every other (what the filters
+            start from; nothing to compare an estimate with).
     """
 
     t: np.ndarray
@@ -45,6 +48,7 @@ class ImuTruth:
     w_ib_b: np.ndarray
     epoch_index: np.ndarray
     exact: bool = True
+    known: bool = True
 
     @property
     def steps(self) -> int:
@@ -98,8 +102,12 @@ def truth_on_grid(track, t: np.ndarray, epoch_index: np.ndarray) -> tuple[np.nda
 def synthesize(track, substeps: int = 100) -> ImuTruth:
     """Build the 100 Hz truth and the clean IMU of ``track`` (a :class:`tracks.Track`).
 
-    Cost: about 0.06 s for a 400 s track (39,900 steps), all vectorized.
+    Cost: about 0.06 s for a 400 s track (39,900 steps), all vectorized. A track without ground truth
+    (``track.truth`` False) is refused: the IMU is synthesized from the truth.
     """
+    if not getattr(track, "truth", True):
+        raise NespmError(f"--imu synthetic: track {track.number} has no ground truth to synthesize the IMU from "
+                         "(its track spec has no [gt]); use --imu recorded")
     t_gt = np.asarray(track.t, dtype=float)
     n = len(t_gt)
     if n < 4:
@@ -148,7 +156,8 @@ def from_recorded(track) -> ImuTruth:
 
     The steps are those of :func:`recorded_grid` (the IMU samples, split at the GT epochs);
     the truth on them is :func:`truth_on_grid` (splines through the GT, exact at the epochs,
-    where the errors are measured). Runs start at the first GT epoch. Apply the track's
+    where the errors are measured; a track without ground truth: :attr:`ImuTruth.known` False, the
+    initial state only). Runs start at the first GT epoch. Apply the track's
     corrections (:func:`nespm_cli.data.corrections.apply_corrections`) first.
     """
     if track.imu is None:
@@ -161,5 +170,10 @@ def from_recorded(track) -> ImuTruth:
             f"{t_gt[0]:.3f}-{t_gt[-1]:.3f} s (the IMU must cover the GT epochs; see --window)"
         )
     t, sample, idx = recorded_grid(t_imu, t_gt)
-    pos, vel, C = truth_on_grid(track, t, idx)
-    return ImuTruth(t, np.diff(t), pos, vel, C, imu[sample, 1:4], imu[sample, 4:7], idx, exact=False)
+    known = getattr(track, "truth", True)
+    if known:
+        pos, vel, C = truth_on_grid(track, t, idx)
+    else:  # no ground truth: the initial state at the first epoch, nothing elsewhere
+        pos, vel, C = np.full((len(t), 3), np.nan), np.full((len(t), 3), np.nan), np.full((len(t), 3, 3), np.nan)
+        pos[idx[0]], vel[idx[0]], C[idx[0]] = track.pos[0], track.v_n[0], euler_to_dcm(track.euler[0])
+    return ImuTruth(t, np.diff(t), pos, vel, C, imu[sample, 1:4], imu[sample, 4:7], idx, exact=False, known=known)

@@ -10,7 +10,11 @@ per track, eq 51 over tracks; paired bootstrap 95 % interval of the improvement)
 its band and the consistency per block, a line per tuned filter left inconsistent on where a model
 parameter (a lever arm) may explain it, the tuned filters against each other (the fair comparison),
 and with ``--repeats K`` the searches compared over runs and searches; figures: convergence (best
-score so far against trial) and parameter importance.
+score so far against trial) and parameter importance. The setup counts each filter's training trials per
+phase (search, refinement, checks) and the level's and held-out runs, so the cost beyond the search shows.
+Without a ground truth (``tune.json``'s ``ground_truth`` false: ``--objective innovation`` on a track spec
+without ``[gt]``) the training scores are the innovation statistics and the held-out part is
+:func:`nespm_cli.reports.innovation.heldout_innovation_section`, and the report says so.
 """
 from __future__ import annotations
 
@@ -28,6 +32,7 @@ from nespm_cli.tuning.profile import FLAT, stopped_short
 from nespm_cli.filters.options import TUNED_ON, training_overlap
 from nespm_cli.reports.block_consistency import block_consistency, consistency_words
 from nespm_cli.reports.figures import save_figure, use_agg
+from nespm_cli.reports.innovation import heldout_innovation_section
 from nespm_cli.reports.markdown import fmt, fmt_imprv, md_table
 from nespm_cli.reports.results import load_results
 from nespm_cli.reports.stats import (ci_marks, improvement, nees_check, paired_averages, paired_bootstrap,
@@ -111,16 +116,41 @@ def score_table(record: dict, trials: pd.DataFrame) -> str:
     consistency, the best trial, and the search's convergence verdict."""
     rows = []
     trials = search_trials(trials)
+    truth = record.get("ground_truth", True)  # without one: the innovation NLL and the NIS's band distance
+    a, b_, names = ("rmse", "consistency", ("RMSE", "consistency")) if truth else (
+        "innovation_nll", "nis_distance", ("innovation NLL", "NIS distance from its band"))
     for f, b in record["best"].items():
         t = trials[trials["filter"] == f].set_index("trial")
         d = t.loc[b["default_trial"]] if b.get("default_trial") is not None else None
         best = t.loc[b["trial"]]
         rows.append([f, fmt(b.get("default_score")), fmt(b["score"]), str(b["trial"]),
-                     fmt(d["rmse"]) if d is not None else "—", fmt(best["rmse"]),
-                     fmt(d["consistency"]) if d is not None else "—", fmt(best["consistency"]),
+                     fmt(d[a]) if d is not None else "—", fmt(best[a]),
+                     fmt(d[b_]) if d is not None else "—", fmt(best[b_]),
                      convergence_text(convergence_of(b))])
-    return md_table(["filter", "score default", "score tuned", "best trial", "RMSE default", "RMSE tuned",
-                     "consistency default", "consistency tuned", "search"], rows)
+    return md_table(["filter", "score default", "score tuned", "best trial", f"{names[0]} default",
+                     f"{names[0]} tuned", f"{names[1]} default", f"{names[1]} tuned", "search"], rows)
+
+
+def cost_lines(record: dict, trials: pd.DataFrame) -> list[str]:
+    """The training cost per filter: its trials per phase (``trials.parquet``'s ``phase``: the global search,
+    the refinement, the checks), each of ``runs x tracks`` filter-runs, the level's runs and the held-out runs
+    (``tune.json``)."""
+    on, test = record["tuned_on"], record["test"]
+    each = (on["runs"][1] - on["runs"][0]) * len(on["tracks"])
+    done = trials[trials["state"] == "COMPLETE"] if "state" in trials.columns else trials
+    out = []
+    for f, b in record["best"].items():
+        mine = done[done["filter"] == f]
+        counts = (mine["phase"].value_counts() if "phase" in mine.columns else pd.Series({"search": len(mine)}))
+        parts = [f"{int(counts.get(p, 0))} {w}" for p, w in (("search", "search"), ("refine", "refine"),
+                                                               ("check", "check"))]
+        level = (f"; the level: {b['level_runs']} runs x {len(on['tracks'])} tracks" if "level_runs" in b else "")
+        out.append(f"- **{f}**: trials: {' + '.join(parts)} = {len(mine)}, each {each} filter-runs "
+                   f"({len(mine) * each} in all){level}")
+    held = (f"; held out: {test['runs']} runs x tracks {' '.join(map(str, test['tracks']))}, default and tuned"
+            if test.get("tracks") else "")
+    return [f"Training cost (runs {on['runs'][0]}-{on['runs'][1] - 1} x tracks {' '.join(map(str, on['tracks']))} "
+            f"per trial{held}):", ""] + out + [""]
 
 
 def heldout_rows(default: pd.DataFrame, tuned: pd.DataFrame, keys: list[str], n_boot: int) -> list[dict]:
@@ -413,6 +443,11 @@ def write_tune_report(out_dir: Path, n_boot: int = 2000) -> Path:
              f"`{record['objective']}`, on tracks {' '.join(map(str, on['tracks']))}, runs {on['runs'][0]}-"
              f"{on['runs'][1] - 1} of the training seed {on['seed']} (derived from --seed {on['seed_of']}). "
              "The tuned settings are in `tuned.toml` (docs/tuning.md).", ""]
+    if not record.get("ground_truth", True):
+        lines += ["**No ground truth: innovation statistics only.** The tracks have no truth file (a track spec "
+                  "without [gt]): the filters were scored by their innovations alone, and no error or NEES is "
+                  "shown (docs/tuning.md, \"Tuning without ground truth\").", ""]
+    lines += cost_lines(record, trials)
     if test.get("overlap"):
         lines += [f"**Flagged:** the held-out tracks {' '.join(map(str, test['overlap']))} are also tuning tracks "
                   "(--allow-overlap): other realizations, the same trajectories; the held-out numbers are "
@@ -436,7 +471,11 @@ def write_tune_report(out_dir: Path, n_boot: int = 2000) -> Path:
                   "track can land anywhere in that spread, so a wide spread says the filter's model misses "
                   "something the noise cannot cover (e.g. an unmodelled DVL lever arm).", "", lt, ""]
     d, t = out_dir / DEFAULT_DIR, out_dir / TUNED_DIR
-    if (d / "metrics.parquet").exists() and (t / "metrics.parquet").exists():
+    if (d / "metrics.parquet").exists() and (t / "metrics.parquet").exists() and not record.get("ground_truth", True):
+        where = (f"tracks {' '.join(map(str, test['tracks']))}, {test['runs']} runs (seed {test['seed']}), "
+                 f"{window_text(record)}")
+        lines += heldout_innovation_section(out_dir, record, DEFAULT_DIR, TUNED_DIR, where, n_boot)
+    elif (d / "metrics.parquet").exists() and (t / "metrics.parquet").exists():
         lines += heldout_section(out_dir, record, n_boot)
     else:
         lines += ["## Held out", "", "No held-out runs (rerun with `--test-tracks`).", ""]

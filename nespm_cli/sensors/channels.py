@@ -17,6 +17,10 @@
   are masked by the sensor's ``Measurement``);
 * **availability** (:func:`nespm_cli.sensors.source.availability`): never at t = 0, not in an
   outage window, not where the sensor's own rule or a dropout says no.
+
+A track without ground truth (``ImuTruth.known`` False) takes recorded channels only: a synthetic
+source, and an availability rule that reads the truth (``fix.surface_only``), are refused in one line
+(:func:`truth_free_check`); its channels carry no truth (``where`` None: no rule consulted).
 """
 from __future__ import annotations
 
@@ -150,9 +154,30 @@ def synthetic_times(sensor: Sensor, truth: ImuTruth, seed: int, number: int) -> 
     return t
 
 
+def truth_free_check(sensor: Sensor, truth: ImuTruth, number: int) -> None:
+    """On a track without ground truth (``truth.known`` False) refuse, in one line naming the option, a
+    synthetic source (drawn from the truth) and a sensor whose own availability rule reads the truth."""
+    if truth.known:
+        return
+    name = sensor.name
+    if sensor.opt.source != "recorded":
+        flag, use = (("--dvl synthetic", "--dvl recorded") if name == "dvl" else
+                     (f"--sensors {name} (source synthetic)", f"--sensor-option {name}.source=recorded"))
+        raise NespmError(f"{flag}: a synthetic {name} is drawn from the ground truth, and track {number} has none "
+                         f"(its track spec has no [gt]); use the recorded one ({use})")
+    e0 = np.zeros(1, dtype=np.int64) + int(truth.epoch_index[0])
+    probe_truth = truth_at(truth, np.r_[e0, e0 + 1], np.zeros(2), track_info(truth, number))
+    with np.errstate(invalid="ignore"):
+        rule = sensor_call(sensor, "available_extra", sensor.available_extra, probe_truth)
+    if rule is not None:
+        raise NespmError(f"--sensor-option {name}: its availability rule (e.g. {name}.surface_only) reads the ground "
+                         f"truth, and track {number} has none (its track spec has no [gt]); turn the rule off")
+
+
 def channel_times(sensor: Sensor, track, truth: ImuTruth, seed: int, number: int):
     """``(t, z)``: a recorded channel's times and values (:func:`recorded_times`), or a synthetic
-    one's times (:func:`synthetic_times`) and None."""
+    one's times (:func:`synthetic_times`) and None; a track without truth: :func:`truth_free_check` first."""
+    truth_free_check(sensor, truth, number)
     if sensor.opt.source == "recorded":
         return recorded_times(sensor, track, truth)
     return synthetic_times(sensor, truth, seed, number), None
@@ -175,7 +200,7 @@ def build_channel(sensor: Sensor, track, truth: ImuTruth, seed: int, number: int
     info = track_info(truth, number)
     t, z = channel_times(sensor, track, truth, seed, number)
     index, frac = locate(truth, t)
-    where = truth_at(truth, index, frac, info)
+    where = truth_at(truth, index, frac, info) if truth.known else None
     m = sensor.dim
     if z is not None:
         values = np.broadcast_to(z, (len(runs),) + z.shape)
@@ -194,4 +219,4 @@ def build_channel(sensor: Sensor, track, truth: ImuTruth, seed: int, number: int
 
 
 __all__ = ["build_channel", "channel_times", "grid_time", "locate", "probe", "recorded_times", "schedule",
-           "synthetic_times", "track_info", "truth_at"]
+           "synthetic_times", "track_info", "truth_at", "truth_free_check"]

@@ -40,7 +40,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from nespm_cli.experiments.metrics import nees_band
+from nespm_cli.experiments.metrics import innovation_terms, nees_band
 
 SUM_KEYS = ("nis", "logdet", "rows", "count")  # each sensor's sums over the runs kept and its measurements
 
@@ -49,17 +49,12 @@ def sensor_sums(out, keep: np.ndarray) -> dict[str, np.ndarray]:
     """``{sensor: (4,) [Σ NIS, Σ log det S, Σ rows, measurements]}`` over the runs ``keep`` (R,) bool of
     ``out`` (a :class:`nespm_cli.filters.engine.FilterOutput`) and the measurements applied with a finite,
     positive-definite S; a filter that reports no innovation (NaN S) has zeros. Reads ``out.sensors``
-    only."""
+    only (:func:`nespm_cli.experiments.metrics.innovation_terms`: the rule a run's ``nll_<sensor>`` uses)."""
     res = {}
     keep = np.asarray(keep, dtype=bool)
     for name, rec in getattr(out, "sensors", {}).items():
-        nis = rec.nis()  # (R, K), NaN where not applied or S singular
-        rows = rec.dof().astype(float)  # (R, K)
-        eye = np.eye(rec.S.shape[-1])
-        with np.errstate(all="ignore"):
-            finite = np.isfinite(rec.S).all(axis=(-2, -1)) & np.isfinite(nis)
-            sign, logdet = np.linalg.slogdet(np.where(finite[..., None, None], rec.S, eye))
-        ok = finite & (sign > 0) & keep[:, None] & (rows > 0)
+        nis, logdet, rows, ok = innovation_terms(rec)
+        ok = ok & keep[:, None]
         res[name] = np.array([np.sum(nis[ok]), np.sum(logdet[ok]), np.sum(rows[ok]), np.sum(ok)], dtype=float)
     return res
 

@@ -41,6 +41,10 @@ the factors as searched.
 A trial that loses a run scores ``LOST + lost fraction`` (above every trial that loses none: lost
 runs are ranked worst, and fewer lost is better); with ``innovation`` a run is lost when the engine
 flags it (``lost_numeric``: the attitude rule needs the truth).
+
+On tracks without ground truth (a track spec without ``[gt]``, docs/data.md) only ``innovation`` scores:
+:func:`trial_statistics` then holds the filter's outputs alone (``truth`` False: no RMSE, NEES or truth-based
+loss), and :func:`summary` keeps only the innovation statistics.
 """
 from __future__ import annotations
 
@@ -80,7 +84,9 @@ def trial_statistics(spec: Spec, name: str, values: dict, reuse: dict | None = N
     ``innovation`` ({sensor: (4,)}, :func:`nespm_cli.tuning.innovation.sensor_sums` over the runs the
     engine did not flag) and ``lost_numeric`` (the fraction it flagged). ``reuse``: a dict kept across the trials of one
     training spec (:func:`nespm_cli.experiments.mc.simulate`): the realizations are built once, not
-    per trial (the same arrays: bit-identical scores)."""
+    per trial (the same arrays: bit-identical scores). ``truth``: whether the tracks have a ground truth;
+    without one (:func:`nespm_cli.experiments.spec.has_truth`) only ``innovation``, ``lost_numeric``,
+    ``anis``, ``dims``, ``runs_per_track`` and ``truth`` are given."""
     from nespm_cli.experiments.mc import simulate
 
     s = trial_spec(spec, name, values)
@@ -101,6 +107,11 @@ def trial_statistics(spec: Spec, name: str, values: dict, reuse: dict | None = N
         flagged += int(numeric.sum())
         e = truth.epoch_index
         t_rel = truth.t[e] - truth.t[e[0]]
+        if err is None:  # no ground truth: the filter's outputs alone (the NIS per epoch of the runs kept)
+            for k, v in epoch_nis(out, t_rel).items():
+                nis.setdefault(k[len("nis_"):], []).append(np.where(numeric[:, None], np.nan, v)[:, 1:])
+            dims.update({sname: rec.nu.shape[-1] for sname, rec in out.sensors.items()})
+            continue
         lost_runs, _, _ = divergence(err, out.diverged, t_rel, spec.divergence)
         m = run_metrics(err, lost_runs)
         col = "sse_hpe" if spec.filter_config.layout.has("pos") else "sse_vel"
@@ -128,7 +139,10 @@ def trial_statistics(spec: Spec, name: str, values: dict, reuse: dict | None = N
         mean_anees = {b: float(np.nanmean(np.concatenate(nees[b], axis=1))) for b in anees}
         anis = {k: np.nanmean(np.concatenate(v, axis=1), axis=0) for k, v in nis.items()
                 if np.isfinite(np.concatenate(v, axis=1)).any()}
-    return {"rmse": float(np.sqrt(sse / n)) if n else float("nan"), "lost": lost / max(total, 1), "anees": anees,
+    if total == 0:  # no ground truth (simulate gave no errors): no truth statistic at all
+        return {"truth": False, "anis": anis, "dims": dims, "runs_per_track": len(runs), "innovation": inn,
+                "lost_numeric": flagged / max(len(runs) * len(spec.tracks), 1)}
+    return {"truth": True, "rmse": float(np.sqrt(sse / n)) if n else float("nan"), "lost": lost / max(total, 1), "anees": anees,
             "mean_anees": mean_anees, "anis": anis, "dims": dims, "runs": total - lost,
             "runs_per_track": len(runs), "anees6_tracks": tracks6, "innovation": inn,
             "lost_numeric": flagged / max(total, 1),
@@ -178,7 +192,10 @@ def leveled(values: dict, bases: dict, c: float) -> dict:
 def score(stats: dict, objective: str, level: str = "off") -> float:
     """The trial's score under ``objective`` (:data:`OBJECTIVES`) and ``level`` (:data:`LEVELS`; it acts
     on ``rmse-consistent`` only); lower is better. ``innovation`` reads ``innovation`` and
-    ``lost_numeric`` only."""
+    ``lost_numeric`` only; another objective without a ground truth (``stats["truth"]`` False) is a
+    ValueError (:func:`nespm_cli.tuning.spec.check` refuses it first, in one line)."""
+    if objective != "innovation" and not stats.get("truth", True):
+        raise ValueError(f"objective {objective!r} needs the ground truth; these tracks have none")
     if objective == "innovation":
         lost = float(stats["lost_numeric"])
         return LOST + lost if lost > 0 else innovation_score(stats["innovation"])
@@ -195,7 +212,12 @@ def summary(stats: dict) -> dict:
     """The trial's numbers kept beside its score (trials.parquet): ``rmse``, ``lost``, ``consistency``,
     ``band_distance``, ``level`` (:func:`fit_level`), ``anees_<block>`` (mean over runs and epochs), ``in_band_<block>`` (the
     fraction of epochs whose ANEES lies in its per-epoch band χ²(3R)/R), ``anis_<sensor>``, and the
-    innovation objective's (:func:`nespm_cli.tuning.innovation.innovation_summary`, ``lost_numeric``)."""
+    innovation objective's (:func:`nespm_cli.tuning.innovation.innovation_summary`, ``lost_numeric``). Without a
+    ground truth: the innovation objective's numbers and ``anis_<sensor>`` only."""
+    if not stats.get("truth", True):
+        out = {"lost_numeric": stats["lost_numeric"], **innovation_summary(stats["innovation"]),
+               **{f"anis_{k}": float(np.nanmean(v)) for k, v in stats["anis"].items()}}
+        return {k: float(v) for k, v in out.items()}
     out = {"rmse": stats["rmse"], "lost": stats["lost"], "consistency": consistency(stats),
            "anees": stats["anees6"], "band_distance": band_distance(stats), "level": fit_level(stats),
            "lost_numeric": stats["lost_numeric"], **innovation_summary(stats["innovation"])}

@@ -14,7 +14,8 @@ The folder ``OUT`` holds:
 * ``tuned.toml``: one ``[filters.NAME]`` table per filter with its best trial's values
   (``nespm mc --config OUT/tuned.toml ...``).
 * ``tune.json``: what was tuned on (tracks, runs, the training seed), the space, the objective,
-  the defaults and tuned values, the scores.
+  the defaults and tuned values, the scores; ``"ground_truth": false`` when the tracks have none (a track
+  spec without ``[gt]``: only ``--objective innovation`` runs there, docs/tuning.md).
 
 Reproducibility: trial k of a filter is suggested by a sampler seeded from the training seed,
 the filter and the number of trials completed before it, from the history in ``study.db`` alone,
@@ -32,7 +33,7 @@ from typing import Callable
 
 import numpy as np
 
-from nespm_cli.experiments.spec import Spec
+from nespm_cli.experiments.spec import Spec, has_truth
 from nespm_cli.filters.options import TUNED_ON, tuned_on_text
 from nespm_cli.errors import NespmError
 from nespm_cli.tuning.best import add_checks, add_leveled, best_values
@@ -202,6 +203,8 @@ def run_tune(t: TuneSpec, out: str | Path, jobs: int = 1, report: Callable[[str,
                   "best": best, "spec": train.as_dict()}
         if t.repeats > 1:
             record["searches"] = searches_record(t, train, searches)
+        if not has_truth(train):  # a track spec without [gt]: --objective innovation, innovations only
+            record["ground_truth"] = False
         write_json_atomic(record, out / "tune.json")
         return record
     finally:

@@ -9,7 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from nespm_cli.errors import NespmError
-from nespm_cli.experiments.spec import Spec, check_filter_domains, track_inputs, validate
+from nespm_cli.experiments.spec import Spec, check_filter_domains, has_truth, track_inputs, validate
 from nespm_cli.experiments.suite import sensor_suite
 from nespm_cli.filters.registry import get_filter
 from nespm_cli.tuning.objective import LEVELS, OBJECTIVES
@@ -99,8 +99,14 @@ def check(t: TuneSpec) -> tuple[TuneSpec, Spec, dict[str, list[Param]]]:
             raise NespmError("--sampler cmaes needs the cmaes package (pip install cmaes); "
                              "or use --sampler tpe") from None
     train = validate(dataclasses.replace(t.spec, seed=training_seed(t.spec.seed), smooth=()))
-    if t.test_tracks:
-        validate(dataclasses.replace(t.spec, tracks=tuple(t.test_tracks), runs=t.test_runs, smooth=()))
+    test = (validate(dataclasses.replace(t.spec, tracks=tuple(t.test_tracks), runs=t.test_runs, smooth=()))
+            if t.test_tracks else None)
+    if t.objective != "innovation":
+        for s in (train, test):
+            free = [n for n in (s.tracks if s is not None else ()) if not has_truth(s, (n,))]
+            if free:
+                raise NespmError(f"--objective {t.objective}: needs the ground truth, and track {free[0]} has none (its "
+                                 "track spec has no [gt]); use --objective innovation (it reads no truth)")
     layout = train.filter_config.layout
     space = {f: default_space(f, get_filter(f), layout, train.sensors, train.filter_config.alpha)
              for f in train.filters}
