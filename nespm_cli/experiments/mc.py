@@ -34,7 +34,7 @@ from nespm_cli.experiments.metrics import (alive_metrics, block_statistics, dive
                                           truth_free_metrics)
 from nespm_cli.experiments.spec import (NO_TRUTH, Spec, couple_filter, filter_config, filter_config_of, has_truth,
                                         load_filters, needs_noise_std, track_inputs, validate)
-from nespm_cli.experiments.progress import compile_kernels
+from nespm_cli.experiments.progress import compile_kernels, kernels_for
 from nespm_cli.experiments.suite import load_sensors, sensor_plugin_files, sensor_suite, suite_record
 from nespm_cli.experiments.store import (GROWABLE, ResultsFolder, Task, chunk_firsts, file_hashes, run_blocks,
                                         write_parquet_atomic)
@@ -128,12 +128,10 @@ def q_factors(noise_std, cfg: FilterConfig, R: int) -> dict:
     """
     if noise_std is None:
         return {"q_factor_acc": np.full(R, np.nan), "q_factor_gyro": np.full(R, np.nan)}
-    from nespm_cli.filters.adaptive import valid_std
+    from nespm_cli.filters.adaptive import q_factor
 
-    out = {}
-    for key, s, nominal in (("acc", noise_std[0], cfg.acc_noise), ("gyro", noise_std[1], cfg.gyro_noise)):
-        out[f"q_factor_{key}"] = valid_std(s, nominal, tuple(cfg.q_clip)).mean(axis=(1, 2)) / nominal
-    return out
+    return {f"q_factor_{key}": q_factor(s, cfg, key).mean(axis=(1, 2))
+            for key, s in (("acc", noise_std[0]), ("gyro", noise_std[1]))}
 
 
 # --- chunked, resumable runner ---------------------------------------------------------
@@ -221,6 +219,8 @@ def run_chunk(cell: Cell, number: int, first: int, out_dir: str, last: int | Non
             m = run_metrics(err, div)
             m.update(alive_metrics(err, lost_epoch(err, why, out.lost_epoch, t_rel, spec.divergence), t_rel))
             m.update(sensor_nis(out))
+            if out.lost_reason is not None:  # the engine's own reason ("noise-model": the learned model failed)
+                why = np.where(out.lost_reason != "", out.lost_reason, why).astype(object)
             m["diverged_reason"] = why
             m["inconsistent"] = inconsistent
             m["drift_m_per_h"] = m["hpe_final"] / max(float(t_rel[-1]), 1e-9) * 3600.0
@@ -229,6 +229,8 @@ def run_chunk(cell: Cell, number: int, first: int, out_dir: str, last: int | Non
                       **{k: v.ravel() for k, v in block_statistics(out, truth.v_n[e], truth.C_bn[e], truth.pos[e],
                                                                    bias_true, axes=spec.save_series == "axes").items()}}
         m.update(q_factors(out.noise_std, cfg, len(runs)))
+        m["noise_model_faults"] = (out.noise_faults if out.noise_faults is not None
+                                   else np.zeros(len(runs), dtype=np.int64))
         df = pd.DataFrame({**extra, "track": number, "filter": name, "run": runs, "scenario": spec.scenario,
                            "schedule": spec.corruption.schedule, "seed": spec.seed, **m,
                            "seconds": secs / len(runs), "kernels": kernel_backend()})
@@ -381,7 +383,8 @@ def run_cells(cells: list[Cell], options: dict, out_dir: str | Path, execution: 
                  len(fs) * (track_epochs(c.spec, n) - 1))
             for c, n, f0, f1 in tasks for fs in [missing(c, n, f0)] if fs]
     if todo and ex.local:  # before the progress bar: its ETA starts with the chunks
-        compile_kernels(label, ex.progress)
+        compile_kernels(label, ex.progress, kernels=tuple(dict.fromkeys(
+            k for c in cells for k in kernels_for(c.spec.filters, c.spec.filter_config.layout))))
     folder.run(run_chunk_keyed, todo, ex, label, detail=chunk_detail([t.args[4] - t.args[2] for t in todo]))
     recover_timings(folder.manifest["chunk_seconds"], tasks, out / "chunks")
     metrics, epochs = assemble(folder, tasks, tuple(k for k, _ in cells[0].columns))

@@ -46,12 +46,13 @@ def run_single(spec: Spec, track: int, filt: str, run: int, clean: bool = False,
     imu = "synthesizing the 100 Hz IMU from the GT" if spec.imu == "synthetic" else "reading the recorded IMU"
     say(f"track {track}: {imu}")
     _, truth0 = track_inputs(spec, track)
-    from nespm_cli.experiments.progress import COMPILING
+    from nespm_cli.experiments.progress import COMPILING, kernels_for
     from nespm_cli.filters.kernels import kernels_cached, warm_up
 
-    if kernels_cached() is False:  # the first run on a machine: its own phase, not the filter's epochs
+    need = kernels_for([filt], spec.filter_config.layout)
+    if kernels_cached(need) is False:  # the first run on a machine: its own phase, not the filter's epochs
         say(COMPILING)
-        warm_up()
+        warm_up(need)
     n = len(truth0.epoch_index) - 1
     tenth = max(n // 10, 1)
 
@@ -66,6 +67,8 @@ def run_single(spec: Spec, track: int, filt: str, run: int, clean: bool = False,
         why, inconsistent = m.pop("diverged_reason"), m.pop("inconsistent")
     else:
         div, why, inconsistent = divergence(err, o.diverged, truth.t[e0] - truth.t[e0[0]], spec.divergence)
+        if o.lost_reason is not None:  # the engine's own reason ("noise-model")
+            why = np.where(o.lost_reason != "", o.lost_reason, why).astype(object)
         m = run_metrics(err, div)
         m.update(sensor_nis(o))
     summary = {"track": track, "filter": filt, "run": run, "clean": clean, "scenario": spec.scenario,

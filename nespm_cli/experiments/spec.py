@@ -121,7 +121,7 @@ def validate(spec: Spec) -> Spec:
     from nespm_cli.experiments.suite import check_suite, load_sensors
     from nespm_cli.filters.registry import filter_names, get_filter
     from nespm_cli.learn.noise_model import WINDOW
-    from nespm_cli.learn.noise_models import load_noise_model
+    from nespm_cli.learn.noise_models import load_noise_model, typed_option
     from nespm_cli.sensors.registry import get_sensor, sensor_names
 
     check_domains(spec)
@@ -177,7 +177,7 @@ def validate(spec: Spec) -> Spec:
     adaptive = any(needs_noise_std(f) for f in spec.filters)
     window = WINDOW
     if adaptive:  # a missing or foreign file or model fails now, in one line
-        window = load_noise_model(spec.weights).window
+        window = load_noise_model(spec.weights, typed_option(spec.given)).window
     elif spec.weights:
         raise NespmError(f"--noise-model/--weights {spec.weights}: only the adaptive filters (anekf, anukf, "
                          "anukf-nespm) use a noise model, and none is in --filters; drop it or add one")

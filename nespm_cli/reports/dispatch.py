@@ -100,6 +100,10 @@ def write_report(out_dir: Path, reference: str | None = None, n_boot: int = 2000
         return write_gp_report(out_dir, n_boot=n_boot)  # --baseline does not apply
     if kind == "sweep":
         return write_sweep_report(out_dir, reference, n_boot=n_boot, practical_pct=practical_pct, all_runs=all_runs)
+    from nespm_cli.reports.innovation import is_truth_free, write_innovation_report
+
+    if is_truth_free(out_dir):  # a track spec without [gt]: innovation statistics only
+        return write_innovation_report(out_dir)
     for b in beside:
         if experiment_of(Path(b)) != "mc":
             raise NespmError(f"--beside {b}: not a folder written by 'nespm mc'")
