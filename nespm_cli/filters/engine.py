@@ -49,6 +49,7 @@ from nespm_cli.filters.adaptive import FAULT_REASON, model_faults
 from nespm_cli.filters.model import FilterConfig, NavState
 from nespm_cli.filters.protocol import ImuData
 from nespm_cli.filters.registry import filter_names, filter_source, get_filter, is_builtin
+from nespm_cli.filters.robust import inflated, lockout_guard, screen
 from nespm_cli.filters.smoother import SmootherRecord, dead_reckoned_position
 from nespm_cli.filters.timeline import Timeline, dvl_channel
 from nespm_cli.sensors.guard import checked_measurement, with_lever
@@ -62,12 +63,16 @@ FILTERS = filter_names(builtin_only=True)
 class SensorRecord:
     """What one sensor's channel did in a filter, at its K measurement times: ``t`` (K,) [s since
     the first epoch]; ``used`` (R, K) whether the update was applied; ``nu`` (R, K, m) the
-    innovation and ``S`` (R, K, m, m) its covariance where the filter reports them (NaN otherwise)."""
+    innovation and ``S`` (R, K, m, m) its covariance where the filter reports them (NaN otherwise);
+    with a robust update (:mod:`.robust`), ``rejected`` (R, K) the samples the χ² gate refused (present,
+    not used) and ``weight`` (R, K) the Huber factor on R (1: unchanged); None in records made without."""
 
     t: np.ndarray
     used: np.ndarray
     nu: np.ndarray
     S: np.ndarray
+    rejected: np.ndarray | None = None
+    weight: np.ndarray | None = None
 
     def dof(self) -> np.ndarray:
         """(R, K) the rows each applied measurement had: m less its masked rows (a sensor's missing
@@ -207,9 +212,12 @@ def run_filter(
         diverged=filt.diverged, dvl_used=np.zeros(N, dtype=bool), layout=layout.name,
         sensors={ch.sensor.name: SensorRecord(ch.t, np.zeros(ch.ok.shape, dtype=bool),
                                               np.full(ch.z.shape, np.nan),
-                                              np.full(ch.z.shape + (ch.z.shape[-1],), np.nan))
+                                              np.full(ch.z.shape + (ch.z.shape[-1],), np.nan),
+                                              np.zeros(ch.ok.shape, dtype=bool), np.ones(ch.ok.shape))
                  for ch in channels},
     )
+    robust, gate_prob, gate_streak = cfg.robust_update()  # --filter-option NAME.robust (filters.robust)
+    streaks = [np.zeros(R, dtype=np.int64) for _ in channels]  # consecutive gate failures per channel and run
 
     models = [ch.sensor for ch in channels]  # the sensors as this filter's model sees them
     for c, ch in enumerate(channels):
@@ -243,6 +251,17 @@ def run_filter(
         meas = checked_measurement(models[c], z, nav, ctx, layout)  # a plugin's: every call checked
         if cfg.r_scale and cfg.r_factor(ch.sensor.name) != 1.0:  # this filter's R (--filter-option NAME.r_scale_S)
             meas.R = np.asarray(meas.R) * cfg.r_factor(ch.sensor.name) ** 2
+        rec = out.sensors[ch.sensor.name]
+        if robust != "none":  # screened on the prior covariance before the filter sees it
+            failed, w = screen(robust, gate_prob, call(filt.covariance, "covariance"), meas.H(nav),
+                               meas.innovation(nav), meas.R)
+            rejected, streaks[c] = lockout_guard(failed, ok, streaks[c], gate_streak)
+            rec.rejected[:, i], rec.weight[:, i] = rejected, np.where(ok, w, 1.0)
+            if robust == "huber" and (w != 1.0).any():
+                meas.R = inflated(meas.R, w)
+            ok = ok & ~rejected
+            if not ok.any():
+                return
         if ok.all():
             res = call(filt.update, "update", meas, j_last)
         elif hasattr(filt, "update_where"):
@@ -250,7 +269,6 @@ def run_filter(
         else:
             raise NespmError(f"filter {kind} ({filter_source(kind)}): a measurement of {ch.sensor.name} is missing "
                              "in some runs, and the filter has no update_where (derive it from ErrorStateFilter)")
-        rec = out.sensors[ch.sensor.name]
         rec.used[:, i] = ok
         if res is not None:
             nu, S = checked_result(kind, res, R, ch.z.shape[-1], ch.sensor.name)
@@ -314,7 +332,8 @@ def smoothed_output(out: FilterOutput, rts: SmootherRecord, filt, t_epochs: np.n
                       noise_faults=out.noise_faults,
                       dvl_used=out.dvl_used.copy(), layout=out.layout,
                       sensors={name: SensorRecord(r.t, np.zeros_like(r.used), np.full_like(r.nu, np.nan),
-                                                  np.full_like(r.S, np.nan)) for name, r in out.sensors.items()})
+                                                  np.full_like(r.S, np.nan), np.zeros_like(r.used),
+                                                  np.ones(r.used.shape)) for name, r in out.sensors.items()})
     for k, nav in enumerate(navs):
         store(sm, k, nav)
     if not filt.layout.has("pos"):

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from nespm_cli.data.corruption import NOMINAL_ACC_NOISE, NOMINAL_GYRO_NOISE
+from nespm_cli.filters.robust import ROBUST_OPTIONS, check_robust
 from nespm_cli.learn.processnet import VALIDITY_CLIP
 from nespm_cli.nav.earth import d_w_en_d_v, gravity_down_gradient, gravity_n, radii, transport_rates
 from nespm_cli.nav.rotations import exp_so3, skew
@@ -86,6 +87,17 @@ class FilterConfig:
     def r_factor(self, sensor: str) -> float:
         """The factor on sensor ``sensor``'s R std for this filter (1.0: the sensor's own R)."""
         return float(dict(self.r_scale).get(sensor.replace("-", "_"), 1.0))
+
+    def robust_update(self) -> tuple[str, float, int]:
+        """``(mode, gate_prob, gate_streak)`` of this filter's robust update (:mod:`nespm_cli.filters.robust`),
+        from ``--filter-option NAME.robust``, ``NAME.gate_prob``, ``NAME.gate_streak`` in :attr:`options`;
+        ``("none", 0.999, 3)`` unless given.
+        Kept in ``options``, not in fields of their own, so a study's identity and manifest
+        are unchanged without them. A bad value: one line naming the option."""
+        o = {**ROBUST_OPTIONS, **dict(self.options)}
+        return (check_robust("robust", o["robust"], "--filter-option robust"),
+                check_robust("gate_prob", o["gate_prob"], "--filter-option gate_prob"),
+                check_robust("gate_streak", o["gate_streak"], "--filter-option gate_streak"))
 
     def model_lever(self, sensor: str, lever) -> tuple | None:
         """Sensor ``sensor``'s lever arm (3,) [m, body] in this filter's model, from the sensor's own

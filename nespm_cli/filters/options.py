@@ -19,6 +19,10 @@ A filter takes two kinds of option:
   measurement model, in place of the sensor's ``lever_arm`` (which still makes the synthetic
   measurements): a filter that assumes another mounting point than the truth's, or that ``nespm
   tune`` calibrates on training tracks (``--tune-range '*.lever_arm_x_dvl=-3:3'``);
+* **a robust update** (every filter with a covariance, :mod:`nespm_cli.filters.robust`):
+  ``robust`` = ``none`` (default), ``gate`` (χ² gating at ``gate_prob``, default 0.999, lock-out guard
+  after ``gate_streak`` consecutive rejections, default 3) or ``huber``;
+  kept in ``cfg.options`` (read with :meth:`FilterConfig.robust_update`), applied by the engine;
 * ``tuned_on``: where ``nespm tune`` tuned them (``seed=S;tracks=N,M;runs=A-B``): no effect on the
   numbers; ``mc`` on those realizations says that its numbers are training numbers.
 
@@ -32,6 +36,7 @@ import dataclasses
 
 from nespm_cli.errors import NespmError
 from nespm_cli.filters.model import FilterConfig
+from nespm_cli.filters.robust import ROBUST_OPTIONS, check_robust
 from nespm_cli.sensors.source import LEVER_LIMIT
 
 
@@ -162,13 +167,17 @@ def check_filter_options(pairs, filters, get_filter, sensors=(), lever_sensors=N
                 raise NespmError(f"{where}: a lever-arm coordinate within +-{LEVER_LIMIT:g} m, got {value!r}")
             out[(name, key)] = v
             continue
+        if key in ROBUST_OPTIONS and scales:
+            out[(name, key)] = check_robust(key, value, where)
+            continue
         if key == TUNED_ON and scales:
             parse_tuned_on(value, where)
             out[(name, key)] = str(value).strip()
             continue
         if key not in own and key not in scales:
             takes = ", ".join(sorted(own)) or "no options"
-            extra = (f" (of its own; and the noise scales {', '.join(scales)}; and lever_arm_X_SENSOR)" if scales
+            extra = (f" (of its own; and the noise scales {', '.join(scales)}; lever_arm_X_SENSOR; robust, gate_prob, gate_streak)"
+                     if scales
                      else "")
             if key.startswith(R_SCALE) and scales:
                 extra += f"; {key} names no sensor of --sensors ({', '.join(sensors)})"
