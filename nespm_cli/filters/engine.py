@@ -45,6 +45,7 @@ from nespm_cli.filters import adaptive_filters  # noqa: F401
 from nespm_cli.filters import ckf  # noqa: F401
 from nespm_cli.filters import iekf  # noqa: F401
 from nespm_cli.filters import adaptive_ekfs  # noqa: F401
+from nespm_cli.filters import adaptive_q  # noqa: F401
 from nespm_cli.filters.adaptive import FAULT_REASON, model_faults
 from nespm_cli.filters.model import FilterConfig, NavState
 from nespm_cli.filters.protocol import ImuData
