@@ -96,8 +96,8 @@ def test_compiling_the_kernels_is_its_own_phase_before_the_eta(short_data_dir, t
     if kernels.kernels_cached() is None:
         pytest.skip("the compiled kernels are not in use here (no numba, or no writable cache)")
     calls = []
-    monkeypatch.setattr(kernels, "kernels_cached", lambda: False)
-    monkeypatch.setattr(kernels, "warm_up", lambda: calls.append(1) or 0.0)
+    monkeypatch.setattr(kernels, "kernels_cached", lambda names=None: False)
+    monkeypatch.setattr(kernels, "warm_up", lambda names=None: calls.append(1) or 0.0)
     stderr = _mc(short_data_dir, tmp_path / "o", "--runs", "2", "--jobs", "1", progress=True)
     lines = stderr.splitlines()
     assert calls == [1]
@@ -105,6 +105,6 @@ def test_compiling_the_kernels_is_its_own_phase_before_the_eta(short_data_dir, t
     assert lines[1] == "mc: kernels compiled in 0 s"
     assert lines[2] == "mc: 1 chunk of 2 runs, 79 filter-epochs to compute"
     assert all("compil" not in line for line in lines[2:]) and "ETA" not in " ".join(lines[:2])
-    monkeypatch.setattr(kernels, "kernels_cached", lambda: True)  # cached: nothing said, nothing compiled
+    monkeypatch.setattr(kernels, "kernels_cached", lambda names=None: True)  # cached: nothing said, nothing compiled
     stderr = _mc(short_data_dir, tmp_path / "p", "--runs", "2", "--jobs", "1", progress=True)
     assert calls == [1] and "compil" not in stderr
