@@ -11,13 +11,12 @@ import subprocess
 import sys
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 from conftest import console_script, env_without_data_dir
 from nespm_cli.experiments.progress import kernels_for
 from nespm_cli.filters import kernels
-from nespm_cli.nav.state import LAYOUT_12, LAYOUT_15
+from nespm_cli.nav.state import LAYOUT_15
 
 PACKAGE = Path(kernels.__file__).resolve().parents[1]
 
@@ -123,32 +122,3 @@ def test_kernel_sources_list_every_compiled_module():
                 if re.search(r"^@njit", p.read_text(encoding="utf-8"), re.M)}
     assert compiled <= set(KERNEL_SOURCES)
     assert all((PACKAGE / rel).is_file() for rel in KERNEL_SOURCES)
-
-
-@needs_numba
-@pytest.mark.parametrize("layout", [LAYOUT_12, LAYOUT_15], ids=["12", "15"])
-def test_common_transition_kernel_bit_identical_to_generic(layout):
-    """transition_span_common (what ekf/ukf run) against transition_span(invariant=False): same bits."""
-    from nespm_cli.filters import transition_kernel as tk
-
-    rng = np.random.default_rng(7)
-    R, M, n = 6, 120, layout.n
-    pos = np.column_stack([rng.uniform(-1.3, 1.3, R), rng.uniform(-3, 3, R), rng.uniform(-500, 10, R)])
-    v = 3.0 * rng.standard_normal((R, 3))
-    C = np.stack([np.linalg.qr(rng.standard_normal((3, 3)))[0] for _ in range(R)])
-    b_a, b_g = 0.05 * rng.standard_normal((R, 3)), 1e-3 * rng.standard_normal((R, 3))
-    f = np.tile([0.0, 0.0, -9.8], (R, M, 1)) + 0.5 * rng.standard_normal((R, M, 3))
-    w = 0.05 * rng.standard_normal((R, M, 3))
-    dt = rng.uniform(0.005, 0.02, M)
-    out = []
-    for common in (False, True):
-        s = [pos.copy(), v.copy(), C.copy()]
-        Phi = np.empty((R, n, n))
-        if common:
-            tk.transition_span_common(*s, b_a, b_g, f, w, dt, 2, M, Phi, layout.offsets())
-        else:
-            tk.transition_span(*s, b_a, b_g, f, w, dt, 2, M, Phi, False, layout.offsets())
-        out.append((Phi, *s))
-    for a, b in zip(*out):
-        assert np.array_equal(a, b)
-    assert np.abs(out[0][0] - np.eye(n)).max() > 1e-3  # Φ did move

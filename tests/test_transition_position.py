@@ -1,5 +1,5 @@
 """The 15-state common-error Φ kernel (transition_kernel.transition_span_position, F's structural
-zeros skipped) against the generic row loop (transition_span with the 15-state offsets): the same
+zeros skipped) against the generic row loop (transition_span_common with the 15-state offsets): the same
 bits, Φ and the propagated solution, over random states, biases and IMU samples."""
 import numpy as np
 import pytest
@@ -28,7 +28,7 @@ def test_position_kernel_is_bit_identical_to_generic(seed):
         s = [pos.copy(), v.copy(), C.copy()]
         Phi = np.empty((R, 15, 15))
         if kernel == "generic":
-            tk.transition_span(*s, b_a, b_g, f, w, dt, 3, M, Phi, False, LAYOUT_15.offsets())
+            tk.transition_span_common(*s, b_a, b_g, f, w, dt, 3, M, Phi, LAYOUT_15.offsets())
         else:
             tk.transition_span_position(*s, b_a, b_g, f, w, dt, 3, M, Phi)
         out.append((Phi, *s))

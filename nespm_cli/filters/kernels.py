@@ -159,7 +159,7 @@ def transition(pos, v_n, C_bn, b_a, b_g, f, w, dt, j0: int, j1: int, invariant: 
     elif name == "transition-position":  # the 15 states: F's zeros skipped
         run_kernel(name, tk.transition_span_position, *args)
     elif name == "transition-invariant":
-        run_kernel(name, tk.transition_span, *args, True, off)
+        run_kernel(name, tk.transition_span_invariant, *args, off)
     else:
         run_kernel(name, tk.transition_span_common, *args, off)
     return Phi

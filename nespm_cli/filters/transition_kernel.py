@@ -1,6 +1,6 @@
 """Compiled loops over one time-update span (numba; called through :mod:`.kernels`).
 
-``transition_span`` is ``ErrorStateFilter.transition`` (model.system_matrix + na_cycle per IMU step)
+``transition_span_common`` is ``ErrorStateFilter.transition`` (model.system_matrix + na_cycle per IMU step)
 and ``points_span`` the sigma/cubature-point propagation of ukf-nespm.md eqs 35-38, one run (and
 point) at a time. Shapes as in :mod:`.kernels`; the error state is any layout of model.py, passed as
 ``off``: the first index of the ``[pos, vel, att, ba, bg]`` blocks (-1 for an absent one,
@@ -10,7 +10,7 @@ point) at a time. Shapes as in :mod:`.kernels`; the error state is any layout of
 keeps its bias rows [0 I]; only the rows that change are formed (``transition_span_common``; the
 same sums, in the same order, as the dense product's top six rows); for the 15 states ``[dp, dv,
 dpsi, b_a, b_g]`` ``transition_span_position`` forms the same Φ bit for bit with F's structural zeros
-skipped. The iekf's right-invariant error has ``transition_span`` (12 states) and
+skipped. The iekf's right-invariant error has ``transition_span_invariant`` (12 states) and
 ``transition_span_invariant_position`` (15: F_inv's ρ_p row is dense, and it needs each run's origin).
 """
 from __future__ import annotations
@@ -36,7 +36,7 @@ def identity_plus_dt(M, dt, v):
 @njit(cache=True, error_model="numpy", inline="always")
 def system_rows_s(x, f0, f1, f2, M, dt, off):
     """The velocity and attitude rows of ``I + F dt`` into ``M`` (n, n): F of model.system_matrix
-    (Groves 14.2.4); the position rows (dp' = dv) are applied by transition_span directly.
+    (Groves 14.2.4); the position rows (dp' = dv) are applied by the span loops directly.
 
     dv'   = (-[(2 w_ie + w_en) x] + [v x] J) dv - [f_n x] dpsi - C b_a  (+ dg_D/dD dp_D)
     dpsi' = -J dv - [w_in x] dpsi - C b_g        (J = d w_en / d v)
@@ -267,16 +267,10 @@ def rows_step(M, P, top, p, vo, h):
 
 
 @njit(cache=True, error_model="numpy")
-def transition_span(pos, v, C, b_a, b_g, f, w, dt, j0, j1, Phi, invariant, off):
-    """Steps ``[j0, j1)`` in place on the solution; Φ (R, n, n) = Π (I + F dt) into ``Phi`` for the
-    layout ``off`` (``invariant``: F_inv of the right-invariant error, iekf.py, 12 states; with the
-    position block: :func:`transition_span_invariant_position`; the common error runs
-    :func:`transition_span_common`, this loop without the branch, which compiles in less time).
-
-    Only the rows of Φ that change are formed: the velocity and attitude rows ``va = v .. v+5``
-    ``Φ_va ← M_va,va Φ_va + M_va,bias`` (the bias rows of Φ are identity rows) ``+ M[vD, pD] Φ_pD``
-    (the vertical gravity gradient, with a position block); the position rows ``Φ_p ← Φ_p + dt Φ_v``.
-    For the papers' 12 states the sums, in the order, of the dense product's top six rows."""
+def transition_span_invariant(pos, v, C, b_a, b_g, f, w, dt, j0, j1, Phi, off):
+    """:func:`transition_span_common` for F_inv of the right-invariant error (iekf.py, 12 states; with
+    the position block: :func:`transition_span_invariant_position`): the same row loop, each step's
+    rows from :func:`invariant_top_s`."""
     n = Phi.shape[1]
     S = np.empty((5, 3, 3))
     M = np.zeros((n, n))
@@ -288,10 +282,7 @@ def transition_span(pos, v, C, b_a, b_g, f, w, dt, j0, j1, Phi, invariant, off):
         ba0, ba1, ba2, bg0, bg1, bg2 = b_a[r, 0], b_a[r, 1], b_a[r, 2], b_g[r, 0], b_g[r, 1], b_g[r, 2]
         for j in range(j0, j1):
             f0, f1, f2 = f[r, j, 0] - ba0, f[r, j, 1] - ba1, f[r, j, 2] - ba2
-            if invariant:
-                invariant_top_s(x, M, dt[j], S)
-            else:
-                system_rows_s(x, f0, f1, f2, M, dt[j], off)
+            invariant_top_s(x, M, dt[j], S)
             rows_step(M, P, top, off[0], off[1], dt[j])
             x = cycle_t(x, f0, f1, f2, w[r, j, 0] - bg0, w[r, j, 1] - bg1, w[r, j, 2] - bg2, dt[j])
         store_t(x, pos[r], v[r], C[r])
@@ -299,7 +290,13 @@ def transition_span(pos, v, C, b_a, b_g, f, w, dt, j0, j1, Phi, invariant, off):
 
 @njit(cache=True, error_model="numpy")
 def transition_span_common(pos, v, C, b_a, b_g, f, w, dt, j0, j1, Phi, off):
-    """:func:`transition_span` of the common error (model.system_matrix, any layout ``off``), unbranched."""
+    """Steps ``[j0, j1)`` in place on the solution; Φ (R, n, n) = Π (I + F dt) into ``Phi`` for the
+    common error (model.system_matrix) of the layout ``off``.
+
+    Only the rows of Φ that change are formed: the velocity and attitude rows ``va = v .. v+5``
+    ``Φ_va ← M_va,va Φ_va + M_va,bias`` (the bias rows of Φ are identity rows) ``+ M[vD, pD] Φ_pD``
+    (the vertical gravity gradient, with a position block); the position rows ``Φ_p ← Φ_p + dt Φ_v``.
+    For the papers' 12 states the sums, in the order, of the dense product's top six rows."""
     n = Phi.shape[1]
     M = np.zeros((n, n))
     top = np.empty((n, n))
@@ -318,10 +315,10 @@ def transition_span_common(pos, v, C, b_a, b_g, f, w, dt, j0, j1, Phi, off):
 
 @njit(cache=True, error_model="numpy")
 def transition_span_position(pos, v, C, b_a, b_g, f, w, dt, j0, j1, Phi):
-    """:func:`transition_span` for the 15-state layout ``[dp, dv, dpsi, b_a, b_g]`` (offsets 0, 3, 6,
+    """:func:`transition_span_common` for the 15-state layout ``[dp, dv, dpsi, b_a, b_g]`` (offsets 0, 3, 6,
     9, 12) of the common error, column by column with F's structural zeros skipped: the ``M`` of
     :func:`system_rows_s` as scalars (the same entries, ``value · dt``, diagonal ``+ 1``), each
-    non-zero term added in the order of :func:`transition_span`'s sums (skipping an exact zero
+    non-zero term added in the order of :func:`transition_span_common`'s sums (skipping an exact zero
     term changes no sum but the sign of a zero), so the same Φ (tests/test_kernels.py)."""
     S = np.empty((3, 3))
     for r in range(pos.shape[0]):
@@ -387,7 +384,7 @@ def transition_span_position(pos, v, C, b_a, b_g, f, w, dt, j0, j1, Phi):
 
 @njit(cache=True, error_model="numpy")
 def transition_span_invariant_position(pos, v, C, b_a, b_g, f, w, dt, j0, j1, Phi, off, origin):
-    """:func:`transition_span` for the right-invariant error with position (iekf.py, 15 states): Φ_inv
+    """:func:`transition_span_invariant` with the position block (iekf.py, 15 states): Φ_inv
     (R, n, n) = Π (I + F_inv dt) into ``Phi``, F_inv (:func:`invariant_position_blocks_s`) at the group
     position, the NED offset from the run's ``origin`` (R, 3) ``[lat, lon, h]``. Only the rows of ρ_p,
     ρ_v, φ change, column by column: ``Φ_top[:, k] += dt (F_top,top Φ_top[:, k] + F_top,k)`` (the last

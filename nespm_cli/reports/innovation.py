@@ -22,10 +22,10 @@ import numpy as np
 import pandas as pd
 
 from nespm_cli.data.atomic import write_text_atomic
-from nespm_cli.errors import NespmError
 from nespm_cli.experiments.spec import NO_TRUTH
 from nespm_cli.experiments.suite import recorded_dim
 from nespm_cli.reports.markdown import fmt, md_table
+from nespm_cli.reports.results import read_results_folder
 
 
 def is_truth_free(out_dir: Path) -> bool:
@@ -35,17 +35,6 @@ def is_truth_free(out_dir: Path) -> bool:
     except (OSError, ValueError):
         return False
     return isinstance(manifest, dict) and manifest.get("ground_truth") is False
-
-
-def read_folder(out_dir: Path) -> tuple[pd.DataFrame, dict]:
-    """``(metrics, manifest)`` of a finished truth-free mc folder; one line naming it if they cannot be read."""
-    out_dir = Path(out_dir)
-    try:
-        manifest = json.loads((out_dir / "manifest.json").read_text(encoding="utf-8"))
-        metrics = pd.read_parquet(out_dir / "metrics.parquet")
-    except (OSError, ValueError) as exc:
-        raise NespmError(f"{out_dir}: not a finished nespm mc folder ({exc})") from None
-    return metrics, manifest
 
 
 def sensors_of(metrics: pd.DataFrame) -> list[str]:
@@ -97,7 +86,7 @@ WHAT = ("Per run: the NIS of each sensor (νᵀ S⁻¹ ν of its measurements, p
 def write_innovation_report(out_dir: Path) -> Path:
     """Write ``out_dir/report.md`` of an mc folder without ground truth; return its path."""
     out_dir = Path(out_dir)
-    metrics, manifest = read_folder(out_dir)
+    metrics, manifest = read_results_folder(out_dir)
     o = manifest.get("options", {}) or {}
     lines = ["# Monte Carlo report", "", f"**{NO_TRUTH[0].upper() + NO_TRUTH[1:]}** (the tracks of "
              f"{o.get('data_dir') or manifest.get('data_dir')} have no ground truth): no error, NEES, CEP or bound, "
@@ -135,7 +124,7 @@ def heldout_innovation_section(out_dir: Path, record: dict, default_dir: str, tu
     """The held-out part of a tune report on tracks without ground truth: per filter the default against the
     tuned settings on the innovation NLL (paired by run), and each setting's NIS per sensor (``where``: the
     tracks, runs and window)."""
-    (default, man_d), (tuned, man_t) = read_folder(out_dir / default_dir), read_folder(out_dir / tuned_dir)
+    (default, man_d), (tuned, man_t) = read_results_folder(out_dir / default_dir), read_results_folder(out_dir / tuned_dir)
     rows = []
     for f in dict.fromkeys(default["filter"]):
         d, t, diff, lo, hi, n = paired_nll(default, tuned, f, n_boot)
@@ -154,4 +143,4 @@ def heldout_innovation_section(out_dir: Path, record: dict, default_dir: str, tu
 
 
 __all__ = ["WHAT", "heldout_innovation_section", "innovation_rows", "innovation_table", "is_truth_free",
-           "paired_nll", "read_folder", "sensors_of", "write_innovation_report"]
+           "paired_nll", "sensors_of", "write_innovation_report"]
