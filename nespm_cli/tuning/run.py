@@ -37,6 +37,7 @@ from nespm_cli.experiments.spec import Spec, has_truth
 from nespm_cli.filters.options import TUNED_ON, tuned_on_text
 from nespm_cli.errors import NespmError
 from nespm_cli.tuning.best import add_checks, add_leveled, best_values
+from nespm_cli.tuning.flat import add_flat
 from nespm_cli.tuning.progress import watch_studies
 from nespm_cli.tuning.refine import auto_budget
 from nespm_cli.tuning.search import refine_filter, tune_filter, worker_run
@@ -188,13 +189,16 @@ def run_tune(t: TuneSpec, out: str | Path, jobs: int = 1, report: Callable[[str,
             best = best_values(store, train.filters, t.trials, space, bases, k)
             add_leveled(best, old_searches[k] if k < len(old_searches) else {}, train, t)
             add_checks(best, store, out, train, space, t, refined[k], k)
+            before = {f: dict(b) for f, b in best.items()}
+            if add_flat(best, store, train, space, t, k) and t.level == "tracks":
+                add_leveled(best, before, train, t)  # a reset shape: its level fitted again
             searches.append(best)
         write_parquet_atomic(trials_table(store, train.filters, t.repeats), out / "trials.parquet")
         best = searches[0]
         write_text_atomic(out / "tuned.toml", tuned_toml(best, train, t))
         record = {"command": list(argv) if argv is not None else None, "objective": t.objective, "level": t.level,
                   "sampler": t.sampler, "trials": t.trials, "jobs": jobs, "backend": backend,
-                  "refine_trials": t.refine_trials, "search_seed": search_seed(t, train, 0), "repeats": t.repeats,
+                  "refine_trials": t.refine_trials, "flat": t.flat, "search_seed": search_seed(t, train, 0), "repeats": t.repeats,
                   "tuned_on": {"tracks": list(train.tracks), "runs": [0, train.runs], "seed": train.seed,
                                "seed_of": t.spec.seed},
                   "test": {"tracks": list(t.test_tracks), "runs": t.test_runs, "seed": t.spec.seed,

@@ -12,6 +12,7 @@ from nespm_cli.errors import NespmError
 from nespm_cli.experiments.spec import Spec, check_filter_domains, has_truth, track_inputs, validate
 from nespm_cli.experiments.suite import sensor_suite
 from nespm_cli.filters.registry import get_filter
+from nespm_cli.tuning.flat import FLAT_RULES
 from nespm_cli.tuning.objective import LEVELS, OBJECTIVES
 from nespm_cli.tuning.space import Param, apply_ranges, default_space, optional_space
 
@@ -33,7 +34,8 @@ class TuneSpec:
     independent searches per filter on the same training runs (search k's seed:
     :func:`nespm_cli.tuning.study.search_seed`), ``refine_trials`` the local refinement's budget per
     filter and search (0: none; None: :func:`nespm_cli.tuning.refine.auto_budget` of its space), ``storage`` an Optuna RDB storage URL every worker
-    reaches (None: the SQLite file ``OUT/study.db``)."""
+    reaches (None: the SQLite file ``OUT/study.db``); ``flat`` what becomes of a parameter the objective
+    cannot see (:data:`nespm_cli.tuning.flat.FLAT_RULES`)."""
 
     spec: Spec
     trials: int = 50
@@ -50,6 +52,7 @@ class TuneSpec:
     repeats: int = 1  # independent searches per filter (--repeats)
     refine_trials: int | None = None  # the local refinement's budget per filter and search (0: off; None: auto)
     storage: str | None = None  # an RDB storage URL (None: OUT/study.db)
+    flat: str = "default"  # tuning.flat.FLAT_RULES: a parameter the objective cannot see goes back to its default
 
 
 def training_seed(seed: int) -> int:
@@ -84,6 +87,8 @@ def check(t: TuneSpec) -> tuple[TuneSpec, Spec, dict[str, list[Param]]]:
                          f"sqlite:////shared/study.db), got {t.storage!r}")
     if t.level_runs < 1:
         raise NespmError(f"--level-runs must be at least 1, got {t.level_runs}")
+    if t.flat not in FLAT_RULES:
+        raise NespmError(f"--flat: choose {' or '.join(FLAT_RULES)}, got {t.flat!r}")
     if t.sampler not in SAMPLERS:
         raise NespmError(f"--sampler: choose {' or '.join(SAMPLERS)}, got {t.sampler!r}")
     if t.test_runs < 1:
