@@ -155,3 +155,21 @@ def test_dask_backend_gives_the_local_values(tmp_path):
     pcols = [c for c in one.columns if c.startswith("p_")]
     pd.testing.assert_frame_equal(one[cols + pcols], dask[cols + pcols])
     assert json.loads((tmp_path / "dask" / "tune.json").read_text())["backend"] == "dask"
+
+
+def test_pattern_search_moves_on_a_sufficient_decrease_only():
+    """A gain below :data:`MOVE` (a tenth of the verdict's tolerance) is not a move: on a slope of 1e-4
+    per first step the search does not crawl but finishes where it started, after one pass per level
+    and the last pass (2 points per parameter each); a slope of 1e-3 per step moves it."""
+    from nespm_cli.tuning.refine import MOVE
+
+    params = [Param("f", "a", 0.01, 100.0), Param("f", "b", 0.01, 100.0)]
+    for slope, moves in ((0.2 * MOVE, False), (2.0 * MOVE, True)):
+        def score(x, slope=slope):
+            return 1.0 - slope * math.log(x["a"]) / math.log(3.0)
+
+        res = pattern_search(score, {"a": 1.0, "b": 1.0}, 1.0, params, 1000)
+        assert res["finished"]
+        assert (res["values"]["a"] > 1.0) == moves, res
+        if not moves:
+            assert res["evaluations"] == 2 * len(params) * (LEVELS + 2)
