@@ -133,7 +133,8 @@ def test_patterns_are_computed_per_run():
 
 def test_unknown_where_the_statistics_are_unknown():
     assert unknown_reason(validate(Spec(tracks=(5,), dvl="synthetic"))) is None
-    assert "dvl is recorded" in unknown_reason(validate(Spec(tracks=(5,), dvl="recorded")))
+    # the embedded tracks' DVL is generated in code with one draw every run shares: no bound, said so
+    assert "dvl is the embedded track's" in unknown_reason(validate(Spec(tracks=(5,), dvl="recorded")))
 
 
 def test_noise_within_a_span_is_the_per_step_bound():
@@ -177,9 +178,11 @@ def test_mc_writes_the_bound_and_the_report_its_efficiency(tmp_path, dvl):
         assert vel["efficiency"] == pytest.approx(vel["rmse"] / vel["root_pcrb"]) and vel["efficiency"] > 0.5
         assert "| 5 | ekf | velocity [m/s] |" in text
     else:
-        assert man["pcrb"]["status"] == "unknown" and "dvl is recorded" in man["pcrb"]["reason"]
+        assert man["pcrb"]["status"] == "unknown" and "dvl is the embedded track's" in man["pcrb"]["reason"]
+        assert man["sensors"]["all"]["dvl"]["source"] == "embedded"  # generated in code, not recorded
+        assert "sensors dvl (embedded)" in text
         assert e[cols].isna().all().all() and eff["efficiency"].isna().all()
-        assert "**Unknown**: dvl is recorded" in text
+        assert "**Unknown**: dvl is the embedded track's" in text and "run the same study with `--dvl synthetic`" in text
 
 
 def test_a_failing_sensor_model_leaves_the_study_and_says_why(monkeypatch):

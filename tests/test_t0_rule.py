@@ -95,3 +95,43 @@ def test_efficiency_leaves_out_epoch_0(folder):
     # the frame without epoch 0 gives the same number: nothing of epoch 0 is in it
     again = efficiency(e[e["epoch"] > 0]).set_index(["filter", "block"])
     assert again.loc[("ekf", "vel"), "efficiency"] == pytest.approx(after, rel=1e-12)
+
+
+def test_mean_nees_and_vertical_rms_leave_out_epoch_0(folder):
+    """The mean NEES and the vertical RMS: each run's twin over the epochs after t = 0 (``nees_post``,
+    ``vert_rms_post``) is what the tables, the verdict and compare show; the every-epoch columns differ."""
+    from nespm_cli.reports.cases import case_table, load_cases
+    from nespm_cli.reports.tables import filter_table, track_table
+
+    m = pd.read_parquet(folder / "metrics.parquet")
+    e = pd.read_parquet(folder / "epochs.parquet")
+    for f in ("ekf", "ukf"):
+        d = m[m["filter"] == f]
+        post, every = float(d["nees_post"].mean()), float(d["nees"].mean())
+        assert abs(post / every - 1) > 1e-3  # epoch 0 moves the mean
+        g = e[e["filter"] == f].sort_values("epoch")
+        assert post == pytest.approx(g["nees_mean"].to_numpy()[1:].mean(), rel=1e-9)  # by hand: epochs > 0
+        assert track_table(m).set_index("filter").loc[f, "nees"] == pytest.approx(post, rel=1e-12)
+        assert filter_table(m, "ukf", n_boot=0).set_index("filter").loc[f, "nees"] == pytest.approx(post, rel=1e-12)
+        assert filter_table(m, "ukf", n_boot=0, with_t0=True).set_index("filter").loc[f, "nees"] == pytest.approx(
+            every, rel=1e-12)  # beside a published table: every epoch
+        vpost = math.sqrt((d["vert_rms_post"] ** 2).mean())
+        vevery = math.sqrt((d["vert_rms"] ** 2).mean())
+        assert abs(vpost / vevery - 1) > 1e-3
+        cases = case_table(load_cases([folder, folder], ["a", "b"]))
+        row = cases[cases["case"] == "a"].set_index("filter").loc[f]
+        assert row["vert_rms"] == pytest.approx(vpost, rel=1e-12)
+
+
+def test_the_report_shows_the_mean_nees_without_t0(folder):
+    from nespm_cli.reports.markdown import fmt
+    from nespm_cli.reports.mc import write_mc_report
+
+    m = pd.read_parquet(folder / "metrics.parquet")
+    text = write_mc_report(folder, n_boot=20).read_text()
+    main = text.split("## Track-averaged results")[1].split("\n## ")[0]
+    row = next(line for line in main.splitlines() if line.startswith("| ekf |"))
+    cells = [c.strip() for c in row.split("|")[1:-1]]
+    d = m[m["filter"] == "ekf"]
+    assert cells[7] == fmt(float(d["nees_post"].mean()), ".2f")
+    print("mean NEES after t = 0", d["nees_post"].mean(), "with t = 0", d["nees"].mean())

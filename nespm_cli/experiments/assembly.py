@@ -3,7 +3,8 @@
 ``metrics.parquet`` is the expected metrics chunks concatenated in key order, one chunk in
 memory at a time (:func:`nespm_cli.experiments.chunks.concat_parquet`). ``epochs.parquet``
 holds, per (keys, track, filter, epoch), the mean and population std across the runs that did
-not diverge; it is formed chunk by chunk: each series chunk (one track and filter, R runs x N
+not diverge (``dvl_used``: whether a DVL update was applied at the epoch in any run; the series chunks
+hold it per run); it is formed chunk by chunk: each series chunk (one track and filter, R runs x N
 epochs, run-major) gives its count, mean and sum of squared deviations per epoch and column,
 and chunks are merged with the pairwise update of Chan, Golub & LeVeque (1979), so memory stays
 that of one chunk whatever the number of runs (docs/results-schema.md).
@@ -118,7 +119,7 @@ def epoch_table(series: list[tuple[tuple, Path]], keys: tuple[str, ...] = ()) ->
         nis_cols = sorted(c for c in s.columns if c.startswith("nis_"))  # one per sensor (a chunk's own)
         labels = [c[2:] for c in s.columns if c.startswith("e_")]
         if g is None:
-            g = groups[key] = {"t": s["t"].to_numpy()[:N], "dvl_used": s["dvl_used"].to_numpy()[:N],
+            g = groups[key] = {"t": s["t"].to_numpy()[:N], "dvl_used": np.zeros(N, dtype=bool),
                                "ok": np.zeros(N, dtype=np.int64),
                                "moments": {c: Moments(N) for c, _ in MEAN_COLUMNS},
                                "nis": {c: Moments(N) for c in nis_cols},
@@ -127,6 +128,7 @@ def epoch_table(series: list[tuple[tuple, Path]], keys: tuple[str, ...] = ()) ->
                                        if all(lab in labels for lab in labs)}}
         bad = s["diverged"].to_numpy().reshape(R, N)
         g["ok"] += (~bad).sum(axis=0)
+        g["dvl_used"] |= s["dvl_used"].to_numpy(bool).reshape(R, N).any(axis=0)  # per run in the series: any run
         cols = _read_columns(s, ("vel_err", "att_err", "nees", "north_err", "east_err") + BLOCK_COLUMNS, R, N)
         cols["hpe"] = np.hypot(cols["north_err"], cols["east_err"])  # horizontal position error [m]
         for c, _ in MEAN_COLUMNS:

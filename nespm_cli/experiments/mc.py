@@ -21,7 +21,7 @@ import numpy as np
 import pandas as pd
 
 from nespm_cli.data.corruption import draw, imu_errors, true_biases
-from nespm_cli.data.tracks import track_files
+from nespm_cli.data.tracks import resolve_data_dir, track_files
 from nespm_cli.errors import NespmError
 from nespm_cli.experiments.assembly import epoch_table
 from nespm_cli.experiments.backend import Execution
@@ -30,8 +30,8 @@ from nespm_cli.experiments.chunks import chunk_problem, concat_parquet, write_ch
 from nespm_cli.experiments.inputs import READ_HASHES, verify_read
 from nespm_cli.experiments.pcrb_table import add_pcrb
 from nespm_cli.experiments.metrics import (alive_metrics, block_statistics, divergence, epoch_errors, epoch_nis,
-                                          lost_epoch, run_metrics, sensor_nis, truth_free_epochs,
-                                          truth_free_metrics)
+                                          lost_epoch, run_metrics, sensor_nis, sensor_rejections,
+                                          truth_free_epochs, truth_free_metrics)
 from nespm_cli.experiments.spec import (NO_TRUTH, Spec, couple_filter, filter_config, filter_config_of, has_truth,
                                         load_filters, needs_noise_std, track_inputs, validate)
 from nespm_cli.experiments.progress import compile_kernels, kernels_for
@@ -42,10 +42,11 @@ from nespm_cli.filters import FilterConfig, initial_nav, run_filter
 from nespm_cli.filters.kernels import kernel_backend
 from nespm_cli.filters.options import training_overlap
 from nespm_cli.filters.registry import plugin_files
-from nespm_cli.filters.smoother import smoothed_name
+from nespm_cli.filters.smoother import smoothed_name, smoothed_of
 from nespm_cli.learn.noise_model import default_weights
 from nespm_cli.learn.noise_models import predict_interval_std
 from nespm_cli.sensors.channels import build_channel
+from nespm_cli.sensors.dvl import source_label
 from nespm_cli.nav.earth import ned_offset
 
 def simulate(spec: Spec, number: int, runs: np.ndarray, filters=None, clean: bool = False,
@@ -207,6 +208,7 @@ def run_chunk(cell: Cell, number: int, first: int, out_dir: str, last: int | Non
     cfg = filter_config(spec)
     # the biases are known where the bench put them (a recorded IMU has its own, unknown)
     bias_true = true_biases(real, truth.t[e] - truth.t[0]) if spec.imu == "synthetic" else None
+    robust = robust_filters(spec, cfg)
     for name, (out, err, secs) in results.items():
         if name not in needed:
             continue
@@ -228,6 +230,9 @@ def run_chunk(cell: Cell, number: int, first: int, out_dir: str, last: int | Non
                       "north_err": err.ne[..., 0].ravel(), "east_err": err.ne[..., 1].ravel(),
                       **{k: v.ravel() for k, v in block_statistics(out, truth.v_n[e], truth.C_bn[e], truth.pos[e],
                                                                    bias_true, axes=spec.save_series == "axes").items()}}
+        if robust:  # per sensor: rejected, applied and downweighted samples (a smoothed result: its filter's)
+            base = smoothed_of(name) or name
+            m.update(sensor_rejections(results[base][0] if base in results else out, robust.get(base, False)))
         m.update(q_factors(out.noise_std, cfg, len(runs)))
         m["noise_model_faults"] = (out.noise_faults if out.noise_faults is not None
                                    else np.zeros(len(runs), dtype=np.int64))
@@ -238,13 +243,21 @@ def run_chunk(cell: Cell, number: int, first: int, out_dir: str, last: int | Non
         errors.update({k: v.ravel() for k, v in epoch_nis(out, t_rel).items()})  # per-sensor NIS (NaN: none)
         series = pd.DataFrame({
             **extra, "track": number, "filter": name, "run": np.repeat(runs, N), "epoch": np.tile(np.arange(N), R),
-            "t": np.tile(t_rel, R), **errors, "dvl_used": np.tile(out.dvl_used, R), "diverged": np.repeat(div, N),
+            "t": np.tile(t_rel, R), **errors, "dvl_used": np.asarray(out.dvl_used, dtype=bool).reshape(R, N).ravel(),
+            "diverged": np.repeat(div, N),
         })
         # series first: a metrics file marks the chunk complete
         write_chunk(series, chunks / chunk_name("series", number, name, first, tag), cell.experiment)
         write_chunk(df, chunks / chunk_name("metrics", number, name, first, tag), cell.experiment)
         timings[timing_key(tag, number, name, first)] = secs
     return timings
+
+
+def robust_filters(spec: Spec, cfg: FilterConfig | None = None) -> dict[str, bool]:
+    """``{filter: has a robust update}`` of the spec's filters (``--filter-option NAME.robust``), or ``{}``
+    when none has one: then no rejection column is written (every chunk of a folder has the same columns)."""
+    modes = {f: filter_config_of(spec, f, cfg).robust_update()[0] != "none" for f in spec.filters}
+    return modes if any(modes.values()) else {}
 
 
 def run_chunk_keyed(cell: Cell, number: int, first: int, out_dir: str, last: int | None = None,
@@ -316,6 +329,14 @@ def run_mc(spec: Spec, out_dir: str | Path, execution: Execution | None = None, 
     return run_cells([Cell(spec)], spec.as_dict(), out_dir, ex)
 
 
+def labelled_record(spec: Spec) -> dict:
+    """The manifest's ``sensors`` cell of ``spec`` (:func:`suite_record`) with each source as the report names
+    it: a recorded sensor of an embedded track is ``embedded`` (generated in code,
+    :func:`nespm_cli.sensors.dvl.source_label`)."""
+    data_dir = resolve_data_dir(spec.data_dir)
+    return {n: {**o, "source": source_label(o.get("source"), data_dir)} for n, o in suite_record(spec).items()}
+
+
 class TrainingWarning(UserWarning):
     """A filter's tuned settings run on the realizations they were tuned on (one ``nespm: warning:`` line)."""
 
@@ -364,7 +385,7 @@ def run_cells(cells: list[Cell], options: dict, out_dir: str | Path, execution: 
     inputs = manifest_inputs(cells)
     folder.open(inputs=inputs, seed=first.seed, data_dir=first.data_dir or "embedded",
                 filter_config={c.tag or "all": dataclasses.asdict(c.spec.filter_config) for c in cells},
-                sensors={c.tag or "all": suite_record(c.spec) for c in cells})
+                sensors={c.tag or "all": labelled_record(c.spec) for c in cells})
     blocks = run_blocks(folder.old, first.runs)
     folder.manifest["run_blocks"] = [list(b) for b in blocks]
     folder.save()

@@ -17,11 +17,15 @@ The t = 0 rule (docs/filters.md, "Epochs in the metrics"): the papers' columns (
 ``sse_att``, ``sse_hpe``, ``n_samples``, ``vrmse``, ``mrmse``) sum over every GT epoch including the
 first, t = 0, where the error is the initial error no filter can change (eq 50 sums over "the
 samples in the trajectory"); the posterior columns (``*_post``, :data:`POSTERIOR_COLUMNS`) sum over
-the epochs after the first, where every filter has had its first update. The reports' verdicts and
-comparisons use the posterior ones, so an improvement is not diluted by the common initial error.
+the epochs after the first, where every filter has had its first update; so do ``nees_post`` and
+``vert_rms_post``, the twins of the per-run mean NEES and vertical RMS (:data:`POSTERIOR_SUMMARIES`). The
+reports' summaries use the posterior ones, so an improvement is not diluted by the common initial error.
+Robust updates (``--filter-option NAME.robust``): :func:`sensor_rejections` counts each sensor's
+rejected and applied samples per run.
 """
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -197,6 +201,24 @@ def sensor_nis(out) -> dict[str, np.ndarray]:
     return res
 
 
+def sensor_rejections(out, robust: bool = True) -> dict[str, np.ndarray]:
+    """``{rejected_<sensor>, applied_<sensor>, downweighted_<sensor>: (R,) int}`` per sensor of a
+    :class:`nespm_cli.filters.engine.FilterOutput`: the samples the χ² gate refused (present in the run, not
+    applied), those applied (a dropped or rejected sample is not), and those a Huber update applied with an
+    inflated R (weight > 1), over the run. ``robust`` False (the filter has no robust update): 0 rejected
+    and downweighted, the applied counted all the same. A record without ``rejected`` / ``weight`` counts 0."""
+    res = {}
+    for name, rec in getattr(out, "sensors", {}).items():
+        used = np.asarray(rec.used, dtype=bool)
+        zero = np.zeros(used.shape[0], dtype=np.int64)
+        rej = zero if not robust or rec.rejected is None else np.asarray(rec.rejected, bool).sum(axis=1)
+        down = zero if not robust or rec.weight is None else (used & (np.asarray(rec.weight) > 1.0)).sum(axis=1)
+        res[f"rejected_{name}"] = np.asarray(rej, dtype=np.int64)
+        res[f"applied_{name}"] = used.sum(axis=1).astype(np.int64)
+        res[f"downweighted_{name}"] = np.asarray(down, dtype=np.int64)
+    return res
+
+
 def innovation_terms(rec) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """``(nis, logdet, rows, ok)`` (R, K) of one sensor's record (:class:`nespm_cli.filters.engine.SensorRecord`):
     each measurement's NIS, ``log det S``, rows (a masked row, e.g. a lost beam, enters with ν = 0 and a unit
@@ -333,12 +355,17 @@ def alive_metrics(err: EpochErrors, lost_k: np.ndarray, t_rel: np.ndarray) -> di
 #: papers' column -> its posterior twin (the sum over the epochs after the first; ``n_samples`` -> ``n_post``)
 POSTERIOR_COLUMNS: dict[str, str] = {"sse_vel": "sse_vel_post", "sse_att": "sse_att_post",
                                      "sse_hpe": "sse_hpe_post", "n_samples": "n_post"}
+#: per-run summaries over every epoch -> their twins over the epochs after the first (the t = 0 rule); a
+#: folder written before them has the every-epoch column only (``nespm_cli.reports.stats.posterior_view``)
+POSTERIOR_SUMMARIES: dict[str, str] = {"nees": "nees_post", "vert_rms": "vert_rms_post"}
 
 
 def posterior_sums(err: EpochErrors, diverged: np.ndarray) -> dict[str, np.ndarray]:
     """(R,) each: ``sse_vel_post`` [(m/s)²], ``sse_att_post`` [rad²], ``sse_hpe_post`` [m²], the sums of
-    the squared errors over the epochs after the first (t > 0; NaN for a lost run) and ``n_post``
-    (int, the epochs summed: N − 1). The t = 0 error is the initial error, the same for every filter
+    the squared errors over the epochs after the first (t > 0; NaN for a lost run), ``n_post``
+    (int, the epochs summed: N − 1), and the twins of :data:`POSTERIOR_SUMMARIES` over the same epochs:
+    ``nees_post`` the mean 6-DOF NEES, ``vert_rms_post`` [m] the RMS vertical error. The t = 0 error is the
+    initial error, the same for every filter
     of a run, so these are the sums a filter can change (module docstring, "the t = 0 rule")."""
     bad = np.asarray(diverged, dtype=bool)
     n = err.vel.shape[1]
@@ -348,6 +375,11 @@ def posterior_sums(err: EpochErrors, diverged: np.ndarray) -> dict[str, np.ndarr
                 "sse_hpe_post": (np.asarray(err.hpe, float)[:, 1:] ** 2).sum(axis=1)}
     out = {k: np.where(bad, np.nan, v) for k, v in sums.items()}
     out["n_post"] = np.full(len(bad), max(n - 1, 0), dtype=np.int64)
+    down = np.asarray(err.down if err.down is not None else np.full(err.vel.shape, np.nan), dtype=float)[:, 1:]
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # one epoch: nothing after t = 0 (NaN)
+        out["nees_post"] = np.where(bad, np.nan, np.asarray(err.nees, float)[:, 1:].mean(axis=1))
+        out["vert_rms_post"] = np.where(bad, np.nan, np.sqrt((down ** 2).mean(axis=1)))
     return out
 
 
@@ -362,7 +394,7 @@ def run_metrics(err: EpochErrors, diverged: np.ndarray) -> dict[str, np.ndarray]
     100 · hpe_final / distance (NaN when the truth did not move).
 
     Posterior sums (:func:`posterior_sums`): ``sse_vel_post``, ``sse_att_post``, ``sse_hpe_post``,
-    ``n_post``, the same sums without the first epoch (t = 0).
+    ``n_post``, the same sums without the first epoch (t = 0), and ``nees_post``, ``vert_rms_post``.
     """
     n = err.vel.shape[1]
     bad = np.asarray(diverged, dtype=bool)

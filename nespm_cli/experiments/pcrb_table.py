@@ -36,6 +36,7 @@ import numpy as np
 import pandas as pd
 
 from nespm_cli.data.corruption import draw, segment_index
+from nespm_cli.data.tracks import resolve_data_dir
 from nespm_cli.experiments.spec import Spec, track_inputs
 from nespm_cli.experiments.suite import sensor_suite
 from nespm_cli.filters.pcrb import pcrb
@@ -55,10 +56,14 @@ RUNS_PER_PASS = 2000  # runs whose channels are built at once (R x K x m floats 
 
 
 def unknown_reason(spec: Spec) -> str | None:
-    """Why the bound of ``spec`` is unknown (a recorded IMU or sensor), or None when it is computable."""
+    """Why the bound of ``spec`` is unknown (a recorded IMU or sensor; on the embedded tracks their DVL, generated
+    in code with one noise draw for every run), or None when it is computable."""
     if spec.imu == "recorded":
         return "the IMU is recorded: its noise statistics are unknown"
     recorded = [s.name for s in sensor_suite(spec) if s.opt.source == "recorded"]
+    if recorded and resolve_data_dir(spec.data_dir) is None:  # the embedded tracks: generated in code
+        return (f"{', '.join(recorded)} {'is' if len(recorded) == 1 else 'are'} the embedded track's, generated in code "
+                "with one noise draw that every run shares: the runs do not sample its noise")
     if recorded:
         return f"{', '.join(recorded)} {'is' if len(recorded) == 1 else 'are'} recorded: the noise statistics are unknown"
     return None

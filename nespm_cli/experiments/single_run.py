@@ -9,9 +9,9 @@ import pandas as pd
 
 from nespm_cli.errors import NespmError
 from nespm_cli.experiments.mc import simulate
-from nespm_cli.experiments.spec import NO_TRUTH, Spec, track_inputs, validate
+from nespm_cli.experiments.spec import NO_TRUTH, Spec, filter_config_of, track_inputs, validate
 from nespm_cli.experiments.store import write_parquet_atomic
-from nespm_cli.experiments.metrics import divergence, run_metrics, sensor_nis, truth_free_metrics
+from nespm_cli.experiments.metrics import divergence, run_metrics, sensor_nis, sensor_rejections, truth_free_metrics
 from nespm_cli.nav.rotations import dcm_to_euler
 from nespm_cli.nav.state import parse_layout
 
@@ -71,8 +71,11 @@ def run_single(spec: Spec, track: int, filt: str, run: int, clean: bool = False,
             why = np.where(o.lost_reason != "", o.lost_reason, why).astype(object)
         m = run_metrics(err, div)
         m.update(sensor_nis(o))
+    if filter_config_of(spec, filt).robust_update()[0] != "none":  # its rejected, applied, downweighted samples
+        m.update(sensor_rejections(o))
     summary = {"track": track, "filter": filt, "run": run, "clean": clean, "scenario": spec.scenario,
-               "schedule": spec.corruption.schedule, **{k: (bool(v[0]) if k == "diverged" else (int(v[0]) if k in ("n_samples", "n_post") else float(v[0])))
+               "schedule": spec.corruption.schedule,
+               **{k: (bool(v[0]) if k == "diverged" else (int(v[0]) if np.asarray(v).dtype.kind == "i" else float(v[0])))
                                              for k, v in m.items()}}
     summary = {k: (None if isinstance(v, float) and not np.isfinite(v) else v) for k, v in summary.items()}
     summary["diverged_reason"] = str(why[0])
@@ -81,7 +84,7 @@ def run_single(spec: Spec, track: int, filt: str, run: int, clean: bool = False,
         summary["note"] = NO_TRUTH
     if out:
         e = truth.epoch_index
-        ts = pd.DataFrame({"t": truth.t[e] - truth.t[e[0]], "dvl_used": o.dvl_used})
+        ts = pd.DataFrame({"t": truth.t[e] - truth.t[e[0]], "dvl_used": o.dvl_used[0]})  # this run's
         if err is not None:
             ts["vel_err"], ts["att_err"], ts["nees"] = err.vel[0], err.att[0], err.nees[0]
         eu_t, eu_e = dcm_to_euler(truth.C_bn[e]), dcm_to_euler(o.C_bn[0])

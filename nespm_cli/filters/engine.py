@@ -104,8 +104,9 @@ class FilterOutput:
 
     ``pos`` (R, N, 3), ``v_n`` (R, N, 3), ``C_bn`` (R, N, 3, 3); ``P`` (R, N, n, n) the covariance
     (NaN for ``ins``), with ``P6`` (R, N, 6, 6) its [dv, dpsi] block and ``P_diag`` (R, N, n) its
-    diagonal; ``b_a``, ``b_g`` (R, N, 3) bias compensation; ``diverged`` (R,); ``dvl_used`` (N,)
-    whether a DVL update was applied at each epoch (in any run); ``sensors`` the
+    diagonal; ``b_a``, ``b_g`` (R, N, 3) bias compensation; ``diverged`` (R,); ``dvl_used`` (R, N)
+    whether a DVL update was applied in each run at each epoch (a dropped or gated sample: False in
+    that run); ``sensors`` the
     :class:`SensorRecord` of each sensor by name; ``noise_std`` the adaptive filters' network std
     ``(std_a, std_g)`` (R, N-1, 3), else None; ``smoothed`` the RTS-smoothed solution (a
     FilterOutput with no sensors) when ``run_filter(..., smooth=True)``, else None; ``lost_epoch``
@@ -210,7 +211,7 @@ def run_filter(
     out = FilterOutput(
         pos=np.empty((R, N, 3)), v_n=np.empty((R, N, 3)), C_bn=np.empty((R, N, 3, 3)),
         P=np.full((R, N, n, n), np.nan), b_a=np.empty((R, N, 3)), b_g=np.empty((R, N, 3)),
-        diverged=filt.diverged, dvl_used=np.zeros(N, dtype=bool), layout=layout.name,
+        diverged=filt.diverged, dvl_used=np.zeros((R, N), dtype=bool), layout=layout.name,
         sensors={ch.sensor.name: SensorRecord(ch.t, np.zeros(ch.ok.shape, dtype=bool),
                                               np.full(ch.z.shape, np.nan),
                                               np.full(ch.z.shape + (ch.z.shape[-1],), np.nan),
@@ -276,7 +277,7 @@ def run_filter(
             rec.nu[:, i] = np.where(ok[:, None], nu, np.nan)
             rec.S[:, i] = np.where(ok[:, None, None], S, np.nan)
         if epoch is not None and ch.sensor.name == "dvl":
-            out.dvl_used[epoch] = True
+            out.dvl_used[:, epoch] |= ok  # the runs this sample was applied in
 
     imu_mode = cfg.time_update == "imu"
     rts = SmootherRecord() if smooth else None

@@ -46,12 +46,13 @@ def sweep_keys(epochs: pd.DataFrame | None) -> tuple[str, ...]:
 
 def next_step(manifest: dict) -> str:
     """The options that make the bound computable: a synthetic IMU and synthetic sensors (the embedded
-    tracks' DVL file counts as recorded); "" when no source of the manifest is recorded."""
+    tracks' DVL, source ``embedded``, is one draw every run shares: as a recorded one, it has no bound);
+    "" when no source of the manifest is recorded or embedded."""
     opts = (manifest or {}).get("options") or {}
     steps = ["`--imu synthetic`"] if opts.get("imu") == "recorded" else []
     sensors = ((manifest or {}).get("sensors") or {}).get("all") or {}
     for name, o in sensors.items():
-        if isinstance(o, dict) and o.get("source") == "recorded":
+        if isinstance(o, dict) and o.get("source") in ("recorded", "embedded"):  # embedded: generated, one draw
             steps.append("`--dvl synthetic`" if name == "dvl" else f"`--sensor-option {name}.source=synthetic`")
     if not steps and not sensors and opts.get("dvl") == "recorded":  # an older manifest without its sensors
         steps.append("`--dvl synthetic`")

@@ -23,7 +23,8 @@ METRICS_UNITS = {
     "hpe_max": "m", "distance": "m", "north_final": "m", "east_final": "m", "lost_at": "s",
     "vrmse_alive": "m/s", "mrmse_alive": "rad", "hpe_rms_alive": "m", "hpe_final_pct": "%",
     "drift_m_per_h": "m/h", "vert_rms": "m",
-    "sse_vel_post": "(m/s)²", "sse_att_post": "rad²", "sse_hpe_post": "m²", "n_post": "", "nis_<sensor>": "", "q_factor_acc": "", "q_factor_gyro": "", "noise_model_faults": "",
+    "sse_vel_post": "(m/s)²", "sse_att_post": "rad²", "sse_hpe_post": "m²", "n_post": "", "nees_post": "", "vert_rms_post": "m",
+    "rejected_<sensor>": "", "applied_<sensor>": "", "downweighted_<sensor>": "", "nis_<sensor>": "", "q_factor_acc": "", "q_factor_gyro": "", "noise_model_faults": "",
 }
 
 EPOCHS_UNITS = {

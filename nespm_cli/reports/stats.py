@@ -58,16 +58,20 @@ def has_posterior(metrics: pd.DataFrame) -> bool:
 
 def posterior_view(metrics: pd.DataFrame) -> pd.DataFrame:
     """``metrics`` with the papers' sums (``sse_vel``, ``sse_att``, ``sse_hpe``, ``n_samples``) replaced by
-    their posterior twins, the sums over the epochs after t = 0 (the t = 0 rule, docs/filters.md), so
-    every function here computes the posterior RMSE and its improvements from them; ``attrs["posterior"]``
+    their posterior twins, the sums over the epochs after t = 0 (the t = 0 rule, docs/report.md), and the
+    per-run mean NEES and vertical RMS (``nees``, ``vert_rms``) by theirs (``nees_post``, ``vert_rms_post``,
+    :data:`metrics.POSTERIOR_SUMMARIES`) where the folder has them (``attrs["posterior_nees"]``), so
+    every function here computes the posterior summaries and improvements from them; ``attrs["posterior"]``
     True. A folder without them (:func:`has_posterior`) comes back with the same numbers (``attrs["posterior"]``
     False): its improvements include the t = 0 error, and the report says so once."""
     if not has_posterior(metrics):
         out = metrics.copy(deep=False)  # the caller's frame keeps its attrs
-        out.attrs["posterior"] = False
+        out.attrs["posterior"] = out.attrs["posterior_nees"] = False
         return out
-    out = metrics.assign(**{c: metrics[p] for c, p in eqs.POSTERIOR_COLUMNS.items() if c in metrics.columns})
+    out = metrics.assign(**{c: metrics[p] for c, p in eqs.POSTERIOR_COLUMNS.items() if c in metrics.columns},
+                         **{c: metrics[p] for c, p in eqs.POSTERIOR_SUMMARIES.items() if p in metrics.columns})
     out.attrs["posterior"] = True
+    out.attrs["posterior_nees"] = "nees_post" in metrics.columns  # False: a folder written before that twin
     return out
 
 

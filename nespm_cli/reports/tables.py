@@ -106,7 +106,8 @@ def track_table(metrics: pd.DataFrame, with_t0: bool = False) -> pd.DataFrame:
     the epochs after t = 0 (:func:`rule_view`; ``with_t0``: every epoch, the papers' definition).
 
     Rows are sorted by track, filters in order of appearance; the NEES is the mean of the
-    per-run ``nees`` over the non-diverged runs, ``nees_n`` the number of those runs with a
+    per-run ``nees`` over the non-diverged runs (each run's mean over the epochs after t = 0, ``nees_post``,
+    where the folder has it: :func:`rule_view`), ``nees_n`` the number of those runs with a
     finite NEES, ``nees_lo`` / ``nees_hi`` its 95 % band (:func:`metrics.nees_band`) and
     ``consistency`` the word for where the mean lies. With the horizontal-position columns
     (:data:`HPE_COLUMNS`): ``hpe_rms`` (eq 50 with ``sse_hpe``), ``hpe_final`` and
@@ -152,7 +153,7 @@ def filter_table(
 
     Columns: ``filter``, ``vrmse``, ``vrmse_imprv``, ``vrmse_ci_lo``, ``vrmse_ci_hi``,
     ``vrmse_ci_excludes_0``, ``vrmse_significant`` and the same for ``mrmse``; ``nees`` (mean
-    per-run NEES over the non-diverged runs of all tracks) with ``nees_n`` (those runs with a
+    per-run NEES over the non-diverged runs of all tracks, after t = 0 as the errors) with ``nees_n`` (those runs with a
     finite NEES), its 95 % band ``nees_lo`` / ``nees_hi`` and ``consistency``; ``hpe_rms``
     (eq 51 over the per-track RMS HPE), ``hpe_final`` and ``hpe_final_pct`` (mean over tracks of
     the per-track means; NaN without the HPE columns); ``diverged``, ``runs``, ``tracks``,
@@ -262,7 +263,8 @@ def horizontal_table(metrics: pd.DataFrame) -> pd.DataFrame | None:
 
 
 def nees_consistency(metrics: pd.DataFrame) -> pd.DataFrame:
-    """Per filter: ``filter``, mean NEES ``nees`` over the non-diverged runs of all tracks, ``nees_n``,
+    """Per filter: ``filter``, mean NEES ``nees`` (after t = 0, :func:`rule_view`) over the non-diverged runs
+    of all tracks, ``nees_n``,
     its two-sided 95 % band ``nees_lo`` / ``nees_hi`` (``metrics.nees_band(6, nees_n)``) and
     ``consistency``: ``consistent`` (inside), ``overconfident`` (above: covariance too small),
     ``conservative`` (below), ``—`` without a covariance (``ins``)."""

@@ -36,8 +36,9 @@ from nespm_cli.reports.stats import (
     posterior_view,
 )
 from nespm_cli.reports.tables import default_reference, filter_table
+from nespm_cli.reports.wording import block_cause, mean_nees_place, mean_nees_words
 
-__all__ = ["VERDICT_COLUMNS", "VERDICT_METRICS", "anees_row", "verdict_table"]
+__all__ = ["VERDICT_COLUMNS", "VERDICT_METRICS", "anees_row", "consistency_summary", "verdict_table"]
 
 #: metric key -> (name, unit) in the verdict's order; "anees" is the consistency row
 VERDICT_METRICS: dict[str, tuple[str, str]] = {
@@ -146,13 +147,40 @@ def anees_row(causal: pd.DataFrame, survivors: pd.DataFrame, ref: str) -> dict[s
     return row
 
 
-def consistency_row(table: pd.DataFrame, order: list[str]) -> dict[str, Any]:
+def consistency_summary(consistency: pd.DataFrame | None, metrics: pd.DataFrame, shares: bool = True) -> dict[str, str]:
+    """Per filter the one wording of its consistency (the verdict, the tables and the tune report say the same):
+    the per-block words (:func:`block_consistency.consistency_words` of the pooled table ``consistency``) and,
+    when its mean 6-DOF NEES (over the runs no filter lost, after t = 0: :func:`stats.posterior_view`) lies
+    outside its 95 % band, where it lies and the block that drives it (:func:`wording.block_cause`), e.g.
+    ``mixed: velocity 31 %; conservative: attitude 12 %; mean NEES 9.5 above its band [3.84, 8.63], driven by
+    velocity (mean ANEES 4.2 of 3; 23 % of its epochs above the bounds, 71 % below: ...)``. Without a block
+    table (``None`` or empty): the mean NEES's band word (:func:`stats.nees_check`), the only judgement there."""
+    m = posterior_view(metrics)
+    kept = m[~lost_by_any(m)].groupby("filter", sort=False)["nees"].agg(["mean", "count"])
+    bands = {f: nees_check(float(r["mean"]), int(r["count"])) for f, r in kept.iterrows()}
+    if consistency is None or consistency.empty:
+        return {f: b[2] for f, b in bands.items()}
+    pooled = consistency[consistency["track"].isna()] if "track" in consistency.columns else consistency
+    out = consistency_words(pooled, shares=shares)
+    for f in list(out):
+        if f not in bands:
+            continue
+        lo, hi, _ = bands[f]
+        mean = float(kept.loc[f, "mean"])
+        place = mean_nees_place(mean, lo, hi)
+        if place in ("above", "below"):
+            out[f] += "; " + mean_nees_words(mean, lo, hi, block_cause(pooled[pooled["filter"] == f], place))
+    return out
+
+
+def consistency_row(table: pd.DataFrame, order: list[str], metrics: pd.DataFrame | None = None) -> dict[str, Any]:
     """The consistency row from the per-block table ``table`` (:func:`block_consistency.block_consistency`,
     pooled over tracks): per causal filter its worst block or sensor (the smallest share of epochs inside the
     95 % bounds); ``best`` the filter whose worst share is largest, ``other`` the runner-up; ``best_value`` /
     ``other_value`` those shares, ``verdict`` the best filter's words (:func:`block_consistency.consistency_words`);
     ``best_item`` / ``other_item`` their worst items' names, ``other_verdict`` the runner-up's words, ``epochs``
-    the epochs judged; no interval."""
+    the epochs judged; no interval. With ``metrics``, the words are :func:`consistency_summary`'s: where the mean
+    NEES lies outside its band, they say so and name the block that drives it."""
     row: dict[str, Any] = dict.fromkeys(VERDICT_COLUMNS, math.nan)
     row.update(metric="consistency", best=None, other=None, other_is_reference=False, excludes_0=False,
                significant=False, practical=False, pairs_min=0, pairs=0, s_excludes_0=False,
@@ -163,7 +191,7 @@ def consistency_row(table: pd.DataFrame, order: list[str]) -> dict[str, Any]:
         return row
     worst = t.loc[t.groupby("filter", sort=False)["inside"].idxmin()].set_index("filter")
     ranked = sorted(worst.index, key=lambda f: (-worst.loc[f, "inside"], order.index(f)))
-    words = consistency_words(t)
+    words = consistency_words(t) if metrics is None else {**consistency_words(t), **consistency_summary(t, metrics)}
     best = ranked[0]
     other = ranked[1] if len(ranked) > 1 else None
     row.update(best=best, best_value=float(worst.loc[best, "inside"]), verdict=words[best],
@@ -214,7 +242,7 @@ def verdict_table(
                        n_boot, seed, practical_pct, min_pairs)
             for key in VERDICT_METRICS if key in set(comps["metric"])]
     rows.append(anees_row(causal, survivors, ref) if consistency is None or consistency.empty
-                else consistency_row(consistency, filters_in_order(causal)))
+                else consistency_row(consistency, filters_in_order(causal), causal))
     out = pd.DataFrame(rows, columns=list(VERDICT_COLUMNS))
     lost = causal.groupby("filter", sort=False)["diverged"].agg(["sum", "size"])
     count = lambda f: int(lost.loc[f, "sum"]) if isinstance(f, str) and f in lost.index else -1  # noqa: E731

@@ -10,7 +10,8 @@ right-invariant observation, no attitude column).
 Defaults keep the papers' numbers: the recorded DVL file (``--dvl recorded``) at the GT epochs,
 or a synthetic one (``--dvl synthetic``: the truth's body velocity + lever-arm term + N(0, 0.02²)
 per axis, drawn from the papers' stream 3); the filter's std is 0.1 m/s with the recorded DVL
-and 0.02 m/s with the synthetic one unless ``--dvl-r-std`` (docs/filters.md).
+and 0.02 m/s with the synthetic one unless ``--dvl-r-std`` (docs/filters.md). On the embedded tracks
+(no ``--data-dir``) the "recorded" file is generated in code (:data:`EMBEDDED_SOURCE`, :func:`source_label`).
 """
 from __future__ import annotations
 
@@ -27,6 +28,16 @@ from nespm_cli.sensors.measurement import Measurement
 from nespm_cli.sensors.source import Context, Sensor, SensorOptions, Truth
 
 STREAM_DVL = 3  # the papers' DVL noise stream (data.corruption.STREAM_DVL)
+#: the source word (manifest ``sensors``, the report's Run line) of a DVL read from an embedded track: no
+#: recording, but the file :mod:`nespm_cli.data.embedded` generates in code (the truth + N(0, 0.02²), one draw
+#: from ``default_rng(1000 + track)`` that every run shares)
+EMBEDDED_SOURCE = "embedded"
+
+
+def source_label(source: str, data_dir) -> str:
+    """The source word of a sensor: ``source`` (``recorded``, ``synthetic``), except a ``recorded`` one on the
+    embedded tracks (``data_dir`` None after :func:`nespm_cli.data.tracks.resolve_data_dir`): :data:`EMBEDDED_SOURCE`."""
+    return EMBEDDED_SOURCE if source == "recorded" and data_dir is None else source
 
 
 def body_rate(nav: NavState, w_ib_comp: np.ndarray) -> np.ndarray:
