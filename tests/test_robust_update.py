@@ -1,5 +1,6 @@
 """Robust updates (issue 40 item 4; nespm_cli/filters/robust.py): χ² gating with a lock-out guard and a
-Huber reweighting of R, screened by the engine for every filter with a covariance.
+Huber reweighting of R, screened by the engine for every filter with a covariance (the gate tests only an
+informative prior, ``tr(H P Hᵀ) <= GATE_RATIO tr(R)``).
 
 Scenario: track 5, 0-120 s, 8 runs, synthetic DVL with ``outliers=0.05:10`` (5 % of samples with an
 extra N(0, (10 x 0.02 m/s)²) error per component); the EKF plain, gated (``robust=gate``) and Huber
@@ -18,7 +19,8 @@ from nespm_cli.experiments.suite import sensor_suite
 from nespm_cli.filters import FilterConfig
 from nespm_cli.filters.options import check_filter_options
 from nespm_cli.filters.registry import get_filter
-from nespm_cli.filters.robust import chi2_quantile, gate, huber_weight, innovation_test, lockout_guard
+from nespm_cli.filters.robust import GATE_RATIO, chi2_quantile, gate, huber_weight, informative, innovation_test, \
+    lockout_guard
 
 RUNS = np.arange(8)
 OUTLIERS = ("dvl", "outliers", "0.05:10")
@@ -79,53 +81,61 @@ def test_gate_false_alarm_rate_and_huber_weight_on_gaussian_innovations():
 
 
 def test_lockout_guard_opens_after_the_streak():
-    """Limit 2: failures 1, 2 rejected, the 3rd applied and the gate open for 2 samples, then closed."""
+    """Limit 2: failures 1, 2 rejected, the 3rd applied and the gate open (failures applied) until a sample
+    passes, then closed: the next failure is rejected again."""
     state, ok, seen = np.zeros(1, dtype=np.int64), np.ones(1, dtype=bool), []
-    for failed in [1, 1, 1, 1, 1, 1, 0, 1]:
+    for failed in [1, 1, 1, 1, 1, 0, 1, 1]:
         rej, state = lockout_guard(np.array([bool(failed)]), ok, state, 2)
         seen.append(bool(rej[0]))
-    assert seen == [True, True, False, False, False, True, False, True]
+    assert seen == [True, True, False, False, False, False, True, True]
     rej, kept = lockout_guard(np.array([True]), np.array([False]), np.array([1]), 2)
     assert not rej[0] and kept[0] == 1  # a run without the sample keeps its state
 
 
 def test_gate_counts_the_injected_outliers(scenario):
-    """Rejected samples are the injected outliers: 46 of 50 caught (the missed ones are small draws or
-    come while P0 is large), 5 good samples rejected of 902 (3 in the run whose first DVL sample is
-    an outlier, while its state recovers). Measured: injected 50, rejected 51."""
+    """Rejected samples are the injected outliers within the gate's false-alarm rate. Measured (8 runs):
+    injected 50, rejected 49, caught 46 (the missed ones are small draws or come in the P0 transient,
+    where the gate does not test), 3 good samples rejected of 902; 48 runs: injected 276, rejected
+    280, caught 260, 20 good rejected of 5436 (0.37 %: the false alarms come after a missed early
+    outlier, while the state recovers)."""
     rec, mask = scenario["gate"][0].sensors["dvl"], scenario["mask"]
     present = rec.used | rec.rejected
     assert not (rec.used & rec.rejected).any()
     injected, rejected = int((mask & present).sum()), int(rec.rejected.sum())
     hits, false = int((rec.rejected & mask).sum()), int((rec.rejected & ~mask).sum())
-    assert injected >= 40 and hits >= 0.85 * injected, (injected, hits)
-    assert abs(rejected - injected) <= 0.1 * injected, (rejected, injected)
     good = int((present & ~mask).sum())
-    # runs whose first outlier comes after the P0 transient (10 samples): the gate's false-alarm rate
-    late = np.array([np.flatnonzero(m)[0] >= 10 for m in mask])
-    fa = int((rec.rejected & ~mask)[late].sum())
-    n_late = int((present & ~mask)[late].sum())
-    assert fa <= 0.001 * n_late + 4 * np.sqrt(0.001 * n_late), (fa, n_late)
-    assert false <= 0.01 * good
+    assert injected >= 40 and hits >= 0.85 * injected, (injected, hits)
+    # |rejected - injected| = |false alarms - misses|: each within the 0.1 % rate plus 4 binomial sigmas
+    # of the good samples, or the measured 0.5 % after an early miss, whichever is larger
+    allowance = max(0.005 * good, 0.001 * good + 4 * np.sqrt(0.001 * good))
+    assert false <= allowance, (false, good)
+    assert abs(rejected - injected) <= allowance + (injected - hits), (rejected, injected)
+    assert injected - hits <= 0.15 * injected
     assert (scenario["huber"][0].sensors["dvl"].rejected.sum() == 0
             and (scenario["huber"][0].sensors["dvl"].weight[mask & present] > 1).mean() > 0.9)
 
 
+def test_gate_tests_only_an_informative_prior():
+    """A prior with ``tr(H P Hᵀ) > GATE_RATIO tr(R)`` (the P0 transient) is not tested: its sample is applied."""
+    H = np.zeros((2, 3, 6))
+    H[:, :, :3] = np.eye(3)
+    P = np.stack([np.eye(6) * 0.0004 * GATE_RATIO * 0.99, np.eye(6) * 0.0004 * GATE_RATIO * 1.01])
+    assert informative(P, H, np.eye(3) * 0.0004).tolist() == [True, False]
+
+
 def test_vrmse_with_outliers(scenario):
-    """Pooled VRMSE (measured): clean 0.0373, plain 0.0546 (+46 %), Huber 0.0403 (+8 %), gated 0.0602
-    (+61 %, worse than plain). The gate's whole loss is one run, whose first DVL sample is an outlier
-    (undetectable under P0: NIS 7.9 < 16.3): it corrupts the bias estimate, the next samples are
-    rejected until the lock-out guard opens (run VRMSE 0.143 against plain 0.082 m/s). Every run whose
-    first outlier comes after the P0 transient (10 samples; 7 of 8) is within 10 % of the clean EKF
-    and better than plain. The issue's must-hold (gated within 10 % pooled) is NOT met here."""
+    """Must hold (issue 40): with 5 % outliers of 10x the DVL std the gated EKF's VRMSE is within 10 % of the
+    outlier-free EKF's; the plain EKF's is reported. Pooled VRMSE measured (8 runs): clean 0.0373, plain
+    0.0546 (+46 %), gated 0.0401 (+7.3 %), Huber 0.0403 (+8.0 %); 48 runs: clean 0.0415, plain +38 %,
+    gated +8.2 %, Huber +9.1 %. The worst gated run (first outlier on the first DVL sample) is 1.24x
+    its clean VRMSE (plain 1.53x)."""
     v = {k: pooled_vrmse(scenario[k][1]) for k in ("clean", "plain", "gate", "huber")}
     assert v["plain"] > 1.2 * v["clean"], v
+    assert v["gate"] < 1.10 * v["clean"], v
     assert v["huber"] < 1.10 * v["clean"], v
     per = {k: np.sqrt((scenario[k][1].vel ** 2).mean(axis=1)) for k in ("clean", "plain", "gate")}
-    late = np.array([np.flatnonzero(m)[0] >= 10 for m in scenario["mask"]])
-    assert late.sum() >= 6
-    assert (per["gate"][late] < 1.10 * per["clean"][late]).all(), (per["gate"], per["clean"])
-    assert (per["gate"][late] < per["plain"][late]).all() and per["gate"][~late].max() > per["plain"][~late].max()
+    assert (per["gate"] < 1.4 * per["clean"]).all(), (per["gate"], per["clean"])
+    assert (per["gate"] <= per["plain"] * 1.02).all(), (per["gate"], per["plain"])
 
 
 def test_no_robust_option_is_todays_numbers(scenario):
