@@ -182,3 +182,35 @@ def test_a_bag_imu_in_deg_per_s_is_refused_naming_the_topic(tmp_path, monkeypatc
                                         tmp_path / "out"), "IMU_trajectory2.csv", "a gyro in deg/s read as rad/s",
                                  "spec key imu.topic", "nothing written")
     assert str(tmp_path / "out" / "Trajectory2") in line and not (tmp_path / "out").exists()
+
+
+def neutral_frd_bag(path: Path) -> Path:
+    """The NED/FRD bag of :func:`ned_bag` with frame_ids that name no frame (``odom``, ``base_link``)."""
+    bag = FramedBag(Stores.ROS1_NOETIC)
+    pos, q, v_body, _ = _gt_ros("ned", "frd")
+    for k, ns in enumerate(SRC.gt_ns):
+        bag.frame = "odom"
+        msg = bag.T["nav_msgs/msg/Odometry"](
+            header=bag.header(ns), child_frame_id="base_link",
+            pose=bag.T["geometry_msgs/msg/PoseWithCovariance"](pose=bag.pose(pos[k], q[k]), covariance=np.zeros(36)),
+            twist=bag.twist_cov(v_body[k]))
+        bag.add("/odom", "nav_msgs/msg/Odometry", ns, msg)
+    bag.frame = "base_link"
+    _add_imu(bag, "frd")
+    bag.frame = "gps"
+    _add_fix(bag)
+    return bag.write(path)
+
+
+@pytest.mark.parametrize("which, world, body", [("flu", "enu", "frd"), ("frd", "ned", "flu")])
+def test_a_body_frame_declared_wrong_is_refused_upside_down(bags, tmp_path, which, world, body):
+    """Issue 39: a FLU body declared FRD (and the reverse) with frame_ids that do not say imported the vehicle
+    upside down (roll +-178 deg) without a word; now one line naming frames.body, nothing written."""
+    bag = bags[1] if which == "flu" else neutral_frd_bag(tmp_path / "frd.bag")
+    line = assert_one_error_line(*nespm("import", bag, "--spec", _spec(tmp_path, spec_text(world, body)), "--out",
+                                        tmp_path / "out"), "beyond 90 deg", "upside down", "key 'frames.body'")
+    assert "nothing written" in line
+    assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())
+    rc, so, se = nespm("import", bag, "--spec", _spec(tmp_path, spec_text(world, which)), "--out", tmp_path / "ok")
+    assert rc == 0, se
+    np.testing.assert_allclose(load_track(2, tmp_path / "ok").euler, SRC.track.euler, atol=1e-9)

@@ -1,6 +1,6 @@
 """The DVL's own noise and the frame its vector is in, from the data (``nespm check``, DVL part).
 
-* **Own noise** (:func:`own_noise`): the DVL's white noise per axis from its second difference
+* **Own noise** (:func:`nespm_cli.data.conventions.own_noise`, also used at load): the DVL's white noise per axis from its second difference
   alone, ``std = 1.4826 MAD(d2) / sqrt(6)`` (white noise keeps ``sqrt(6)`` of its std in ``d2``;
   motion slow against the 1 Hz rate cancels in it; the MAD ignores the turns' rarer large steps).
   It needs no GT, so a DVL in the wrong frame or with the wrong attitude does not inflate it.
@@ -24,24 +24,13 @@ from scipy.interpolate import CubicSpline
 
 from nespm_cli.checks.dvl_gt import gt_at
 from nespm_cli.checks.imu_gt import signed_permutations
+from nespm_cli.data.conventions import ENU_OF_NED, own_noise  # noqa: F401  (own_noise: moved to the data layer)
 from nespm_cli.data.corrections import axes_text
 from nespm_cli.data.track import Track
 from nespm_cli.nav.rotations import skew
 
 FRAME_OFFSETS = np.round(np.arange(-2.0, 2.0 + 1e-9, 0.1), 10)  # [s] offsets searched per candidate
-ENU_OF_NED = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])  # v_enu = ENU_OF_NED v_ned
 LEVER_PRIOR_STD = 5.0  # [m] weak prior keeping the lever arm finite on a track without turns (as dvl_gt's)
-
-
-def own_noise(dvl: np.ndarray) -> np.ndarray:
-    """White-noise std per axis (3,) [m/s] of a 1 Hz DVL series (N, 3), from its second difference
-    (module docstring); differences over a NaN row (no measurement) are left out; NaN when fewer
-    than 3 remain."""
-    d2 = np.diff(np.asarray(dvl, dtype=float), n=2, axis=0)
-    d2 = d2[np.isfinite(d2).all(axis=1)]
-    if len(d2) < 3:
-        return np.full(3, np.nan)
-    return 1.4826 * np.median(np.abs(d2 - np.median(d2, axis=0)), axis=0) / np.sqrt(6.0)
 
 
 def _best(rms: np.ndarray) -> tuple[float, float]:

@@ -30,6 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from nespm_cli.data.atomic import write_text_atomic
+from nespm_cli.data.conventions import ACCEPT_HINT
 from nespm_cli.data.rosbag_messages import (BODY_TO_FRD, WORLD_TO_NED, Request, bag_kind, local_to_geodetic,
                                             open_bag, pressure_to_depth, quat_to_dcm, read_requests)
 from nespm_cli.data.rosbag_inspect import check_frames, first_fix_origin, first_frame_ids
@@ -378,6 +379,9 @@ def _install(track: Track, record: dict, spec_path: Path, out: Path, existing: l
                 text = str(exc).replace(str(tdir), str(final)).replace(  # the IMU's units: the bag's topic, not a file
                     "the A-KIT columns are", "sensor_msgs/Imu is rad/s and m/s^2 (REP-103); spec key imu.topic's "
                     "messages are not, the columns written are")
+                if "upside down" in text:  # the roll test of data.conventions: the body frame declared wrong
+                    text = text.replace("(a bag's frames.body)", f"(set key 'frames.body' of {spec_path.name} to "
+                                        "the other of flu, frd)").replace(f"; {ACCEPT_HINT}", "")
                 raise NespmError(f"{text} (the imported track is refused; nothing written)") from None
         found = [str(w.message).replace(str(tdir), str(final)) for w in caught]
         record["warnings"] = found

@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from nespm_cli.data.conventions import dvl_to_body
 from nespm_cli.data.corrections import axes_matrix
 from nespm_cli.data.csvtable import check_nan_rows, header_text, read_frame, to_array
 from nespm_cli.data.plausibility import printable
@@ -124,6 +125,13 @@ def read_spec_track(spec: TrackSpec, number: int) -> SpecTrack:
     for name in ("depth", "fix"):
         if name in spec.tables and (path := spec_file(spec, name, number)) is not None:
             channels[name] = _channel(spec, name, path)
+    frame = spec.tables["dvl"]["frame"]
+    if frame != "body":
+        if out["gt"] is None:
+            raise NespmError(f"{spec.path}: key 'dvl.frame': {frame!r} needs the truth's attitude to turn the DVL "
+                             "into the body frame, and this spec has no [gt]; write body-frame (FRD) velocity")
+        out["dvl"] = np.column_stack([out["dvl"][:, 0], dvl_to_body(out["dvl"][:, 0], out["dvl"][:, 1:4],
+                                                                    out["gt"][:, 0], out["gt"][:, 7:10], frame)])
     return SpecTrack(**out, channels=channels)
 
 
@@ -141,6 +149,11 @@ def _gt(spec: TrackSpec, number: int) -> dict:
     euler = np.column_stack([scaled(c[k], "angle", tab["angle_unit"]) for k in ("roll", "pitch", "yaw")])
     if tab["angle_unit"] != "rad":  # radians are the bench's: a radian column is checked as it is
         euler[:, [0, 2]] = wrapped(euler[:, [0, 2]])
+    for j, key in ((0, "roll_sign"), (1, "pitch_sign")):
+        if tab[key] == "flipped":
+            euler[:, j] = -euler[:, j]
+    if tab["yaw_convention"] == "enu":  # 0 = east, counter-clockwise: psi_NED = pi/2 - psi_ENU
+        euler[:, 2] = wrap_angle(np.pi / 2 - euler[:, 2])
     gt = np.column_stack([t, lon, lat, alt, v, euler])
     order = ("time", pk[1], pk[0], pk[2]) + vk + ("roll", "pitch", "yaw")
     signs = (1, 1, 1, 1 if pk[2] in UP_KEYS else -1, 1, 1, sign_v, 1, 1, 1)

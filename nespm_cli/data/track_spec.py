@@ -113,6 +113,10 @@ _FILE = {"file": STR, "time": STR, "time_unit": UNIT, "time_zero": NUM}
 _SENSOR = {**_FILE, "time_offset": NUM, "optional": BOOL}
 _POSITION = {"position": FRAMES, "lat": STR, "lon": STR, "alt": STR, "depth": STR, "north": STR, "east": STR,
              "down": STR, "up": STR, "angle_unit": UNIT, "length_unit": UNIT}
+SIGNS = ("normal", "flipped")  # gt.pitch_sign, gt.roll_sign: the file's angle as the bench's, or its negative
+#: the conventions' defaults (docs/data-format.md; checked against the data at load: nespm_cli.data.conventions)
+CONVENTION_DEFAULTS = {"gt": {"yaw_convention": "ned", "pitch_sign": "normal", "roll_sign": "normal",
+                              "accept_residual": False}, "dvl": {"frame": "body"}}
 #: every key of a spec: ``{table: {key: type or tuple of choices}}`` ("" is the top level)
 SCHEMA = {
     "": {"track": INT, "defaults": TABLE, "origin": TABLE, "init": TABLE, **{name: TABLE for name in CHANNELS}},
@@ -120,8 +124,10 @@ SCHEMA = {
                  "acceleration_unit": UNIT, "rate_unit": UNIT},
     "origin": {"lat_deg": NUM, "lon_deg": NUM, "alt_m": NUM},
     "gt": {**_FILE, **_POSITION, "velocity": ("ned", "enu"), "v_north": STR, "v_east": STR, "v_down": STR,
-           "v_up": STR, "roll": STR, "pitch": STR, "yaw": STR, "speed_unit": UNIT},
-    "dvl": {**_FILE, "time_offset": NUM, "x": STR, "y": STR, "z": STR, "axes": STR, "speed_unit": UNIT},
+           "v_up": STR, "roll": STR, "pitch": STR, "yaw": STR, "speed_unit": UNIT, "yaw_convention": ("ned", "enu"),
+           "pitch_sign": SIGNS, "roll_sign": SIGNS, "accept_residual": BOOL},
+    "dvl": {**_FILE, "time_offset": NUM, "x": STR, "y": STR, "z": STR, "axes": STR, "speed_unit": UNIT,
+            "frame": ("body", "ned", "enu")},
     "imu": {**_SENSOR, "acc_x": STR, "acc_y": STR, "acc_z": STR, "gyro_x": STR, "gyro_y": STR, "gyro_z": STR,
             "axes": STR, "acceleration_unit": UNIT, "rate_unit": UNIT},
     "depth": {**_SENSOR, "depth": STR, "altitude": STR, "length_unit": UNIT},
@@ -202,7 +208,7 @@ def read_spec(path: Path) -> TrackSpec:
                 if key not in tab and key in defaults:
                     tab[key] = defaults[key]
             tab = {"time_offset": 0.0, "optional": False, "position": "geodetic", "velocity": "ned", "axes": "x,y,z",
-                   **tab}
+                   **CONVENTION_DEFAULTS.get(name, {}), **tab}
             tables[name] = _columns_checked(path, name, tab)
     origin = _origin(path, parts.get("origin"), tables)
     track = _patterns(path, raw.get("track"), tables)

@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from nespm_cli.data import plausibility
+from nespm_cli.data import conventions, plausibility
 from nespm_cli.data.csvtable import QUOTE_LIMIT, read_table as _read_table, write_table as _write_csv  # noqa: F401
 from nespm_cli.data.sensor_files import CHANNEL_KINDS, check_dvl_nan, dvl_at_epochs, read_channels, write_channels
 from nespm_cli.data import spec_reader
@@ -160,7 +160,8 @@ def _track_paths(number: int, folder: Path) -> tuple[Path, ...]:
     return tuple(out)
 
 
-def load_track(number: int, data_dir: str | Path | None = None, *, warnings: str | None = None) -> Track:
+def load_track(number: int, data_dir: str | Path | None = None, *, warnings: str | None = None,
+               accept_residual: bool | None = None) -> Track:
     """Load and validate track ``number`` from ``data_dir`` (None -> ``$NESPM_DATA_DIR`` -> embedded).
 
     The files are those of :func:`track_files` (folder and file names may carry leading zeros), or those
@@ -182,7 +183,8 @@ def load_track(number: int, data_dir: str | Path | None = None, *, warnings: str
     an error raises :class:`NespmError`; warnings are handled per ``warnings``: ``"warn"`` (each once
     per file and message, as a :class:`~nespm_cli.data.plausibility.DataWarning`), ``"ignore"``, or
     ``"error"`` (raise); None -> the mode of :func:`~nespm_cli.data.plausibility.set_warning_mode`
-    (``"warn"`` unless set).
+    (``"warn"`` unless set). Then the conventions against the data (:mod:`nespm_cli.data.conventions`): a refusal
+    unless ``accept_residual`` (None: the spec's ``gt.accept_residual``, else False) turns it into a warning.
     """
     folder = resolve_data_dir(data_dir)
     if folder is None:
@@ -190,7 +192,7 @@ def load_track(number: int, data_dir: str | Path | None = None, *, warnings: str
 
         return embedded_track(number)
     if (spec := find_spec(folder)) is not None:
-        return _load_spec_track(read_spec(spec), number, warnings)
+        return _load_spec_track(read_spec(spec), number, warnings, accept_residual)
     gt_path, dvl_path, imu_path, *extra = _track_paths(number, folder)
 
     gt = _read_table(gt_path, GT_COLUMNS)
@@ -202,10 +204,11 @@ def load_track(number: int, data_dir: str | Path | None = None, *, warnings: str
         imu = _read_table(imu_path, IMU_COLUMNS)
         check_imu(imu_path, imu, gt_path, gt[:, 0], IMU_COLUMNS)
     channels.update(read_channels(dict(zip(CHANNEL_KINDS, extra)), gt[:, 0], gt_path.name))
-    return _track(number, gt_path, gt, dvl_path, dvl, imu, channels, warnings, imu_path=imu_path)
+    return _track(number, gt_path, gt, dvl_path, dvl, imu, channels, warnings, imu_path=imu_path,
+                  conv=(conventions.Declared(), accept_residual))
 
 
-def _load_spec_track(spec: TrackSpec, number: int, warnings: str | None) -> Track:
+def _load_spec_track(spec: TrackSpec, number: int, warnings: str | None, accept: bool | None = None) -> Track:
     """:func:`load_track` through a track spec: the files converted (:mod:`~nespm_cli.data.spec_reader`), then
     the A-KIT checks on the arrays (messages naming the user's file and column) and the spec's sign checks."""
     sp = spec_reader.read_spec_track(spec, number)
@@ -223,7 +226,8 @@ def _load_spec_track(spec: TrackSpec, number: int, warnings: str | None) -> Trac
     names = dict(zip(GT_COLUMNS + DVL_COLUMNS, gt_cols + dvl_cols))
     return _track(number, sp.gt_path, sp.gt, sp.dvl_path, dvl, sp.imu, channels, warnings, names, sp.imu_path,
                   spec_reader.labels(sp.imu_names, IMU_COLUMNS) if sp.imu is not None else IMU_COLUMNS,
-                  ("imu.acceleration_unit", "imu.rate_unit"), spec_reader.angle_hint(spec))
+                  ("imu.acceleration_unit", "imu.rate_unit"), spec_reader.angle_hint(spec),
+                  (conventions.declared_of(spec), accept))
 
 
 def _truth_free_track(spec: TrackSpec, sp, number: int) -> Track:
@@ -256,13 +260,16 @@ def _truth_free_track(spec: TrackSpec, sp, number: int) -> Track:
 
 
 def _track(number, gt_path: Path, gt, dvl_path: Path, dvl, imu, channels: dict, warnings, names=None, imu_path=None,
-           imu_cols=IMU_COLUMNS, imu_keys=(), hint=None) -> Track:
+           imu_cols=IMU_COLUMNS, imu_keys=(), hint=None, conv=(conventions.Declared(), None)) -> Track:
     """The plausibility checks (their columns renamed by ``names``, the units hint replaced by ``hint``), the
-    IMU's units against the GT (:func:`~nespm_cli.data.imu_file.check_imu_units`), then the :class:`Track`."""
+    conventions (``conv`` = (declared, accept): :func:`~nespm_cli.data.conventions.check_conventions`), the IMU's
+    units against the GT (:func:`~nespm_cli.data.imu_file.check_imu_units`), then the :class:`Track`."""
     findings = spec_reader.relabel(plausibility.check_track_arrays(gt_path, gt, dvl_path, dvl), names or {}, hint)
     errors = [f for f in findings if f.level == "error"]
     if errors:
         raise NespmError(errors[0].text)
+    conventions.check_conventions(number, {"gt": gt_path, "dvl": dvl_path, "imu": imu_path}, gt[:, 0], gt[:, 7:10],
+                                  gt[:, 4:7], dvl[:, 1:4], imu, *conv)
     if imu is not None:
         check_imu_units(imu_path, imu, gt[:, 0], gt[:, 7:10], imu_cols, imu_keys)
     plausibility.emit(findings, warnings)
@@ -271,10 +278,10 @@ def _track(number, gt_path: Path, gt, dvl_path: Path, dvl, imu, channels: dict, 
 
 
 def load_tracks(
-    numbers: Iterable[int] | None, data_dir: str | Path | None = None, *, warnings: str | None = None
-) -> list[Track]:
+    numbers: Iterable[int] | None, data_dir: str | Path | None = None, *, warnings: str | None = None,
+    accept_residual: bool | None = None) -> list[Track]:
     """Load several tracks (None -> every available track) from one data folder (or embedded);
-    ``warnings`` as in :func:`load_track`."""
+    ``warnings`` and ``accept_residual`` as in :func:`load_track`."""
     folder = resolve_data_dir(data_dir)
     if numbers is None:
         numbers = available_tracks(folder)
@@ -282,7 +289,7 @@ def load_tracks(
         from nespm_cli.data.embedded import embedded_track
 
         return [embedded_track(int(n)) for n in numbers]
-    return [load_track(int(n), folder, warnings=warnings) for n in numbers]
+    return [load_track(int(n), folder, warnings=warnings, accept_residual=accept_residual) for n in numbers]
 
 
 def write_akit(track: Track, folder: str | Path) -> Path:
