@@ -64,14 +64,18 @@ def report_tables(folder: str | Path, reference: str | None = None, n_boot: int 
     ``comparisons`` (every pair), ``all_runs`` (every run counted, lost ranked worst), ``nees``,
     ``efficiency`` (RMSE / √PCRB per track, filter and block; NaN where unknown: docs/pcrb.md),
     ``consistency`` (per filter, block and sensor: the share of epochs inside the bounds). A
-    ``sweep`` folder: ``sweep`` (per value and filter) and ``improvements`` (over the baseline)."""
+    ``sweep`` folder, per swept value: ``sweep`` (per value and filter), ``improvements`` (over the
+    baseline), ``verdict`` (the report's verdict rows, the horizontal position error ones included),
+    ``horizontal`` (horizontal position error, CEP50/R95; None for a folder without it) and
+    ``comparisons`` (every pair)."""
     from nespm_cli.reports.all_runs import all_runs_table
     from nespm_cli.reports.block_consistency import block_consistency
     from nespm_cli.reports.comparisons import compare_filters
     from nespm_cli.reports.efficiency_runs import needs_series, series_files
     from nespm_cli.reports.pcrb import efficiency_table
     from nespm_cli.reports.sweep_data import default_baseline
-    from nespm_cli.reports.sweep_tables import improvement_table, sweep_table
+    from nespm_cli.reports.sweep_tables import (improvement_table, summary_rows, sweep_horizontal, sweep_table,
+                                                sweep_verdict)
     from nespm_cli.reports.tables import (default_reference, filter_table, horizontal_table, nees_consistency,
                                           track_table)
     from nespm_cli.reports.verdict import verdict_table
@@ -80,8 +84,11 @@ def report_tables(folder: str | Path, reference: str | None = None, n_boot: int 
     m = res.metrics
     if "value" in m.columns:
         base = default_baseline(m, reference)
+        comps = summary_rows(m, n_boot=n_boot, seed=seed)
         return {"sweep": sweep_table(m, n_boot=n_boot, seed=seed),
-                "improvements": improvement_table(m, base, n_boot=n_boot, seed=seed)}
+                "improvements": improvement_table(m, base, n_boot=n_boot, seed=seed),
+                "verdict": sweep_verdict(m, base, n_boot=n_boot, seed=seed, comps=comps),
+                "horizontal": sweep_horizontal(m), "comparisons": comps}
     ref = default_reference(m, reference)
     comps = compare_filters(m, n_boot=n_boot, seed=seed)
     blocks = block_consistency(res.epochs, res.manifest)

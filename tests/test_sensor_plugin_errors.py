@@ -43,7 +43,10 @@ class TwinMeasurement(Measurement):
         self.R = R
 
     def predict(self, nav):
-        return np.repeat(-nav.pos[:, 2:3], 2, axis=1) * self.opt.gain
+        if self.opt.bug == "raise_predict":
+            raise ZeroDivisionError("float division by zero")
+        p = np.repeat(-nav.pos[:, 2:3], 2, axis=1) * self.opt.gain
+        return p[:, 0] if self.opt.bug == "predict_shape" else p  # (R,): z - p would broadcast to (R, 2)
 
     def h(self, X, nav):
         return np.repeat(self.block(X, "pos")[..., 2:3], 2, axis=-1) * self.opt.gain
@@ -163,6 +166,8 @@ def twin(files, tmp_path, *options):
     ("raise_H", ["H raised ValueError: could not broadcast"]),
     ("nan_H", ["H returned NaN or inf where the solution is finite"]),
     ("H_shape", ["H returned shape (2, 1, 15), expected (2, 2, 15)"]),
+    ("raise_predict", ["predict raised ZeroDivisionError: float division by zero"]),  # not blamed on innovation
+    ("predict_shape", ["predict returned shape (2,), expected (2, 2)"]),  # the shape it returned, not z - p's
 ])
 def test_a_sensor_plugins_mistake_names_the_sensor_and_its_file(files, tmp_path, bug, needles):
     rc, out, err = twin(files, tmp_path, f"twin.bug={bug}")

@@ -13,7 +13,7 @@ from nespm_cli.cli.config import expand_config, normalize_argv
 from nespm_cli.cli.data_commands import check, corrupt, simulate, tracks
 from nespm_cli.cli.experiment_commands import gp_ukf_cmd, mc, run, sweep
 from nespm_cli.cli.import_command import import_cmd
-from nespm_cli.cli.messages import INTERRUPTED, MAX_MESSAGE, one_line, os_error_line, show_warning
+from nespm_cli.cli.messages import MAX_MESSAGE, interrupted, one_line, os_error_line, show_warning
 from nespm_cli.cli.options import COMMON, CORRUPTION, DATA_DIR, KERNELS, PARALLEL, RECORDED, RUNNER, default
 from nespm_cli.cli.parsing import CORRUPTION_FIELDS, FILTER_FIELDS, build_spec, set_argv
 from nespm_cli.cli.result_commands import compare, export, report
@@ -64,7 +64,7 @@ def main(argv: list[str] | None = None) -> int:
         argv = normalize_argv(expand_config(argv))
         rv = typer.main.get_command(app).main(args=argv, prog_name="nespm", standalone_mode=False)
         if rv == 130:  # typer turns Ctrl-C into a returned exit code 130
-            typer.echo(INTERRUPTED, err=True)
+            typer.echo(interrupted(argv), err=True)
         return rv if isinstance(rv, int) else 0
     except NespmError as exc:
         typer.echo(f"nespm: error: {one_line(str(exc))}", err=True)
@@ -82,5 +82,5 @@ def main(argv: list[str] | None = None) -> int:
         typer.echo(f"nespm: error: {msg[0] if msg else exc}", err=True)
         return 2
     except KeyboardInterrupt:
-        typer.echo(INTERRUPTED, err=True)
+        typer.echo(interrupted(argv if isinstance(argv, list) else []), err=True)
         return 130

@@ -11,12 +11,13 @@ import typer
 from nespm_cli.cli.options import COMMON, KERNELS, PARALLEL, RUNNER, default, with_options
 from nespm_cli.cli.parsing import build_spec, execution, parse_filters, parse_tracks
 from nespm_cli.experiments.gp_ukf_spec import GPSpec
+from nespm_cli.filters import FILTERS
 
 
 @with_options(COMMON, [KERNELS])
 def run(
     track: int = typer.Option(..., "--track", help="Track number."),
-    filt: str = typer.Option("ukf-nespm", "--filter", help="ins, ekf, ukf, ukf-nespm, anekf, anukf, anukf-nespm, ckf, ckf-nespm, iekf, iae-ekf, sh-ekf or vb-ekf (docs/filters.md)."),
+    filt: str = typer.Option("ukf-nespm", "--filter", help=f"{', '.join(FILTERS[:-1])} or {FILTERS[-1]} (docs/filters.md), or a plugin's."),
     run: int = typer.Option(0, "--run", help="Realization index (same index = same realization as in mc)."),
     clean: bool = typer.Option(False, "--clean", help="No corruption: exact initial state, clean IMU, noise-free synthetic DVL."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object with the run's metrics."),

@@ -4,6 +4,27 @@ from __future__ import annotations
 import typer
 
 INTERRUPTED = "nespm: interrupted; finished chunks are kept, re-run the same command to resume"
+#: the interrupt line of ``nespm tune``: its unit is a trial of a study, not a chunk
+TUNE_INTERRUPTED = ("nespm: interrupted; the finished trials are kept in {out}/study.db (a trial cut short is "
+                    "dropped; the held-out runs' finished chunks in {out}/heldout-*), re-run the same command to "
+                    "continue the study")
+
+
+def interrupted(argv: list[str]) -> str:
+    """The interrupt line of the command ``argv`` (after --config expansion): a tune study's trials, or a
+    resumable experiment's chunks."""
+    words = [w for w in argv if not w.startswith("-")]
+    if not words or words[0] != "tune":
+        return INTERRUPTED
+    out = "results/tune"
+    for i, w in enumerate(argv):
+        if w == "--out" and i + 1 < len(argv):
+            out = argv[i + 1]
+        elif w.startswith("--out="):
+            out = w[len("--out="):]
+    if any(w == "--storage" or w.startswith("--storage=") for w in argv):
+        return TUNE_INTERRUPTED.replace("{out}/study.db", "the --storage database").format(out=out)
+    return TUNE_INTERRUPTED.format(out=out)
 
 MAX_MESSAGE = 400  # characters of an error line
 

@@ -12,7 +12,11 @@ import typer
 from nespm_cli.data.corruption import CorruptionConfig
 from nespm_cli.experiments.metrics import DivergenceRule
 from nespm_cli.experiments.spec import Spec
-from nespm_cli.filters import FilterConfig
+from nespm_cli.filters import FILTERS, FilterConfig  # the built-in names: registered on this import, no extra cost
+from nespm_cli.filters.registry import get_filter
+
+#: the built-in filters with an RTS smoother (``--smooth``), from the registry: never stale
+SMOOTHABLE = tuple(f for f in FILTERS if getattr(get_filter(f), "smoothable", False))
 
 DATA_DIR = typer.Option(None, "--data-dir", help="Folder in the A-KIT layout, or with a track spec nespm-data.toml (docs/data.md) (default: $NESPM_DATA_DIR, else the embedded tracks).")
 
@@ -106,9 +110,9 @@ PARALLEL = [  # where the chunks of a resumable experiment run (mc, sweep, gp-uk
 RUNNER = [  # options of the commands that run many realizations (mc, sweep)
     ("tracks_", str, " ".join(map(str, default(Spec, "tracks"))), "--tracks", "Track numbers: --tracks 5 6 or --tracks 5,6."),
     ("runs", int, default(Spec, "runs"), "--runs", "Monte Carlo runs per track."),
-    ("filters_", str, ",".join(default(Spec, "filters")), "--filters", "Comma list of ins, ekf, ukf, ukf-nespm, anekf, anukf, anukf-nespm, ckf, ckf-nespm, iekf, iae-ekf, sh-ekf, vb-ekf (docs/filters.md), or a plugin's."),
+    ("filters_", str, ",".join(default(Spec, "filters")), "--filters", f"Comma list of {', '.join(FILTERS)} (docs/filters.md), or a plugin's."),
     ("chunk_size", Optional[int], default(Spec, "chunk_size"), "--chunk-size", "Runs per batch, the resumable unit (no number depends on it). Default: a folder that holds results keeps its own; else each track's runs are split so that --jobs workers have work, at most 50 per chunk (--tracks 5 --runs 8 --jobs 2: 2 chunks of 4)."),
-    ("smooth_", str, "", "--smooth", "Comma list of filters of --filters (ekf, anekf, iekf) whose fixed-interval RTS-smoothed solution is reported too, as <filter>-rts: the hindsight floor, on the same runs (docs/filters.md)."),
+    ("smooth_", str, "", "--smooth", f"Comma list of filters of --filters ({', '.join(SMOOTHABLE)}) whose fixed-interval RTS-smoothed solution is reported too, as <filter>-rts: the hindsight floor, on the same runs (docs/filters.md)."),
     ("save_series", str, default(Spec, "save_series"), "--save-series", "Per-run series kept in chunks/: norms (error norms, block NEES, coverage, NIS; ~100 B per run, epoch and filter) or axes (also every state component's error and std, ~330 B; adds the per-axis RMS/sigma and the noncredibility index to epochs.parquet; docs/results-schema.md)."),
     ("config", Optional[str], None, "--config", "TOML file of options (keys are option names: runs = 100, tracks = [5, 6]); options on the command line override it. See experiments/."),
     *PARALLEL,

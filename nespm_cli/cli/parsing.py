@@ -99,9 +99,17 @@ def build_spec(**kw):
     return Spec(corruption=corr, filter_config=fcfg, **kw)
 
 
+def check_jobs(jobs: int) -> int:
+    """``--jobs``: one rule for every command (mc, sweep, gp-ukf, tune): at least 1 worker, else one line."""
+    if isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1:
+        raise NespmError(f"--jobs must be at least 1, got {jobs}")
+    return jobs
+
+
 def execution(jobs: int, backend: str, scheduler: Optional[str], no_progress: bool):
     """The Execution of the parallel options (where the chunks run; no number depends on it)."""
     from nespm_cli.experiments.backend import Execution
 
+    check_jobs(jobs)
     return Execution(jobs=jobs, backend=backend, scheduler=scheduler, progress=not no_progress,
                      argv=("nespm", *ARGV))

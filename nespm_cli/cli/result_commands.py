@@ -28,16 +28,70 @@ def report(
     consistent_share: Optional[float] = typer.Option(None, "--consistent-share", help="Least share of the epochs (0-1] whose ANEES / ANIS lies inside its 95 % bounds for a state block or sensor to be called consistent (default 0.8; docs/report.md, \"Consistency\"); mc folders."),
     beside: Optional[List[Path]] = typer.Option(None, "--beside", help="Another mc folder whose numbers are set beside this one's (e.g. the synthetic-IMU run of a recorded-IMU one); repeatable."),
     no_progress: bool = typer.Option(False, "--no-progress", help="Do not say what is being done (a status on a terminal; nothing off one)."),
+    print_all: bool = typer.Option(False, "--print", help="Print the whole report (default: its verdict and the path of report.md)."),
 ) -> None:
-    """Write DIR/report.md (verdict first, each caveat once, Tables I/II layout, paired 95 % intervals, published values; docs/report.md) and figures."""
+    """Write DIR/report.md (verdict first, each caveat once, Tables I/II layout, paired 95 % intervals, published values; docs/report.md) and figures; print the verdict."""
     with Status("nespm report", enabled=not no_progress, plain=False) as status:  # phases: experiments.progress.phase
         status("loading the report modules")
         from nespm_cli.reports.dispatch import write_report
 
         path = write_report(out_dir, baseline, n_boot=n_boot, practical_pct=practical, beside=tuple(beside or ()),
                             all_runs=all_runs, consistent_share=consistent_share)
-    typer.echo(path.read_text(encoding="utf-8"))
-    typer.echo(f"wrote {path}")
+    text = path.read_text(encoding="utf-8")
+    if print_all:
+        typer.echo(text)
+        typer.echo(f"wrote {path}")
+        return
+    for line in report_summary(text):
+        typer.echo(line)
+    typer.echo(f"wrote {path} ({len(text.splitlines())} lines; --print shows it all)")
+
+
+SUMMARY_CHARS = 300  # a summary's paragraph is cut to this many characters
+
+
+def cells(row: str) -> list[str]:
+    """The cells of a markdown table row ``| a | b |``."""
+    return [c.strip() for c in row.strip().strip("|").split("|")]
+
+
+def report_summary(text: str) -> list[str]:
+    """What ``nespm report`` prints of a report's markdown ``text``: its title, then its verdict, one line
+    per row of the verdict table (``Metric: best vs runner-up, improvement: verdict``); a report without a
+    verdict section (tune, gp-ukf) gives its first paragraph (at most :data:`SUMMARY_CHARS` characters)."""
+    lines = text.splitlines()
+    title = next((x[2:].strip() for x in lines if x.startswith("# ")), "nespm report")
+    start = next((i + 1 for i, x in enumerate(lines) if x.strip() == "## Verdict"), None)
+    if start is None:
+        start = next((i + 1 for i, x in enumerate(lines) if x.startswith("# ")), 0)
+    end = next((i for i in range(start, len(lines)) if lines[i].startswith("## ")), len(lines))
+    body = lines[start:end]
+    table = [x for x in body if x.startswith("|")]
+    if len(table) > 2:
+        head = cells(table[0])
+        col = {h.lower(): i for i, h in enumerate(head)}
+        out = [f"{title}: verdict"]
+        for row in table[2:]:
+            c = cells(row)
+
+            def get(name: str, c=c) -> str:
+                return c[col[name]] if name in col and col[name] < len(c) else ""
+            metric = get("metric") or c[0]
+            value = f"value {c[0]}, " if head[0].lower() != "metric" and "metric" in col else ""
+            said = get("verdict") or " | ".join(c[1:])
+            best, runner, imp = get("best filter"), get("runner-up"), get("improvement over the runner-up [95 % ci]")
+            rival = f" vs {runner}" if runner not in ("", "—") else ""
+            pair = f" {best}{rival}" + (f", {imp}" if imp not in ("", "—") else "") + ":" if best else ""
+            out.append(f"  {value}{metric}:{pair} {said}")
+        return out
+    para = []
+    for x in body:
+        if x.strip() and not x.startswith(("|", "!", "#")):
+            para.append(x.strip())
+        elif para:
+            break
+    words = " ".join(para)
+    return [title] + ([words if len(words) <= SUMMARY_CHARS else words[:SUMMARY_CHARS - 3] + "..."] if words else [])
 
 
 def compare(

@@ -2,12 +2,14 @@
 from __future__ import annotations
 
 import time
+from pathlib import Path
 from typing import List, Optional
 
 import typer
 
 from nespm_cli.cli.options import COMMON, KERNELS, with_options
-from nespm_cli.cli.parsing import ARGV, build_spec, parse_filters, parse_tracks
+from nespm_cli.cli.parsing import ARGV, build_spec, check_jobs, parse_filters, parse_tracks
+from nespm_cli.cli.result_commands import non_empty_out
 
 TUNE = [  # (name, type, default, flag, help)
     ("tracks_", str, "1 2 3 4", "--tracks", "Tuning (training) tracks: --tracks 1 2 3 4 or 1,2,3,4."),
@@ -46,8 +48,11 @@ def tune(
     from nespm_cli.tuning.progress import echo_progress
     from nespm_cli.tuning.heldout import run_heldout
     from nespm_cli.tuning.space import parse_range
+    from nespm_cli.experiments.folder_kind import refuse_other_kind
 
     kw.pop("config")
+    check_jobs(kw["jobs"])
+    refuse_other_kind(non_empty_out(out), "tune")
     t0 = time.perf_counter()
     test = kw.pop("test_tracks_").strip()
     opts = dict(trials=kw.pop("trials"), objective=kw.pop("objective").lower(), sampler=kw.pop("sampler").lower(),
@@ -78,4 +83,20 @@ def tune(
                        err=True)
         run_heldout(spec, record, out, jobs=jobs, progress=not quiet, backend=backend, scheduler=scheduler)
     typer.echo(f"{t.trials} trials per filter in {time.perf_counter() - t0:.1f} s -> {out}/tuned.toml; "
-               f"next: nespm mc --config {out}/tuned.toml" + (f"; nespm report {out}" if t.test_tracks else ""))
+               f"next: nespm mc --config {out}/tuned.toml{plugin_words(spec, Path(out) / 'tuned.toml')}"
+               + (f"; nespm report {out}" if t.test_tracks else ""))
+
+
+def plugin_words(spec, toml: Path) -> str:
+    """`` --filter-plugin P --sensor-plugin Q`` for the study's plugins that ``toml`` (``tuned.toml``) does
+    not record itself (``filter_plugin`` / ``sensor_plugin`` keys): the suggested next command must load
+    the filters and sensors the file's tables name."""
+    import shlex
+
+    try:
+        text = toml.read_text(encoding="utf-8")
+    except OSError:
+        text = ""
+    return "".join(f" --{key.replace('_', '-')} {shlex.quote(str(p))}"
+                   for key, items in (("filter_plugin", spec.filter_plugins), ("sensor_plugin", spec.sensor_plugins))
+                   if f"\n{key} = " not in f"\n{text}" for p in items)

@@ -129,8 +129,32 @@ def _check_bounds(path: Path, x: np.ndarray, col: str, lo: float, hi: float, say
 
 
 def read_channels(paths: dict[str, Path], t_gt: np.ndarray, gt_name: str = "the GT file") -> dict:
-    """``{name: (t, z)}`` of the channel files ``{name: path}`` that exist (see :func:`read_channel`)."""
+    """``{name: (t, z)}`` of the channel files ``{name: path}`` that exist (see :func:`read_channel`); a
+    symbolic link that leads nowhere (a loop, or a missing target) is an error naming it, not "no file"."""
+    for p in paths.values():
+        check_link(p)
     return {name: read_channel(name, p, t_gt, gt_name) for name, p in paths.items() if p.exists()}
+
+
+def check_link(path: Path) -> None:
+    """Refuse ``path`` when it is a symbolic link that cannot be followed (one line naming it): a loop
+    (ELOOP) or a link to a missing file; a path that is not a link, or a good link, passes."""
+    import errno
+    import os
+
+    path = Path(path)
+    if not path.is_symlink():
+        return
+    try:
+        os.stat(path)
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            raise NespmError(f"{path}: a symbolic link loop (following it never reaches a file); point it at the file or "
+                             "remove it") from None
+        if exc.errno == errno.ENOENT:
+            raise NespmError(f"{path}: a symbolic link to {os.readlink(path)}, which does not exist; point it at "
+                             "the file or remove it") from None
+        raise NespmError(f"{path}: cannot follow the symbolic link ({exc.strerror or exc})") from None
 
 
 def channel_columns(name: str, m: int) -> tuple[str, ...]:

@@ -131,8 +131,12 @@ def validate(spec: Spec) -> Spec:
     for f in spec.filters:
         if f not in filter_names():
             raise NespmError(f"--filters: unknown filter {f!r}; choose from {', '.join(filter_names())}")
-    if len(set(spec.filters)) != len(spec.filters) or not spec.filters:
-        raise NespmError("--filters: give each filter once, at least one")
+    if not spec.filters:
+        raise NespmError("--filters: give at least one filter")
+    if len(set(spec.filters)) != len(spec.filters):
+        dup = next(f for f in spec.filters if spec.filters.count(f) > 1)
+        raise NespmError(f"--filters: {dup} is given {spec.filters.count(dup)} times ({','.join(spec.filters)}); "
+                         "give each filter once")
     layout = parse_layout(spec.filter_config.state)
     levered = tuple(n for n in spec.sensors if n in sensor_names() and get_sensor(n).has_lever)
     spec = dataclasses.replace(spec, filter_options=check_filter_options(spec.filter_options, spec.filters,
@@ -146,6 +150,7 @@ def validate(spec: Spec) -> Spec:
             raise NespmError(f"--smooth {f}: this filter has no RTS smoother (of --filters, these have one: "
                              f"{', '.join(able) or 'none'}; docs/filters.md)")
     check_alpha_options(spec)
+    check_sigma_options(spec, layout.n)
     check_effective(spec)
     if spec.save_series not in SAVE_SERIES:
         raise NespmError(f"--save-series: choose {' or '.join(SAVE_SERIES)}, got {spec.save_series!r}")
@@ -234,6 +239,7 @@ def check_domains(spec: Spec) -> None:
     for flag, v in (("--filter-acc-noise", spec.filter_acc_noise), ("--filter-gyro-noise", spec.filter_gyro_noise)):
         if v is not None and not (finite(v) and v > 0):
             raise NespmError(f"{flag} must be a positive number, got {v:g}")
+    check_filter_values(spec)
     check_seed(spec.seed)
     if len(set(spec.tracks)) != len(spec.tracks):
         dup = next(n for n in spec.tracks if list(spec.tracks).count(n) > 1)
@@ -263,6 +269,34 @@ def check_domains(spec: Spec) -> None:
             raise NespmError(f"{flag} must be a positive number, got {v:g}")
     if not (finite(d.after_s) and d.after_s >= 0):
         raise NespmError(f"--diverge-after must be a number of seconds >= 0, got {d.after_s:g}")
+
+
+#: the largest filter noise value a study may give: (Spec path, flag, limit, unit); beyond is a units
+#: mistake (an accelerometer white noise of 1 g per sample, a DVL std of 5 m/s), and every run is lost
+FILTER_VALUE_LIMITS = (
+    ("filter_acc_noise", "--filter-acc-noise", 10.0, "m/s^2 per sample"),
+    ("filter_gyro_noise", "--filter-gyro-noise", 1.0, "rad/s per sample"),
+    ("filter_config.acc_bias_rw", "--acc-bias-rw", 1.0, "m/s^2/sqrt(s)"),
+    ("filter_config.gyro_bias_rw", "--gyro-bias-rw", 0.1, "rad/s/sqrt(s)"),
+    ("dvl_r_std", "--dvl-r-std", 5.0, "m/s"),
+)
+
+
+def check_filter_values(spec: Spec) -> None:
+    """The filters' own noise values within :data:`FILTER_VALUE_LIMITS` (one line naming the option)."""
+    for path, flag, limit, unit in FILTER_VALUE_LIMITS:
+        v = _value(spec, path)
+        if v is not None and np.isfinite(v) and v > limit:
+            raise NespmError(f"{flag} {v:g}: above {limit:g} {unit}, not a sensor's noise (a units mistake?)")
+
+
+def check_sigma_options(spec: Spec, n: int) -> None:
+    """``--filter-option NAME.kappa`` with ``n + kappa > 0`` (``n`` the error-state size): else the
+    sigma points' spread is not a real square root and every run is lost (one line naming it)."""
+    for name, key, value in spec.filter_options:
+        if key == "kappa" and not float(value) > -n:
+            raise NespmError(f"--filter-option {name}.kappa={float(value):g}: need n + kappa > 0 with the {n}-state "
+                             f"error state (kappa > {-n})")
 
 
 def check_alpha(alpha, flag: str) -> None:
@@ -331,15 +365,25 @@ def check_filter_domains(spec: Spec, span_s: float) -> None:
     """Each filter's own option domains before anything is written: a filter class may define
     ``check_options(name, options, given, span_s)`` (its option values, the keys set explicitly, the
     shortest track's span [s]) raising one line (e.g. an adaptive filter's window longer than a track)."""
-    from nespm_cli.filters.options import option_values
+    from nespm_cli.filters.options import check_window, option_values
     from nespm_cli.filters.registry import get_filter
 
+    step = None
     for f in spec.filters:
         cls = get_filter(f)
+        given = {k for n, k, _ in spec.filter_options if n == f}
+        values = option_values(cls, configure(filter_config(spec), f, cls, spec.filter_options))
+        if "window" in given:
+            step = epoch_step(spec) if step is None else step
+            check_window(f, cls, values, given, step)
         check = getattr(cls, "check_options", None)
         if check is not None:
-            given = {k for n, k, _ in spec.filter_options if n == f}
-            check(f, option_values(cls, configure(filter_config(spec), f, cls, spec.filter_options)), given, span_s)
+            check(f, values, given, span_s)
+
+
+def epoch_step(spec: Spec) -> float:
+    """[s] the longest of the spec's tracks' median epoch steps (the measurement epochs a window spans)."""
+    return max(float(np.median(np.diff(track_inputs(spec, n)[0].t))) for n in spec.tracks)
 
 
 def load_filters(spec: Spec) -> Spec:

@@ -31,6 +31,7 @@ from nespm_cli import __version__
 from nespm_cli.data.atomic import write_atomic, write_text_atomic
 from nespm_cli.errors import NespmError
 from nespm_cli.experiments.chunks import chunk_problem, experiment_digest
+from nespm_cli.experiments.folder_kind import refuse_other_kind
 from nespm_cli.experiments.progress import PROGRESS_DIR, Poller, Progress, read_reports
 
 LOCK_FILE = ".lock"  # OUT/.lock: held (flock) by the process writing the folder
@@ -373,6 +374,7 @@ class ResultsFolder:
         if self.out.exists() and not self.out.is_dir():
             raise NespmError(f"--out {self.out}: exists and is not a folder")
         check_out_link(self.out)
+        refuse_other_kind(self.out, "mc")  # a tune study's folder is not one of these
         self.lock = FolderLock(self.out)
         mf = self.out / "manifest.json"
         if mf.exists() and has_results(self.out) and read_manifest(mf).get("identity") != IDENTITY:

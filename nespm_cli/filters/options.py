@@ -13,7 +13,8 @@ A filter takes two kinds of option:
   of its P0 per block (``p0_pos_scale`` ... ``p0_gyro_bias_scale``) or of a sensor's R
   (``r_scale_<sensor>``, ``-`` in the name written ``_``: ``r_scale_dvl``, ``r_scale_dvl_beams``),
   over the study's value (the filter told the truth, ``--filter-acc-noise``, the sensor's
-  ``r_std``); a variance scales by its square. ``nespm tune`` searches these (docs/tuning.md);
+  ``r_std``); a variance scales by its square; from :data:`SCALE_LIMITS` (1e-3 to 1e3). ``nespm tune``
+  searches these (docs/tuning.md);
 * **a lever arm** (every filter with a covariance): ``lever_arm_<axis>_<sensor>`` (``lever_arm_x_dvl``)
   [m, body], one coordinate of the sensor's mounting point from the IMU in this filter's
   measurement model, in place of the sensor's ``lever_arm`` (which still makes the synthetic
@@ -46,6 +47,14 @@ NOISE_SCALES = {
     "gyro_bias_rw_scale": "gyro_bias_rw", "p0_pos_scale": "p0_pos", "p0_vel_scale": "p0_vel",
     "p0_att_scale": "p0_att_deg", "p0_acc_bias_scale": "p0_acc_bias", "p0_gyro_bias_scale": "p0_gyro_bias",
 }
+#: the range of a noise scale: a factor on a std more than three decades from the study's value is a
+#: units or typing mistake, not a tuning (``acc_noise_scale = 1e300`` loses every run)
+SCALE_LIMITS = (1e-3, 1e3)
+#: bounds of the built-in filters' own options beyond the filters' own checks: ``{key: (low, high, what)}``
+OWN_LIMITS = {"iterations": (1, 100, "fixed-point iterations"), "beta": (0.0, 1e3, "the sigma-point weight beta")}
+#: the fewest innovations a built-in filter's ``window`` [s] must hold (it must be longer than WINDOW_EPOCHS - 1
+#: epoch steps): one innovation alone estimates nothing
+WINDOW_EPOCHS = 2
 R_SCALE = "r_scale_"  # + the sensor's name with '-' as '_': a factor on that sensor's R std for this filter
 LEVER = "lever_arm_"  # + axis + '_' + the sensor's key: this filter's model lever arm coordinate [m, body]
 AXES = "xyz"
@@ -190,8 +199,35 @@ def check_filter_options(pairs, filters, get_filter, sensors=(), lever_sensors=N
         v = typed(value, default, where)
         if key in scales and not (isinstance(v, float) and v > 0):
             raise NespmError(f"{where}: a noise scale is a factor > 0, got {value!r}")
+        if key in scales and not SCALE_LIMITS[0] <= v <= SCALE_LIMITS[1]:
+            raise NespmError(f"{where}: a noise scale is a factor from {SCALE_LIMITS[0]:g} to {SCALE_LIMITS[1]:g} on the "
+                             f"study's std (beyond is a units mistake, not a tuning), got {value!r}")
+        if key in OWN_LIMITS and key in own and builtin(cls):
+            lo, hi, what = OWN_LIMITS[key]
+            if not lo <= v <= hi:
+                raise NespmError(f"{where}: {what}, from {lo:g} to {hi:g}, got {value!r}")
         out[(name, key)] = v
     return tuple((n, k, v) for (n, k), v in out.items())
+
+
+def builtin(cls: type) -> bool:
+    """Whether filter class ``cls`` is one of nespm's own (defined in :mod:`nespm_cli.filters`)."""
+    return str(getattr(cls, "__module__", "")).startswith("nespm_cli.filters.")
+
+
+def check_window(name: str, cls: type, values: dict, given: set, step_s: float) -> None:
+    """Built-in filter ``name``'s (class ``cls``) ``window`` [s] (``values``: its option values, ``given``: the keys set
+    explicitly) holds at least :data:`WINDOW_EPOCHS` innovations: longer than ``WINDOW_EPOCHS - 1`` epoch
+    steps ``step_s`` [s] (the tracks' longest median epoch step); a shorter window holds one innovation at a
+    time and estimates nothing (``iae-ekf.window=1e-9`` failed mid-run). One line naming
+    ``--filter-option NAME.window``."""
+    if "window" not in given or "window" not in values or not builtin(cls):
+        return
+    window, step = float(values["window"]), float(step_s)
+    if not window > (WINDOW_EPOCHS - 1) * step:
+        raise NespmError(f"--filter-option {name}.window={window:g}: not longer than {WINDOW_EPOCHS - 1} measurement "
+                         f"epoch ({(WINDOW_EPOCHS - 1) * step:g} s, the tracks' epoch step); a window must hold at least "
+                         f"{WINDOW_EPOCHS} innovations")
 
 
 def configure(cfg: FilterConfig, name: str, cls: type, pairs) -> FilterConfig:
@@ -222,7 +258,8 @@ def option_values(cls: type, cfg: FilterConfig) -> dict:
     return {**dict(getattr(cls, "option_defaults", {}) or {}), **dict(cfg.options)}
 
 
-__all__ = ["AXES", "LEVER", "NOISE_SCALES", "R_SCALE", "TUNED_ON", "check_filter_options", "configure", "lever_key",
+__all__ = ["AXES", "LEVER", "NOISE_SCALES", "OWN_LIMITS", "R_SCALE", "SCALE_LIMITS", "TUNED_ON", "WINDOW_EPOCHS",
+           "builtin", "check_filter_options", "check_window", "configure", "lever_key",
            "lever_keys", "noise_scales",
            "option_defaults", "option_values", "parse_tuned_on", "r_scale_key", "training_overlap", "tuned_on_text",
            "typed"]

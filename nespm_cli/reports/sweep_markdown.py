@@ -15,9 +15,8 @@ from nespm_cli.reports.markdown import DASH, docs_line, fmt, fmt_imprv, header_l
 from nespm_cli.reports.results import filters_in_order, smoother_label
 from nespm_cli.reports.stats import MIN_PAIRED_RUNS, NEES_DOF, PRACTICAL_PCT
 from nespm_cli.reports.sweep_data import param_label, param_of, protocol_text, sweep_values
-from nespm_cli.reports.sweep_tables import improvement_points, nees_runs, summary_rows
-from nespm_cli.reports.verdict import verdict_table
-from nespm_cli.reports.verdict_markdown import pairwise_md, sweep_verdict_frame, verdict_intro, verdict_md
+from nespm_cli.reports.sweep_tables import improvement_points, nees_runs, summary_rows, sweep_verdict
+from nespm_cli.reports.verdict_markdown import pairwise_md, verdict_intro, verdict_md
 
 __all__ = ["render_sweep_report"]
 
@@ -110,11 +109,8 @@ def render_sweep_report(
             div_lines.append(f"- value {r.value:g}, `{r.filter}`: {r.diverged} of {r.runs} runs "
                              "diverged (lost) and are left out of every filter's error metrics.")
     div_text = "\n".join(div_lines) if div_lines else "No run diverged."
-    vt = sweep_verdict_frame([
-        (v, verdict_table(metrics[metrics["value"] == v].drop(columns=["param", "value"]), base, n_boot=n_boot,
-                          seed=seed, practical_pct=practical_pct, min_pairs=min_pairs,
-                          comps=comps[comps["value"] == v].drop(columns="value").reset_index(drop=True)))
-        for v in values])
+    vt = sweep_verdict(metrics, base, n_boot=n_boot, seed=seed, practical_pct=practical_pct, min_pairs=min_pairs,
+                       comps=comps)
     tracks = int(metrics["track"].nunique())
     sections = [
         f"# nespm sweep report: {param}",

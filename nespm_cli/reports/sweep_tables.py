@@ -33,10 +33,12 @@ from nespm_cli.reports.stats import (
     wilson_interval,
 )
 from nespm_cli.reports.sweep_data import check_sweep_metrics, default_baseline, sweep_values
-from nespm_cli.reports.tables import filter_table
+from nespm_cli.reports.tables import filter_table, horizontal_table
+from nespm_cli.reports.verdict import verdict_table
+from nespm_cli.reports.verdict_markdown import sweep_verdict_frame
 
 __all__ = ["filter_bootstrap", "improvement_points", "improvement_table", "nees_runs", "summary_rows",
-           "sweep_table"]
+           "sweep_horizontal", "sweep_table", "sweep_verdict"]
 
 def filter_bootstrap(
     metrics: pd.DataFrame, filt: str, n_boot: int = 2000, seed: int = 0
@@ -205,3 +207,29 @@ def nees_runs(metrics: pd.DataFrame) -> int:
     return int(n.max())
 
 
+def sweep_verdict(metrics: pd.DataFrame, baseline: str, n_boot: int = 2000, seed: int = 0,
+                  practical_pct: float = PRACTICAL_PCT, min_pairs: int = MIN_PAIRED_RUNS,
+                  comps: pd.DataFrame | None = None) -> pd.DataFrame:
+    """The sweep report's verdict: :func:`verdict.verdict_table` of each swept value against ``baseline``,
+    stacked with a ``value`` column (the report's rows, the horizontal position error ones included);
+    ``comps``: :func:`summary_rows` (computed here when not given)."""
+    if comps is None:
+        comps = summary_rows(metrics, n_boot=n_boot, seed=seed, practical_pct=practical_pct, min_pairs=min_pairs)
+    return sweep_verdict_frame([
+        (v, verdict_table(metrics[metrics["value"] == v].drop(columns=["param", "value"]), baseline, n_boot=n_boot,
+                          seed=seed, practical_pct=practical_pct, min_pairs=min_pairs,
+                          comps=comps[comps["value"] == v].drop(columns="value").reset_index(drop=True)))
+        for v in sweep_values(metrics)])
+
+
+def sweep_horizontal(metrics: pd.DataFrame) -> pd.DataFrame | None:
+    """:func:`tables.horizontal_table` of each swept value (``value`` first: per filter the track averages
+    of the final and RMS horizontal position error [m], CEP50, R95, then per track); None when the
+    metrics lack the horizontal-error columns (a folder written before them)."""
+    parts = []
+    for v in sweep_values(metrics):
+        h = horizontal_table(metrics[metrics["value"] == v].drop(columns=["param", "value"]))
+        if h is None:
+            return None
+        parts.append(h.assign(value=v)[["value"] + list(h.columns)])
+    return pd.concat(parts, ignore_index=True)

@@ -205,6 +205,11 @@ class CheckedMeasurement(Measurement):
         return self._call("predict", nav, (self.runs, self.dim), nav)
 
     def innovation(self, nav: NavState) -> np.ndarray:
+        """The plugin's own ``innovation``; where it keeps the base class's (``z - predict``), that is
+        computed here from the checked :meth:`predict`, so that a failure or a wrong shape is reported as
+        ``predict``'s, with the shape ``predict`` returned (not the one ``z - predict`` broadcast to)."""
+        if getattr(type(self.inner), "innovation", None) is Measurement.innovation:
+            return self._call("innovation", nav, (self.runs, self.dim), out=self.z - self.predict(nav))
         return self._call("innovation", nav, (self.runs, self.dim), nav)
 
     def h(self, X: np.ndarray, nav: NavState) -> np.ndarray:

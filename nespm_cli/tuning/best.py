@@ -3,6 +3,7 @@ what the search can see around it (importance, profile, the cross-check; docs/tu
 from __future__ import annotations
 
 import dataclasses
+import json
 from pathlib import Path
 
 import numpy as np
@@ -109,4 +110,15 @@ def add_leveled(best: dict, old: dict, train: Spec, t: TuneSpec) -> None:
                  at_level_tracks={str(n): a for n, a in zip(train.tracks, stats["anees6_tracks"])})
 
 
-__all__ = ["LEVEL_ITERATIONS", "LEVEL_TOLERANCE", "add_checks", "add_leveled", "best_values"]
+def plugin_lines(train: Spec) -> list[str]:
+    """The top-level ``tuned.toml`` lines naming the study's plugins (``filter_plugin = [...]``,
+    ``sensor_plugin = [...]``: the config keys of ``--filter-plugin`` and ``--sensor-plugin``, as the
+    study resolved them), each followed by nothing else: ``nespm mc --config tuned.toml`` then loads
+    the filters and sensors its tables name. [] without plugins. TOML needs them before the first table."""
+    lines = [f"{key} = [{', '.join(json.dumps(str(p)) for p in items)}]"
+             for key, items in (("filter_plugin", train.filter_plugins), ("sensor_plugin", train.sensor_plugins))
+             if items]
+    return lines + [""] if lines else []
+
+
+__all__ = ["LEVEL_ITERATIONS", "LEVEL_TOLERANCE", "add_checks", "add_leveled", "best_values", "plugin_lines"]
