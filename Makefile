@@ -202,3 +202,17 @@ $(AKIT_OUT)/check/corrections.json: | $(AKIT_SETUP) akit-data
 
 $(AKIT_OUT)/processnet.npz: $(AKIT_OUT)/check/corrections.json | $(AKIT_SETUP) akit-data
 	$(NESPM) train --config experiments/akit/train.toml --data-dir $(AKIT_DATA) --corrections $(AKIT_OUT)/check/corrections.json --no-progress --out $@
+
+# Does adapting pay? (issue 40; README "Does adapting pay?", docs/adapting.md): on the papers' dynamic IMU
+# schedule and on a x4 DVL-noise step with 5 % outliers, the fixed EKF, the adaptive-R EKFs (iae, sh, vb),
+# the adaptive-Q EKF (aq-ekf), the learned-Q EKF (anekf, shipped ProcessNet weights) and the EKF told the
+# true noise (ekf-oracle), tracks 5 and 6 (the embedded tracks; ADAPT_RUNS runs each), then the reports
+# with each adaptive filter's share of the oracle's gain. Tuned filters are not in it (make tune-main).
+ADAPT_RUNS ?= 100
+ADAPT_OUT ?= results/adapt
+.PHONY: adapt
+adapt: setup
+	for c in imu dvl; do \
+	  $(NESPM) mc --config experiments/adapt-$$c.toml --runs $(ADAPT_RUNS) --jobs $(JOBS) --out $(ADAPT_OUT)/$$c || exit 1; \
+	  $(NESPM) report $(ADAPT_OUT)/$$c || exit 1; \
+	done

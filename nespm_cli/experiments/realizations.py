@@ -1,4 +1,5 @@
-"""``nespm corrupt``: write the realizations of an experiment as data."""
+"""``nespm corrupt``: write the realizations of an experiment as data; :func:`oracle_noise`: the true noise
+of a chunk's realizations, what an oracle filter is told (:mod:`nespm_cli.filters.oracle`)."""
 from __future__ import annotations
 
 import dataclasses
@@ -8,11 +9,13 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from nespm_cli.data.corruption import check_seed, CorruptionConfig, draw, imu_errors
+from nespm_cli.data.corruption import check_seed, CorruptionConfig, draw, imu_errors, Realization, segment_index
 from nespm_cli.errors import NespmError
 from nespm_cli.experiments.inputs import prepared
 from nespm_cli.experiments.store import write_json_atomic, write_parquet_atomic
 from nespm_cli.data.tracks import available_tracks, load_track, resolve_data_dir
+from nespm_cli.filters.oracle import OracleNoise
+from nespm_cli.nav.synthesis import ImuTruth
 
 
 def write_realizations(tracks, runs: int, seed: int, config: CorruptionConfig, out: str | Path,
@@ -77,3 +80,23 @@ def write_realizations(tracks, runs: int, seed: int, config: CorruptionConfig, o
     write_parquet_atomic(pd.DataFrame(rows), path)
     write_json_atomic(options, meta)
     return path, True
+
+
+def oracle_noise(real: Realization, truth: ImuTruth, channels: list) -> OracleNoise:
+    """The true noise of the runs of ``real`` (:class:`nespm_cli.data.corruption.Realization`) on the IMU
+    grid of ``truth`` with the sensor ``channels`` (as built for ``run_filter``): the IMU's per-sample
+    white-noise std per schedule segment (the corruption's std times each run's factors, the segment of
+    each IMU step as :func:`nespm_cli.data.corruption.imu_errors` draws it) and, per synthetic sensor,
+    :meth:`nespm_cli.sensors.source.Sensor.true_std` at its measurement times (None for a recorded one:
+    its noise is unknown). Outliers are not noise of a known variance and stay out (docs/adapting.md).
+    Batched over the runs; the factors are the realization's own draws, so no stream is touched."""
+    cfg = real.config
+    t = np.asarray(truth.t, dtype=float)
+    segment = segment_index(t[1:] - t[0], cfg.segment_s, real.acc_factors.shape[1])
+    runs = np.asarray(real.runs, dtype=np.int64)
+    std = [None if ch.sensor.opt.source != "synthetic"
+           else np.asarray(ch.sensor.true_std(ch.t, real.seed, real.track, runs), dtype=float) for ch in channels]
+    return OracleNoise(acc_std=cfg.acc_noise * real.acc_factors, gyro_std=cfg.gyro_noise * real.gyro_factors,
+                       segment=segment, dt=np.asarray(truth.dt, dtype=float),
+                       epoch_index=np.asarray(truth.epoch_index, dtype=np.int64), channels=list(channels),
+                       sensor_std=std)

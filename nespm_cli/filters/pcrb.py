@@ -111,7 +111,7 @@ def noise_within_span(Phi: np.ndarray, q: np.ndarray) -> np.ndarray:
 
 def pcrb(layout: StateLayout, truth_nav0: NavState, f: np.ndarray, w: np.ndarray, dt: np.ndarray,
          epoch_index: np.ndarray, channels: list[Channel], P0: np.ndarray, process: Process,
-         per_step: bool = False, within_span: bool = True) -> Bound:
+         per_step: bool = False, within_span: bool = True, r_factors: list | None = None) -> Bound:
     """The PCRB of the error state of ``layout`` at every GT epoch, for B patterns.
 
     Args:
@@ -129,6 +129,9 @@ def pcrb(layout: StateLayout, truth_nav0: NavState, f: np.ndarray, w: np.ndarray
             of one per span between events (the filters' ``--time-update dvl``).
         within_span: the white noise of a span propagated inside it (:func:`noise_within_span`);
             False: added at its end, as the filters add their Q (their Riccati recursion exactly).
+        r_factors: per channel, (B, K) the factor on its R's std at each measurement in each pattern (a
+            sensor's ``noise_schedule``: :meth:`Sensor.noise_factor`), or None (1: the R of its model);
+            None: every sensor's R as its model gives it. The time-varying Q comes through ``process``.
 
     Returns:
         :class:`Bound` with ``diag`` (B, N, n).
@@ -165,7 +168,11 @@ def pcrb(layout: StateLayout, truth_nav0: NavState, f: np.ndarray, w: np.ndarray
                               (nav.pos, nav.v_n, nav.C_bn, nav.b_a, nav.b_g)))
             ctx = Context(np.broadcast_to(fx[:, b - 1], (B, 3)), np.broadcast_to(wx[:, b - 1], (B, 3)))
             meas = ch.sensor.measurement(ch.z[:, i], navb, ctx, layout)
-            P = riccati_update(P, meas.H(navb), meas.R, ok)
+            Rm = meas.R
+            fac = None if r_factors is None else r_factors[c]
+            if fac is not None:  # the schedule's R(t) of each pattern
+                Rm = np.asarray(Rm, dtype=float) * np.square(np.asarray(fac, dtype=float)[:, i])[:, None, None]
+            P = riccati_update(P, meas.H(navb), Rm, ok)
         if epoch is not None:
             record(epoch)
     return Bound(diag)

@@ -8,6 +8,12 @@
   (``[project.entry-points."nespm.filters"] myfilter = "mypkg.filters"``); they are
   imported on the first look-up of an unknown name, or by :func:`discover_plugins`.
 
+Oracles: for every registered filter with a covariance that does not adapt its own noise
+(:func:`nespm_cli.filters.oracle.oracle_able`), ``NAME-oracle`` is that filter told the true noise of
+each realization (:mod:`nespm_cli.filters.oracle`, docs/adapting.md). Their classes are made on the
+first look-up, not registered: :func:`filter_names` lists them after the registered names, but the
+built-ins of ``builtin_only`` (``FILTERS``) do not include them.
+
 Rules: a name is unique. A plugin may not take a built-in's name. Registering a name again
 from the same source (the same plugin file or module imported twice, e.g. by a worker
 process) replaces the entry harmlessly; the same name from a different source is an error.
@@ -19,11 +25,14 @@ from pathlib import Path
 from types import ModuleType
 from typing import Callable
 
+from nespm_cli.errors import NespmError
+from nespm_cli.filters.oracle import ORACLE_SUFFIX, oracle_able, oracle_class
 from nespm_cli.filters.protocol import Filter
 from nespm_cli.plugins import Registry
 
 ENTRY_POINT_GROUP = "nespm.filters"
 FILTER_REGISTRY = Registry("filter", Filter, ENTRY_POINT_GROUP, "--filters")
+ORACLES: dict[tuple[str, type], type] = {}  # (base name, base class) -> its oracle's class
 
 
 def register_filter(name: str, cls: type) -> type:
@@ -36,14 +45,40 @@ def register(name: str) -> Callable[[type], type]:
     return FILTER_REGISTRY.decorator(name)
 
 
+def oracle_base(name: str) -> str | None:
+    """The base filter's name of an oracle name (``ekf-oracle`` -> ``ekf``), else None."""
+    if name.endswith(ORACLE_SUFFIX) and name not in FILTER_REGISTRY.classes and len(name) > len(ORACLE_SUFFIX):
+        return name[:-len(ORACLE_SUFFIX)]
+    return None
+
+
 def get_filter(name: str) -> type:
-    """The class registered as ``name``; unknown names first trigger entry-point discovery."""
-    return FILTER_REGISTRY.get(name)
+    """The class registered as ``name``; unknown names first trigger entry-point discovery. ``BASE-oracle``:
+    the oracle of ``BASE`` (made once per base class), or a one-line error where ``BASE`` has none."""
+    base = oracle_base(name)
+    if base is None:
+        return FILTER_REGISTRY.get(name)
+    try:
+        cls = FILTER_REGISTRY.get(base)
+    except NespmError:
+        raise NespmError(f"--filters: unknown filter {name!r}; choose from {', '.join(filter_names())}") from None
+    if not oracle_able(cls, base):
+        raise NespmError(f"--filters {name}: {base} has no oracle (it adapts its own noise or has no covariance); "
+                         f"oracles: {', '.join(n for n in filter_names() if oracle_base(n))} (docs/adapting.md)")
+    key = (base, cls)
+    if key not in ORACLES:
+        ORACLES[key] = oracle_class(cls, base, FILTER_REGISTRY.is_builtin(base))
+    return ORACLES[key]
 
 
 def filter_names(builtin_only: bool = False) -> tuple[str, ...]:
-    """Registered names, built-ins first (in registration order), then plugins."""
-    return FILTER_REGISTRY.names(builtin_only)
+    """Registered names, built-ins first (in registration order), then plugins; without ``builtin_only``
+    followed by the oracles (``NAME-oracle`` of every filter that has one)."""
+    names = FILTER_REGISTRY.names(builtin_only)
+    if builtin_only:
+        return names
+    return names + tuple(n + ORACLE_SUFFIX for n in names
+                         if oracle_able(FILTER_REGISTRY.classes[n], n) and n + ORACLE_SUFFIX not in names)
 
 
 def plugin_files(name: str) -> list[Path]:
@@ -79,5 +114,5 @@ def discover_plugins() -> list[str]:
     return FILTER_REGISTRY.discover()
 
 
-__all__ = ["ENTRY_POINT_GROUP", "FILTER_REGISTRY", "discover_plugins", "filter_names", "filter_source", "get_filter",
-           "is_builtin", "load_plugin", "plugin_files", "register", "register_filter"]
+__all__ = ["ENTRY_POINT_GROUP", "FILTER_REGISTRY", "ORACLES", "discover_plugins", "filter_names", "filter_source",
+           "get_filter", "is_builtin", "load_plugin", "oracle_base", "plugin_files", "register", "register_filter"]

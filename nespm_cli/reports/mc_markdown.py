@@ -24,6 +24,7 @@ from nespm_cli.reports.markdown import (
     md_table,
 )
 from nespm_cli.reports.mc_figures import figures_md
+from nespm_cli.reports.oracle_share import has_oracle, oracle_share, share_md
 from nespm_cli.reports.pcrb import SECTION as PCRB_SECTION
 from nespm_cli.reports.published import PUBLISHED, published_tables
 from nespm_cli.reports.block_consistency import consistency_md, consistency_words
@@ -296,6 +297,20 @@ def beside_md(metrics: pd.DataFrame, label: str, others: Sequence[tuple[str, pd.
             + md_table(headers, rows))
 
 
+#: the heading of the section on each adaptive filter's share of its oracle's gain (reports.oracle_share)
+ORACLE_SECTION = "## Share of the oracle's gain"
+
+
+def oracle_md(metrics: pd.DataFrame, n_boot: int, seed: int) -> str:
+    """The text of :data:`ORACLE_SECTION` when an oracle is among the filters ("" otherwise): the share
+    table of :func:`~nespm_cli.reports.oracle_share.oracle_share`, or why there is none."""
+    if not has_oracle(metrics):
+        return ""
+    text = share_md(oracle_share(metrics, n_boot=n_boot, seed=seed), n_boot)
+    return text or ("An oracle is among the filters, but no adaptive filter with its fixed counterpart and that "
+                    "filter's oracle (e.g. anekf, iae-ekf, sh-ekf, vb-ekf or aq-ekf with ekf and ekf-oracle).")
+
+
 def render_report(
     metrics: pd.DataFrame,
     manifest: dict,
@@ -350,6 +365,7 @@ def render_report(
             "## Per-track results (eqs 50, 52)\n\n" + _track_md(tt, track_words),
             "## Horizontal position error\n\n" + _horizontal_md(metrics),
             *([PCRB_SECTION + "\n\n" + pcrb] if pcrb else []),
+            *([ORACLE_SECTION + "\n\n" + text] if (text := oracle_md(metrics, n_boot, seed)) else []),
             "## Pairwise comparisons\n\n" + PAIRWISE_CAPTION + "\n\n" + pairwise_md(comps, min_pairs),
             "## Comparison with the published tables\n\n" + _published_md(metrics, table, scenario, n_boot, seed),
             *(["## Beside other results folders\n\n" + beside] if beside else []),
