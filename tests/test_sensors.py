@@ -255,7 +255,7 @@ def test_recorded_depth_and_fix_files_at_their_own_stamps(tmp_path):
         used = out.sensors["depth"].used
         assert used.sum(axis=1).tolist() == [len(t_d) - 2] * 2, f
         assert out.sensors["fix"].used.sum() == 2 * 4
-        assert np.allclose(out.sensors["depth"].t, t_d - tr.t[0]) and not out.dvl_used[30] and out.dvl_used[29]
+        assert np.allclose(out.sensors["depth"].t, t_d - tr.t[0]) and not out.dvl_used[:, 30].any() and out.dvl_used[:, 29].all()
         assert np.abs(err.down).max() < 0.2 and np.isfinite(err.hpe).all()
 
 

@@ -296,9 +296,14 @@ def judge(t, euler, v_n, dvl, imu, declared: Declared) -> tuple[str, str] | None
     if imu is not None:
         c = imu_candidates(t, euler, v_n, imu, declared.unit_deg)
         dec = c["declared"]
-        for what, bound, unit in (("gyro", GYRO_BOUND, "rad/s"), ("acc", ACC_BOUND, "m/s^2")):
+        # The gyro alone refuses: the specific-force test (ACC_BOUND) is computed but not a refusal, as the real
+        # recorded IMU of Snapir track 13 reads 0.127 m/s^2 as declared and 0.023 under a roll flip while its gyro
+        # and its DVL agree with the declared attitude (vibration and lever-arm accelerations, not a convention).
+        for what, bound, unit in (("gyro", GYRO_BOUND, "rad/s"),):
             best = min((k for k in c if k != "declared"), key=lambda k: c[k][what])
-            if dec[what] > bound and c[best][what] <= FIX_RATIO * dec[what]:
+            # the fix must also bring it under the bound: an IMU with its own noise or vibration (the vehicle
+            # simulator's: 0.20 m/s^2 as declared, 0.12 under a roll flip) is not read as a convention
+            if dec[what] > bound and c[best][what] <= min(FIX_RATIO * dec[what], bound):
                 words = "gyro vs attitude rates" if what == "gyro" else "specific force vs gravity and acceleration"
                 return "gt", (f"IMU {words}: residual std {dec[what]:.3g} {unit} (bound {bound:g}): {FIXES[best][0]}: "
                               f"{c[best][what]:.3g} {unit} if so; {_advice(best, declared)}")

@@ -29,6 +29,7 @@ from nespm_cli.experiments.chunking import chunk_detail, chunk_size_for
 from nespm_cli.experiments.chunks import chunk_problem, concat_parquet, write_chunk
 from nespm_cli.experiments.inputs import READ_HASHES, verify_read
 from nespm_cli.experiments.pcrb_table import add_pcrb
+from nespm_cli.experiments.realizations import oracle_noise
 from nespm_cli.experiments.metrics import (alive_metrics, block_statistics, divergence, epoch_errors, epoch_nis,
                                           lost_epoch, run_metrics, sensor_nis, sensor_rejections,
                                           truth_free_epochs, truth_free_metrics)
@@ -41,6 +42,7 @@ from nespm_cli.experiments.store import (GROWABLE, ResultsFolder, Task, chunk_fi
 from nespm_cli.filters import FilterConfig, initial_nav, run_filter
 from nespm_cli.filters.kernels import kernel_backend
 from nespm_cli.filters.options import training_overlap
+from nespm_cli.filters.oracle import is_oracle
 from nespm_cli.filters.registry import plugin_files
 from nespm_cli.filters.smoother import smoothed_name, smoothed_of
 from nespm_cli.learn.noise_model import default_weights
@@ -83,11 +85,12 @@ def simulate(spec: Spec, number: int, runs: np.ndarray, filters=None, clean: boo
         t0 = time.perf_counter()
         noise_std = predict_interval_std(f, w, e, spec.weights)
         net_seconds = time.perf_counter() - t0
+    truths = oracle_noise(real, truth, channels) if any(is_oracle(n) for n in names) else None  # told to the oracles
     for i, name in enumerate(names):
         t0 = time.perf_counter()
         step = None if progress is None else (lambda k, base=i * (len(e) - 1): progress(base + k))
         out = run_filter(name, filter_config_of(spec, name, cfg), f, w, truth.dt, e, nav0=nav0,
-                         noise_std=noise_std if name in adaptive else None,
+                         noise_std=noise_std if name in adaptive else truths if is_oracle(name) else None,
                          progress=step, channels=channels, smooth=name in (spec.smooth if smooth is None else smooth))
         if name in adaptive:
             t0 -= net_seconds / len(adaptive)  # the shared network pass, split

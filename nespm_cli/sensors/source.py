@@ -353,7 +353,8 @@ def convert(value, f: dataclasses.Field, where: str):
             items = value if isinstance(value, (list, tuple)) else text.replace(" ", ",").split(",")
             out = tuple(float(x) for x in items if str(x).strip())
             if len(out) != len(default):
-                raise ValueError
+                raise NespmError(f"{where}={value!r}: expected {len(default)} comma-separated numbers "
+                                 f"(e.g. {','.join(f'{x:g}' for x in default)}), got {len(out)}")
             return out
         if isinstance(default, str):
             return text

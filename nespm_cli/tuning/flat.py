@@ -22,10 +22,9 @@ from __future__ import annotations
 
 from typing import Callable
 
-from nespm_cli.tuning.profile import FLAT
+from nespm_cli.tuning.profile import FLAT, FLAT_RULES
 from nespm_cli.tuning.space import Param
 
-FLAT_RULES = ("default", "searched")
 
 
 def flat_keys(profile: dict | None) -> list[str]:
@@ -94,4 +93,4 @@ def add_flat(best: dict, store, train, space: dict, t, search: int = 0) -> bool:
     return changed
 
 
-__all__ = ["FLAT_RULES", "add_flat", "apply_flat_rule", "flat_keys", "reset_flat"]
+__all__ = ["add_flat", "apply_flat_rule", "flat_keys", "reset_flat"]

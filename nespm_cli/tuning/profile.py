@@ -23,6 +23,7 @@ from nespm_cli.tuning.space import Param
 
 FACTOR = 3.0  # the profile's step: x 3 and / 3 (linear ranges: ± a third of the range)
 FLAT = 0.02  # a relative score change below this at both steps: the parameter is not seen
+FLAT_RULES = ("default", "searched")  # --flat: what a flat parameter becomes (tuning.flat)
 
 
 def importances(study) -> dict[str, float]:
@@ -93,4 +94,4 @@ def stopped_short(best: dict) -> dict[str, tuple[str, dict]]:
     return out
 
 
-__all__ = ["FACTOR", "FLAT", "cross_scores", "importances", "profile", "steps", "stopped_short"]
+__all__ = ["FACTOR", "FLAT", "FLAT_RULES", "cross_scores", "importances", "profile", "steps", "stopped_short"]

@@ -36,7 +36,7 @@ import numpy as np
 from nespm_cli.experiments.spec import Spec, has_truth
 from nespm_cli.filters.options import TUNED_ON, tuned_on_text
 from nespm_cli.errors import NespmError
-from nespm_cli.tuning.best import add_checks, add_leveled, best_values
+from nespm_cli.tuning.best import add_checks, add_leveled, best_values, plugin_lines
 from nespm_cli.tuning.flat import add_flat
 from nespm_cli.tuning.progress import watch_studies
 from nespm_cli.tuning.refine import auto_budget
@@ -52,6 +52,7 @@ def tuned_toml(best: dict, train: Spec, t: TuneSpec) -> str:
              f"# ({t.trials} trials, objective {t.objective}) on tracks {' '.join(map(str, train.tracks))}, "
              f"runs 0-{train.runs - 1} of the training seed {train.seed} (tune.json).",
              "# Use: nespm mc --config tuned.toml --tracks ... (with the study's other options).", ""]
+    lines += plugin_lines(train)
     if train.filter_config.state != "12":  # the layout and the sensors the R and P0 scales name
         lines += [f'state = "{train.filter_config.state}"', ""]
     on = tuned_on_text(train.seed, train.tracks, 0, train.runs)

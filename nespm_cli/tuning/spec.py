@@ -12,7 +12,7 @@ from nespm_cli.errors import NespmError
 from nespm_cli.experiments.spec import Spec, check_filter_domains, has_truth, track_inputs, validate
 from nespm_cli.experiments.suite import sensor_suite
 from nespm_cli.filters.registry import get_filter
-from nespm_cli.tuning.flat import FLAT_RULES
+from nespm_cli.tuning.profile import FLAT_RULES
 from nespm_cli.tuning.objective import LEVELS, OBJECTIVES
 from nespm_cli.tuning.space import Param, apply_ranges, default_space, optional_space
 
