@@ -21,7 +21,8 @@ import pytest
 from conftest import assert_one_error_line, exact_imu_table, nespm, short_track
 from nespm_cli.data.embedded import embedded_track
 from nespm_cli.data.imu_file import RATE_RATIO_MAX, imu_unit_figures
-from nespm_cli.data.track_spec import SPEC_NAME, STANDARD_GRAVITY
+from nespm_cli.data.track_spec.schema import SPEC_NAME
+from nespm_cli.data.track_spec.units import STANDARD_GRAVITY
 from nespm_cli.data.tracks import load_track, write_akit
 from nespm_cli.errors import NespmError
 

@@ -1,4 +1,4 @@
-"""End-to-end tests of the GP-UKF experiment (nespm_cli.experiments.gp_ukf) and its report.
+"""End-to-end tests of the GP-UKF experiment (the package nespm_cli.experiments.gp_ukf) and its report.
 
 A small experiment: 3 runs x 40 s of the REMUS 100 helix at 5 Hz, GP models on 60 points of
 run 0 (no optimizer restarts), one run per chunk. It is run once with jobs=1 (module
@@ -15,8 +15,9 @@ import pytest
 from threadpoolctl import threadpool_limits
 
 from nespm_cli.errors import NespmError
-from nespm_cli.experiments.gp_ukf import (FILTERS, TRUE_H, TrueModel, ideal_R, load_models,
-                                     run_gp_experiment)
+from nespm_cli.experiments.gp_ukf import FILTERS, run_gp_experiment
+from nespm_cli.experiments.gp_ukf.model import TRUE_H, TrueModel, ideal_R
+from nespm_cli.experiments.gp_ukf.training import load_models
 from nespm_cli.reports.gp_ukf import PUBLISHED_TABLE3, PUBLISHED_TABLE4, write_gp_report
 from nespm_cli.vehicles import STATE_NAMES
 

@@ -53,7 +53,8 @@ def test_help_imports_no_reader_runner_or_report():
     training, the results store, the runners and the report are imported only when a command runs."""
     mods = imported_by(["--help"])["modules"]
     for m in ("nespm_cli.data.tracks", "nespm_cli.data.csvtable", "nespm_cli.learn.training",
-              "nespm_cli.experiments.store", "nespm_cli.experiments.mc", "nespm_cli.experiments.gp_ukf",
+              "nespm_cli.experiments.store", "nespm_cli.experiments.mc", "nespm_cli.experiments.gp_ukf.run",
+              "nespm_cli.experiments.gp_ukf.model", "nespm_cli.experiments.gp_ukf.training",
               "nespm_cli.reports.stats", "nespm_cli.nav.kernels"):
         assert m not in mods, m
 
@@ -69,11 +70,13 @@ def test_tracks_on_the_embedded_default_imports_no_heavy_package():
 
 def test_the_light_modules_keep_their_old_names():
     """What moved to a light module is still importable from where it was (same object)."""
-    from nespm_cli.experiments import gp_ukf, gp_ukf_model, gp_ukf_spec, inputs
+    from nespm_cli.experiments import gp_ukf, inputs
+    from nespm_cli.experiments.gp_ukf import run, spec
     from nespm_cli.nav import synthesis
     from nespm_cli.reports import stats, thresholds
 
-    assert gp_ukf.GPSpec is gp_ukf_model.GPSpec is gp_ukf_spec.GPSpec
-    assert gp_ukf.validate is gp_ukf_spec.validate
+    # the GP-UKF package re-exports its spec's names and the runner's entry point (same objects)
+    assert gp_ukf.GPSpec is spec.GPSpec and gp_ukf.validate is spec.validate and gp_ukf.FILTERS is spec.FILTERS
+    assert gp_ukf.run_gp_experiment is run.run_gp_experiment
     assert stats.PRACTICAL_PCT == thresholds.PRACTICAL_PCT == 1.0
     assert inputs.DEFAULT_IMU_RATE == synthesis.DEFAULT_IMU_RATE == 100.0

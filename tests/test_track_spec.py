@@ -9,6 +9,7 @@ IMU and DVL in other axes.
 """
 from __future__ import annotations
 
+import ast
 import dataclasses
 import json
 import shutil
@@ -18,9 +19,12 @@ import numpy as np
 import pandas as pd
 import pytest
 
+import nespm_cli.data.track_spec as track_spec
 from nespm_cli.data.corrections import axes_matrix
-from nespm_cli.data.spec_reader import read_spec_track
-from nespm_cli.data.track_spec import SPEC_NAME, read_spec, spec_tracks, to_seconds
+from nespm_cli.data.track_spec.convert import read_spec_track
+from nespm_cli.data.track_spec.files import spec_tracks
+from nespm_cli.data.track_spec.schema import SPEC_NAME, read_spec
+from nespm_cli.data.track_spec.units import to_seconds
 from nespm_cli.data.tracks import available_tracks, load_track, track_files, write_akit
 from nespm_cli.errors import NespmError
 from nespm_cli.nav.earth import ned_offset
@@ -442,3 +446,23 @@ def test_the_example_of_docs_data_md_is_a_valid_spec(tmp_path):
     assert spec.tables["imu"]["time_zero"] == 36_000_000_000 and spec.tables["gt"]["time_zero"] == 36_000_000
     assert spec.tables["fix"]["angle_unit"] == "deg" and spec.tables["depth"]["length_unit"] == "ft"
     np.testing.assert_allclose(spec.origin, [np.radians(32.85), np.radians(34.90), 0.0])
+
+
+#: the modules of nespm_cli.data.track_spec, one concept each, in the order they may import each other
+SPEC_MODULES = ("units", "schema", "files", "convert", "data_checks")
+
+
+def test_the_spec_modules_import_only_the_ones_before_them():
+    """Reading a spec no longer alternates between two files: each module of the package imports only the
+    modules before it in :data:`SPEC_MODULES` (function-level imports count; the package itself, which
+    re-exports them, never), and each stays under 500 lines."""
+    root = Path(track_spec.__file__).parent
+    assert sorted(p.stem for p in root.glob("*.py")) == sorted(SPEC_MODULES + ("__init__",))
+    for i, name in enumerate(SPEC_MODULES):
+        src = (root / f"{name}.py").read_text()
+        assert len(src.splitlines()) <= 500, name
+        used = {n.module.removeprefix("nespm_cli.data.track_spec").lstrip(".") or "the package"
+                for n in ast.walk(ast.parse(src))
+                if isinstance(n, ast.ImportFrom) and n.module and n.module.startswith("nespm_cli.data.track_spec")}
+        assert used <= set(SPEC_MODULES[:i]), f"{name} imports {sorted(used - set(SPEC_MODULES[:i]))}"
+    assert track_spec.read_spec_track is read_spec_track and track_spec.to_seconds is to_seconds

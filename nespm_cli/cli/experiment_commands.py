@@ -10,7 +10,7 @@ import typer
 
 from nespm_cli.cli.options import COMMON, KERNELS, PARALLEL, RUNNER, default, with_options
 from nespm_cli.cli.parsing import build_spec, execution, parse_filters, parse_tracks
-from nespm_cli.experiments.gp_ukf_spec import GPSpec
+from nespm_cli.experiments.gp_ukf.spec import GPSpec
 from nespm_cli.filters import FILTERS
 
 

@@ -1,5 +1,5 @@
 """``nespm import BAG --spec SPEC --out DIR``: a ROS 1 / ROS 2 bag as an A-KIT track folder
-(:mod:`nespm_cli.data.rosbag_import`, docs/rosbags.md); ``nespm import BAG --list``: its topics."""
+(:mod:`nespm_cli.data.rosbag.importer`, docs/rosbags.md); ``nespm import BAG --list``: its topics."""
 from __future__ import annotations
 
 import warnings
@@ -32,8 +32,8 @@ def import_cmd(
     if list_:
         if spec is not None or out is not None or track is not None or overwrite:
             raise NespmError("--list writes nothing: give the bag alone (without --spec, --out, --track, --overwrite)")
-        from nespm_cli.data.rosbag_inspect import list_bag, list_text
-        from nespm_cli.data.rosbag_messages import bag_kind, open_bag
+        from nespm_cli.data.rosbag.inspect_bag import list_bag, list_text
+        from nespm_cli.data.rosbag.messages import bag_kind, open_bag
 
         path, kind = bag_kind(bag.expanduser())
         reader = open_bag(path, None, {})
@@ -49,7 +49,7 @@ def import_cmd(
     with Status("nespm import", enabled=not no_progress, plain=False) as status:
         status(f"reading {bag.name} and converting its messages (spec {spec.name})")
         from nespm_cli.data.plausibility import DataWarning
-        from nespm_cli.data.rosbag_import import NOTE_MD, import_bag
+        from nespm_cli.data.rosbag.importer import NOTE_MD, import_bag
 
         result = import_bag(bag, spec, out, track=track, overwrite=overwrite)
     for text in result.warnings:

@@ -30,7 +30,7 @@ import numpy as np
 from nespm_cli.data import conventions, plausibility
 from nespm_cli.data.csvtable import QUOTE_LIMIT, read_table as _read_table, write_table as _write_csv  # noqa: F401
 from nespm_cli.data.sensor_files import CHANNEL_KINDS, check_dvl_nan, dvl_at_epochs, read_channels, write_channels
-from nespm_cli.data import spec_reader
+from nespm_cli.data import track_spec as spec_reader  # the reader's public names: convert, data_checks
 from nespm_cli.data.imu_file import (IMU_MAX_ACC, IMU_MAX_GYRO, IMU_MAX_STEP, IMU_MIN_STEP,  # noqa: F401
                                       IMU_STEP_TOL, check_imu, check_imu_units)
 from nespm_cli.data.track import Track

@@ -42,7 +42,7 @@ DEFAULTS = {
     "fix": {"vertical": False},
 }
 CHANNELS = ("gt", "imu", "dvl", "depth", "fix")
-FIRST_FIX = "first-fix"  # origin = "first-fix": the origin from the first GNSS fix (rosbag_inspect.first_fix_origin)
+FIRST_FIX = "first-fix"  # origin = "first-fix": the origin from the first GNSS fix (inspect_bag.first_fix_origin)
 
 ODOM, IMU, NAVSAT, PRESSURE = "nav_msgs/msg/Odometry", "sensor_msgs/msg/Imu", "sensor_msgs/msg/NavSatFix", \
     "sensor_msgs/msg/FluidPressure"

@@ -1,4 +1,8 @@
-"""The GP-UKF experiment of gp-ukf.md section 6: ideal UKF against GP-UKF on REMUS 100 helix runs.
+"""The GP-UKF experiment's runner (gp-ukf.md section 6): ideal UKF against GP-UKF on REMUS 100 helix runs.
+
+The spec is :mod:`~nespm_cli.experiments.gp_ukf.spec`, the models :mod:`~nespm_cli.experiments.gp_ukf.model`,
+the training :mod:`~nespm_cli.experiments.gp_ukf.training`; this module runs the three stages in order
+(stage 1 through :func:`~nespm_cli.experiments.gp_ukf.training.train_models`).
 
 Stages (docs/gp-ukf.md, "The experiment"):
 
@@ -37,28 +41,18 @@ import pandas as pd
 from nespm_cli.errors import NespmError
 from nespm_cli.experiments.backend import Execution
 from nespm_cli.experiments.chunks import write_chunk
-# the spec and models (gp_ukf_model) and the training (gp_ukf_training) are re-exported: this
-# module is the experiment's public interface
-from nespm_cli.experiments.gp_ukf_model import (H_INPUTS, MEAS_COLUMNS, OUTPUT_HZ, P0_STD, TRUE_H, GPSpec,
-                                                MeasuredStateGP, TrueModel, ideal_Q, ideal_R, prepare,
-                                                simulate_prepared, validate)
-from nespm_cli.experiments.gp_ukf_training import (FIT_RETRIES, RETRY_SEED_STEP, at_default_start, load_models,
-                                                   merge_outputs, subsample, train_models)
+from nespm_cli.experiments.gp_ukf.model import TRUE_H, TrueModel, simulate_prepared
+from nespm_cli.experiments.gp_ukf.spec import EXPERIMENT, FILTERS, STATE_UNITS, GPSpec, validate
+from nespm_cli.experiments.gp_ukf.training import load_models, train_models
 from nespm_cli.experiments.store import ResultsFolder, Task, write_parquet_atomic
 from nespm_cli.filters.gp_ukf import gp_ukf, ideal_ukf
 from nespm_cli.nav.rotations import wrap_angle
 from nespm_cli.vehicles import STATE_NAMES
 from nespm_cli.vehicles.remus100 import IPSI
 
-__all__ = ["EXPERIMENT", "FILTERS", "STATE_UNITS", "EPOCH_STRIDE", "INIT_STREAM", "H_INPUTS", "OUTPUT_HZ",
-           "P0_STD", "MEAS_COLUMNS", "TRUE_H", "GPSpec", "validate", "TrueModel", "MeasuredStateGP", "ideal_R",
-           "ideal_Q", "prepare", "simulate_prepared", "FIT_RETRIES", "RETRY_SEED_STEP", "subsample",
-           "at_default_start", "merge_outputs", "train_models", "load_models", "initial_estimate", "state_errors",
-           "run_chunk", "assemble", "run_gp_experiment"]
+__all__ = ["EPOCH_STRIDE", "INIT_STREAM", "initial_estimate", "state_errors", "run_chunk", "assemble",
+           "run_gp_experiment"]
 
-EXPERIMENT = "gp-ukf"
-FILTERS = ("ukf-ideal", "gp-ukf")
-STATE_UNITS = ("m/s", "m/s", "m/s", "rad/s", "rad/s", "rad/s", "m", "m", "m", "rad", "rad", "rad")
 EPOCH_STRIDE = 5  # epochs.parquet keeps every 5th sample (1 Hz)
 INIT_STREAM = 1  # spawn_key stream of the initial-estimate error (stream 0: the simulator's sensors)
 

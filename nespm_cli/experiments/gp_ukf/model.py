@@ -1,14 +1,13 @@
-"""The GP-UKF experiment's true model (gp-ukf.md section 6), with its spec (:class:`GPSpec`, from
-:mod:`nespm_cli.experiments.gp_ukf_spec`): the ideal UKF's process and observation models (the simulator's REMUS 100
-by RK4, the measured states), GP-h on the measured states, and the 5 Hz simulated runs with
-yaw unwrapped (docs/gp-ukf.md, "The experiment"; the runner is :mod:`nespm_cli.experiments.gp_ukf`).
+"""The GP-UKF experiment's true model (gp-ukf.md section 6): the ideal UKF's process and observation models
+(the simulator's REMUS 100 by RK4, the measured states), GP-h on the measured states, and the 5 Hz simulated
+runs of a :class:`~nespm_cli.experiments.gp_ukf.spec.GPSpec` with yaw unwrapped (docs/gp-ukf.md, "The
+experiment"; the runner is :mod:`nespm_cli.experiments.gp_ukf.run`).
 """
 from __future__ import annotations
 
 import numpy as np
 
-# the spec (light, for the CLI's option defaults) is re-exported: this module is its old home
-from nespm_cli.experiments.gp_ukf_spec import H_INPUTS, OUTPUT_HZ, P0_STD, GPSpec, validate
+from nespm_cli.experiments.gp_ukf.spec import OUTPUT_HZ, GPSpec
 from nespm_cli.filters.gp_ukf import DeviationModel
 from nespm_cli.learn.gp import GPModel
 from nespm_cli.vehicles import Remus100, SensorSuite, simulate_runs

@@ -1,7 +1,7 @@
 """``nespm import``: a ROS 1 or ROS 2 bag -> an A-KIT track folder (docs/rosbags.md, docs/data-format.md).
 
-:func:`import_bag` reads the topics an import spec names (:mod:`nespm_cli.data.rosbag_spec`) with
-``rosbags`` (:mod:`nespm_cli.data.rosbag_messages`), converts them to the bench's frames and units and
+:func:`import_bag` reads the topics an import spec names (:mod:`nespm_cli.data.rosbag.spec`) with
+``rosbags`` (:mod:`nespm_cli.data.rosbag.messages`), converts them to the bench's frames and units and
 writes ``OUT/TrajectoryN``: the GT file (``[lon, lat rad, alt m]``, NED velocity [m/s], ZYX Euler angles
 body FRD -> NED [rad]), the DVL file (body FRD [m/s], on the GT epochs when its stamps are the GT's, else
 at its own), the IMU file (specific force [m/s²] and rate [rad/s], body FRD) and the DEPTH (m, down) and
@@ -31,13 +31,13 @@ import numpy as np
 
 from nespm_cli.data.atomic import write_text_atomic
 from nespm_cli.data.conventions import ACCEPT_HINT
-from nespm_cli.data.rosbag_messages import (BODY_TO_FRD, WORLD_TO_NED, Request, bag_kind, local_to_geodetic,
+from nespm_cli.data.rosbag.messages import (BODY_TO_FRD, WORLD_TO_NED, Request, bag_kind, local_to_geodetic,
                                             open_bag, pressure_to_depth, quat_to_dcm, read_requests)
-from nespm_cli.data.rosbag_inspect import check_frames, first_fix_origin, first_frame_ids
-from nespm_cli.data.rosbag_spec import paths_for, read_spec
+from nespm_cli.data.rosbag.inspect_bag import check_frames, first_fix_origin, first_frame_ids
+from nespm_cli.data.rosbag.spec import paths_for, read_spec
 from nespm_cli.data.sensor_files import dvl_at_epochs
 from nespm_cli.data.track import Track
-from nespm_cli.data.track_spec import SPEC_NAME, find_spec
+from nespm_cli.data.track_spec.schema import SPEC_NAME, find_spec
 from nespm_cli.data.tracks import load_track, write_akit
 from nespm_cli.errors import NespmError
 from nespm_cli.nav.rotations import dcm_to_euler
@@ -132,7 +132,7 @@ def _topic_keys(spec: dict) -> dict[str, Request]:
     return out
 
 
-#: the fields every topic key needs, with their kinds (:data:`nespm_cli.data.rosbag_messages.KINDS`)
+#: the fields every topic key needs, with their kinds (:data:`nespm_cli.data.rosbag.messages.KINDS`)
 NEEDED = {"gt.topic": {"position": "vec3", "orientation": "quat", "velocity": "vec3"},
           "gt.pose_topic": {"position": "vec3", "orientation": "quat"}, "gt.twist_topic": {"velocity": "vec3"},
           "imu.topic": {"angular_velocity": "vec3", "linear_acceleration": "vec3"}, "dvl.topic": {"velocity": "vec3"},

@@ -1,7 +1,7 @@
-"""The GP-UKF experiment's spec (gp-ukf.md section 6): what determines its numbers (:class:`GPSpec`)
-and its checks. Light (NumPy only), so that the ``nespm`` command's option defaults
-(``default(GPSpec, ...)``) cost no import of the models; :mod:`nespm_cli.experiments.gp_ukf_model`
-re-exports it.
+"""The GP-UKF experiment's spec (gp-ukf.md section 6): its name, filters and state units, what
+determines its numbers (:class:`GPSpec`) and its checks. Light (NumPy only), so that the ``nespm``
+command's option defaults (``default(GPSpec, ...)``) and the report cost no import of the models
+(:mod:`nespm_cli.experiments.gp_ukf.model`) or the runner (:mod:`nespm_cli.experiments.gp_ukf.run`).
 """
 from __future__ import annotations
 
@@ -12,6 +12,10 @@ import numpy as np
 
 from nespm_cli.errors import NespmError
 
+EXPERIMENT = "gp-ukf"  # the manifest's "experiment"
+FILTERS = ("ukf-ideal", "gp-ukf")
+#: unit of each state's error, in the order of ``nespm_cli.vehicles.STATE_NAMES`` (u v w p q r X Y Z θ ψ φ)
+STATE_UNITS = ("m/s", "m/s", "m/s", "rad/s", "rad/s", "rad/s", "m", "m", "m", "rad", "rad", "rad")
 #: GP-h inputs: "own" = each measurement's GP takes the one state it measures; "state" = every
 #: measurement's GP takes the whole state (the paper's GP-h(x); its fits degenerate, docs/gp-ukf.md)
 H_INPUTS = ("own", "state")

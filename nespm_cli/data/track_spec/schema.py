@@ -1,28 +1,29 @@
-"""The track spec: a TOML file beside the data that maps a user's own files onto the bench's channels.
+"""The track spec: a TOML file beside the data that maps a user's own files onto the bench's channels; its
+keys (:data:`SCHEMA`), reading and checking it (:func:`read_spec`), and finding it (:func:`find_spec`).
 
 A data folder (``--data-dir DIR``) that holds :data:`SPEC_NAME` (``DIR/nespm-data.toml``) is read through
 it instead of the A-KIT layout (docs/data.md has the format and a complete example). The spec names, per
 channel (``[gt]``, ``[dvl]``, ``[imu]``, ``[depth]``, ``[fix]``), the file of each track (``file =
 "run{N}/nav.csv"``: ``{N}`` is the track number, leading zeros allowed, no other pattern), its columns, their
-units (:data:`UNITS`), the time base (``time_unit``, ``time_zero``) and offset (``time_offset`` [s], stamp
-minus GT time), the position frame (``geodetic``, or ``ned`` / ``enu`` metres about ``[origin]``), the
-vertical's sign (by the key that names it: ``alt``/``up``/``altitude`` positive up, ``depth``/``down``
-positive down) and the IMU's and DVL's axes (``axes = "x,-y,-z"``, the ``--imu-axes`` syntax).
+units (:data:`~nespm_cli.data.track_spec.units.UNITS`), the time base (``time_unit``, ``time_zero``) and
+offset (``time_offset`` [s], stamp minus GT time), the position frame (``geodetic``, or ``ned`` / ``enu``
+metres about ``[origin]``), the vertical's sign (by the key that names it: ``alt``/``up``/``altitude``
+positive up, ``depth``/``down`` positive down) and the IMU's and DVL's axes (``axes = "x,-y,-z"``, the
+``--imu-axes`` syntax).
 
 Recorded data without a ground truth: a spec without ``[gt]`` gives, instead, the ``[init]`` table (the
 initial state: numbers, not columns; :data:`INIT_KEYS`, per track in ``[init.N]``) with a recorded
-``[imu]``; its tracks are the DVL files found, their epochs the DVL's stamps (:func:`truth_free`,
-:func:`init_state`; docs/data.md, "Recorded data without ground truth").
+``[imu]``; its tracks are the DVL files found, their epochs the DVL's stamps (:func:`truth_free`;
+docs/data.md, "Recorded data without ground truth").
 
-This module reads and checks the spec (:func:`read_spec`) and finds each track's files
-(:func:`spec_tracks`, :func:`spec_file`, :func:`spec_files`); :mod:`nespm_cli.data.spec_reader` reads and
-converts them, and :func:`nespm_cli.data.tracks.load_track` checks the result as it checks an A-KIT folder.
+This module only reads and checks the TOML file: the files of each track are found by
+:mod:`~nespm_cli.data.track_spec.files`, read and converted by :mod:`~nespm_cli.data.track_spec.convert`,
+checked by :mod:`~nespm_cli.data.track_spec.data_checks` and :func:`nespm_cli.data.tracks.load_track`.
 Every refusal is a :class:`~nespm_cli.errors.NespmError` with one line naming the spec file and its key
 (``.../nespm-data.toml: key 'gt.angle_unit': 'degree' is not a unit of angle (rad, deg)``).
 """
 from __future__ import annotations
 
-import glob
 import math
 import re
 from dataclasses import dataclass
@@ -34,68 +35,8 @@ from nespm_cli.data.corrections import axes_matrix
 from nespm_cli.data.csvtable import link_problem
 from nespm_cli.data.plausibility import printable
 from nespm_cli.data.toml_keys import BOOL, INT, NUM, STR, TABLE, checked_table, read_toml
+from nespm_cli.data.track_spec.units import SI, unit_error, unit_kind
 from nespm_cli.errors import NespmError
-
-# ----------------------------------------------------------------------------- units
-# Every unit is a factor to the bench's unit (docs/conventions.md: s, rad, m, m/s, m/s², rad/s): value_SI =
-# value x factor, except time, *divided* by its ticks per second (one correctly rounded division of a count of
-# ms or us, :func:`to_seconds`). Length and speed factors are exact by definition (1 ft = 0.3048 m, 1 kn =
-# 1852 m / 3600 s); 1 g is standard gravity.
-
-STANDARD_GRAVITY = 9.80665  # [m/s^2] 1 g (the value of the unit g, not the local gravity of nav.earth)
-#: unit kind -> {unit name: factor to the SI unit}; for ``"time"`` the ticks per second
-UNITS: dict[str, dict[str, float]] = {
-    "time": {"s": 1.0, "ms": 1e3, "us": 1e6, "ns": 1e9},
-    "angle": {"rad": 1.0, "deg": math.pi / 180.0},
-    "length": {"m": 1.0, "ft": 0.3048},
-    "speed": {"m/s": 1.0, "cm/s": 0.01, "mm/s": 0.001, "ft/s": 0.3048, "kn": 1852.0 / 3600.0},
-    "acceleration": {"m/s^2": 1.0, "m/s2": 1.0, "m/s²": 1.0, "g": STANDARD_GRAVITY},
-    "rate": {"rad/s": 1.0, "deg/s": math.pi / 180.0},
-}
-#: the SI unit of each kind (what the A-KIT files hold, and the default of a spec)
-SI = {kind: next(iter(table)) for kind, table in UNITS.items()}
-
-
-def unit_kind(key: str) -> str | None:
-    """The unit kind a spec key names (``"angle_unit"`` -> ``"angle"``), or None if it names no unit."""
-    kind = key[: -len("_unit")] if key.endswith("_unit") else None
-    return kind if kind in UNITS else None
-
-
-def factor(kind: str, unit: str) -> float:
-    """The factor of ``unit`` of ``kind`` (:data:`UNITS`); raises KeyError on an unknown one."""
-    return UNITS[kind][unit]
-
-
-def unit_error(kind: str, unit) -> str | None:
-    """Why ``unit`` is not a unit of ``kind`` (one phrase for a message), or None if it is one."""
-    if isinstance(unit, str) and unit in UNITS[kind]:
-        return None
-    return f"{unit!r} is not a unit of {kind} ({', '.join(UNITS[kind])})"
-
-
-def scaled(values: np.ndarray, kind: str, unit: str) -> np.ndarray:
-    """``values`` in ``unit`` (of ``kind``, not time) as SI values (a new float array). The SI unit
-    itself returns the values unchanged bit for bit."""
-    f = factor(kind, unit)
-    values = np.asarray(values, dtype=float)
-    return values.copy() if f == 1.0 else values * f
-
-
-def to_seconds(stamps: np.ndarray, unit: str, zero: float = 0.0, offset: float = 0.0) -> np.ndarray:
-    """Stamps ``stamps`` counted in ``unit`` (``s``, ``ms``, ``us``, ``ns``) as GT time [s]:
-    ``(stamps - zero) / ticks_per_second - offset``.
-
-    ``zero`` is in ``unit`` (subtracted first, exactly for integer counts below 2**53, e.g. the UNIX
-    time of the recording's start); ``offset`` [s] is the file's *stamp minus GT time*
-    (docs/conventions.md), so a DVL stamped 0.07 s after the truth has ``offset = 0.07``. With the
-    defaults and ``unit = "s"`` the stamps are returned unchanged bit for bit."""
-    t = np.asarray(stamps, dtype=float) - float(zero)
-    ticks = factor("time", unit)
-    if ticks != 1.0:
-        t = t / ticks
-    return t - float(offset)
-
 
 # ----------------------------------------------------------------------------- the spec
 
@@ -107,8 +48,6 @@ CHANNELS = ("gt", "dvl", "imu", "depth", "fix")
 INIT_KEYS = {"time": NUM, "lat": NUM, "lon": NUM, "alt": NUM, "depth": NUM, "v_north": NUM, "v_east": NUM,
              "v_down": NUM, "roll": NUM, "pitch": NUM, "yaw": NUM, "angle_unit": UNIT, "length_unit": UNIT,
              "speed_unit": UNIT}
-INIT_NEEDED = ("lat", "lon", "v_north", "v_east", "v_down", "roll", "pitch", "yaw")
-INIT_UNITS = {"angle_unit": "deg", "length_unit": "m", "speed_unit": "m/s"}  # its own defaults ([defaults] not)
 _FILE = {"file": STR, "time": STR, "time_unit": UNIT, "time_zero": NUM}
 _SENSOR = {**_FILE, "time_offset": NUM, "optional": BOOL}
 _POSITION = {"position": FRAMES, "lat": STR, "lon": STR, "alt": STR, "depth": STR, "north": STR, "east": STR,
@@ -139,9 +78,6 @@ FRAME_KEYS = {"geodetic": (("lat", "lon"), ("alt", "depth")), "ned": (("north", 
               "enu": (("north", "east"), ("up",))}
 UP_KEYS = ("alt", "up", "altitude")  # a vertical named by one of these is positive up; "depth", "down": down
 VELOCITY_KEYS = {"ned": ("v_north", "v_east", "v_down"), "enu": ("v_north", "v_east", "v_up")}
-VERTICAL_SIGN_MIN = 0.02  # [m/s] RMS mismatch of GT vertical position and velocity below which no sign is judged
-#                           (the 13 real Snapir tracks: 0.002-0.034 m/s as they are, 0.028-1.04 with the sign flipped)
-DEPTH_SIGN_MIN = 1.0  # [m] median |depth - GT depth| below which a depth or fix altitude's sign is not judged
 
 
 @dataclass(frozen=True)
@@ -260,35 +196,6 @@ def _init_keys(path: Path, name: str, table: dict) -> dict:
                          "up) or depth (positive down)")
     return tab
 
-
-def init_state(spec: TrackSpec, number: int) -> dict:
-    """Track ``number``'s initial state from ``[init]`` (its ``[init.N]`` over the common keys): ``{"time": s or
-    None, "pos": [lat rad, lon rad, alt m up], "v_n": (3,) m/s NED, "euler": (3,) rad}``. Refused in one line
-    naming the key: a missing key, a latitude beyond ±90°, a longitude beyond ±180°, a pitch beyond ±90°, a roll
-    or yaw beyond one turn, a speed of 20 m/s or more."""
-    own = (spec.init or {}).get(number, {})
-    tab = {**INIT_UNITS, **spec.init[0], **own}
-    where = f"init.{number}" if own else "init"
-    for key in INIT_NEEDED + (("depth",) if "alt" not in tab and "depth" not in tab else ()):
-        if key not in tab:
-            raise NespmError(f"{spec.path}: key '{where}.{key}' is missing (track {number}'s initial state needs "
-                             "lat, lon, depth or alt, v_north, v_east, v_down, roll, pitch, yaw)")
-    ang = factor("angle", tab["angle_unit"])
-    lat, lon, roll, pitch, yaw = (float(tab[k]) * ang for k in ("lat", "lon", "roll", "pitch", "yaw"))
-    up = float(tab["alt"]) if "alt" in tab else -float(tab["depth"])
-    v_n = np.array([float(tab[k]) for k in ("v_north", "v_east", "v_down")]) * factor("speed", tab["speed_unit"])
-    for key, value, limit in (("lat", lat, math.pi / 2), ("lon", lon, math.pi), ("pitch", pitch, math.pi / 2),
-                              ("roll", roll, 2 * math.pi), ("yaw", yaw, 2 * math.pi)):
-        if abs(value) > limit + 1e-12:
-            raise NespmError(f"{spec.path}: key '{where}.{key}': {tab[key]!r} {tab['angle_unit']} is beyond "
-                             f"±{math.degrees(limit):g} degrees (angle_unit = {tab['angle_unit']!r})")
-    if np.linalg.norm(v_n) >= 20.0:
-        raise NespmError(f"{spec.path}: key '{where}.v_north': the initial speed {np.linalg.norm(v_n):.4g} m/s is "
-                         "20 m/s or more (speed_unit?)")
-    wrap = lambda a: math.remainder(a, 2 * math.pi)  # noqa: E731  (-pi, pi]
-    return {"time": None if "time" not in tab else float(tab["time"]),
-            "pos": np.array([lat, lon, up * factor("length", tab["length_unit"])]),
-            "v_n": v_n, "euler": np.array([wrap(roll), pitch, wrap(yaw)])}
 
 
 def _keys(path: Path, name: str, table) -> dict:
@@ -413,70 +320,3 @@ def _patterns(path: Path, track, tables: dict) -> int:
         raise NespmError(f"{path}: key 'track' must be at least 1, got {track}")
     return track
 
-
-# ----------------------------------------------------------------------------- files of a track
-
-
-def _matches(spec: TrackSpec, name: str) -> dict[int, list[str]]:
-    """``{N: [relative paths]}`` of the files table ``name``'s pattern finds in the data folder."""
-    pat = spec.tables[name]["file"]
-    if "{N}" not in pat:
-        p = spec.folder / pat
-        return {spec.track: [pat]} if p.is_file() or p.is_symlink() else {}  # a looped link: named on reading
-    parts = pat.split("{N}")
-    rx = re.compile(r"(\d+)".join(re.escape(p) for p in parts))
-    out: dict[int, list[str]] = {}
-    for p in sorted(spec.folder.glob("*".join(glob.escape(p) for p in parts))):
-        rel = p.relative_to(spec.folder).as_posix()
-        m = rx.fullmatch(rel)
-        if m and (p.is_file() or p.is_symlink()) and len({int(g) for g in m.groups()}) == 1:
-            out.setdefault(int(m.group(1)), []).append(rel)
-    return out
-
-
-def spec_tracks(spec: TrackSpec) -> list[int]:
-    """The track numbers whose GT file the spec's ``gt.file`` finds (without ``[gt]``: its DVL files), sorted;
-    none is one line."""
-    a = spec.anchor
-    found = sorted(_matches(spec, a))
-    if not found:
-        raise NespmError(f"{spec.path}: key '{a}.file': no file matches {spec.tables[a]['file']!r} in {spec.folder}")
-    return found
-
-
-def spec_file(spec: TrackSpec, name: str, number: int) -> Path | None:
-    """The file of table ``name`` for track ``number``; None when it is missing and ``optional``. Refused: no
-    GT file (no such track; without ``[gt]`` no DVL file), a missing file of another table (a truth-free
-    spec's IMU file too, whatever its ``optional``), two files of one track (``run7``, ``run07``)."""
-    pat = spec.tables[name]["file"]
-    found = _matches(spec, name).get(number, [])
-    if len(found) > 1:
-        raise NespmError(f"{spec.path}: key '{name}.file': {found[0]} and {found[1]} are both track {number}; keep one")
-    if found:
-        return spec.folder / found[0]
-    if name == spec.anchor:
-        have = ", ".join(map(str, sorted(_matches(spec, name)))) or "none"
-        raise NespmError(f"{spec.path}: no track {number} (key '{name}.file' {pat!r} finds tracks: {have})")
-    if spec.tables[name]["optional"] and not (name == "imu" and spec.init is not None):
-        return None
-    raise NespmError(f"{spec.path}: key '{name}.file': no file {pat.replace('{N}', str(number))!r} for track {number} "
-                     f"in {spec.folder} (set {name}.optional = true if some tracks have none)")
-
-
-def spec_files(spec: TrackSpec, number: int, imu: bool = False) -> list[Path]:
-    """The files track ``number`` is read from: the spec itself, the GT and DVL file, the IMU file with
-    ``imu`` (required then: no ``[imu]`` table or no file is one line), then the depth and fix files found.
-    Without ``[gt]``: the spec, the DVL and the IMU file (always: the track is read with it), then the others."""
-    if spec.init is not None:
-        return [spec.path, spec_file(spec, "dvl", number), spec_file(spec, "imu", number)] + \
-            [p for n in ("depth", "fix") if n in spec.tables and (p := spec_file(spec, n, number))]
-    files = [spec.path, spec_file(spec, "gt", number), spec_file(spec, "dvl", number)]
-    if imu:
-        if "imu" not in spec.tables:
-            raise NespmError(f"{spec.path}: no [imu] table (--imu recorded reads the IMU file it names)")
-        p = spec_file(spec, "imu", number)
-        if p is None:
-            raise NespmError(f"{spec.path}: key 'imu.file': no file {spec.tables['imu']['file']!r} for track "
-                             f"{number} (--imu recorded needs it)")
-        files.append(p)
-    return files + [p for n in ("depth", "fix") if n in spec.tables and (p := spec_file(spec, n, number))]

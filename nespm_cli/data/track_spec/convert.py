@@ -1,26 +1,24 @@
-"""One track read through a track spec (:mod:`nespm_cli.data.track_spec`, docs/data.md): the files read,
-converted with NumPy (whole columns at once) into the A-KIT arrays, and the checks only a spec needs.
+"""One track read through a track spec (:mod:`~nespm_cli.data.track_spec.schema`, docs/data.md): the files
+read and converted with NumPy (whole columns at once, units and frames) into the A-KIT arrays.
 
 :func:`read_spec_track` gives the arrays :func:`nespm_cli.data.tracks.load_track` checks as it checks an
 A-KIT folder's: the GT (N, 10) ``[t s, lon rad, lat rad, alt m (up), v_N, v_E, v_D m/s, roll, pitch, yaw rad]``,
 the DVL (K, 4) ``[t s, x, y, z m/s]`` in the body frame, the IMU (M, 7) ``[t s, f m/s², w rad/s]`` in the body
 frame, the depth (K, 1) [m, down] and fix (K, 2|3) ``[lat, lon rad(, alt m up)]`` channels. Every time is on
 the GT clock already: ``(stamp - time_zero) / ticks per second - time_offset``
-(:func:`~nespm_cli.data.track_spec.to_seconds`), so the checks see the shifted stamps. Messages name the
+(:func:`~nespm_cli.data.track_spec.units.to_seconds`), so the checks see the shifted stamps. Messages name the
 file's own column with the bench's quantity it became: ``column 'pitch_deg as Pitch [rad]'`` (the value
 shown is the converted one; a leading ``-`` marks a column whose sign was changed, as ``v_up`` becoming
 ``V Down``).
 
 A spec without ``[gt]`` gives no GT arrays (``gt`` None) and its track's initial state instead
-(``init``, :func:`nespm_cli.data.track_spec.init_state`); its IMU is required.
+(``init``, :func:`init_state`: the ``[init]`` numbers in SI units); its IMU is required.
 
-The spec-only checks: :func:`check_vertical_sign` (the GT's vertical position against its vertical
-velocity) and :func:`check_channel` (a depth or fix file's stamps, NaN rows, ranges as
-:mod:`nespm_cli.data.sensor_files` checks them, and its vertical's sign against the GT's).
+The checks only a spec's data need are :mod:`~nespm_cli.data.track_spec.data_checks`.
 """
 from __future__ import annotations
 
-import dataclasses
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -28,12 +26,11 @@ import numpy as np
 
 from nespm_cli.data.conventions import dvl_to_body
 from nespm_cli.data.corrections import axes_matrix
-from nespm_cli.data.csvtable import check_nan_rows, header_text, read_frame, to_array
+from nespm_cli.data.csvtable import header_text, read_frame, to_array
 from nespm_cli.data.plausibility import printable
-from nespm_cli.data.sensor_files import (DEPTH_COLUMNS, DEPTH_MAX, DEPTH_MIN, FIX_ALT_COLUMN, FIX_COLUMNS,
-                                         MAX_ABS_FIX_ALT, TIME, check_stamps)
-from nespm_cli.data.track_spec import (DEPTH_SIGN_MIN, FRAME_KEYS, UP_KEYS, VELOCITY_KEYS, VERTICAL_SIGN_MIN,
-                                       TrackSpec, column_keys, init_state, scaled, spec_file, to_seconds)
+from nespm_cli.data.track_spec.files import spec_file
+from nespm_cli.data.track_spec.schema import FRAME_KEYS, UP_KEYS, VELOCITY_KEYS, TrackSpec, column_keys
+from nespm_cli.data.track_spec.units import factor, scaled, to_seconds
 from nespm_cli.errors import NespmError
 from nespm_cli.nav.rotations import wrap_angle
 from nespm_cli.nav.state import position_plus
@@ -76,25 +73,13 @@ def wrapped(angles: np.ndarray) -> np.ndarray:
     return np.where(turn, wrap_angle(a), a)
 
 
-def angle_hint(spec: TrackSpec) -> str | None:
-    """The text replacing the "(degrees instead of radians?)" hint of an angle finding when the spec declares
-    ``gt.angle_unit`` (in ``[gt]`` or ``[defaults]``); None when it does not (the hint stays)."""
-    if "gt.angle_unit" not in spec.declared:
-        return None
-    unit = spec.tables["gt"]["angle_unit"]
-    if unit == "rad":
-        return f"(key 'gt.angle_unit' of {spec.path.name} declares 'rad'; a column in degrees needs 'deg')"
-    return (f"(after the declared gt.angle_unit = {unit!r} of {spec.path.name}; roll and yaw within one turn are "
-            "wrapped, so the column holds other values)")
-
-
 def labels(names: tuple, bench: tuple) -> tuple:
     """``"<file column> as <bench column>"`` for each pair, the column names of a converted file's messages."""
     return tuple(f"{n} as {b}" for n, b in zip(names, bench))
 
 
 def read_spec_track(spec: TrackSpec, number: int) -> SpecTrack:
-    """Track ``number``'s files (:func:`~nespm_cli.data.track_spec.spec_file`) read and converted. Refused in
+    """Track ``number``'s files (:func:`~nespm_cli.data.track_spec.files.spec_file`) read and converted. Refused in
     one line naming the file: a missing or unreadable file, every missing column at once, fewer than 2 data
     rows in the GT, DVL or IMU file, text that is not a number, infinity, NaN where it is not "no measurement"
     (the DVL, depth and fix values may be NaN; times, the GT and the IMU may not). Without ``[gt]``: the
@@ -238,109 +223,39 @@ def _channel(spec: TrackSpec, name: str, path: Path) -> tuple:
         _signed(names, keys, (1, 1, 1, 1 if pk[2] in UP_KEYS else -1))
 
 
-# ----------------------------------------------------------------------------- checks of a spec's data
+# ----------------------------------------------------------------------------- a spec without [gt]
+
+INIT_NEEDED = ("lat", "lon", "v_north", "v_east", "v_down", "roll", "pitch", "yaw")
+INIT_UNITS = {"angle_unit": "deg", "length_unit": "m", "speed_unit": "m/s"}  # its own defaults ([defaults] not)
 
 
-def stamps_checked(path: Path, t: np.ndarray, t_gt: np.ndarray, gt_name: str, label: str = TIME) -> None:
-    """:func:`nespm_cli.data.sensor_files.check_stamps`, its message naming the time column ``label``."""
-    try:
-        check_stamps(path, t, t_gt, gt_name)
-    except NespmError as exc:
-        if label == TIME:
-            raise
-        raise NespmError(str(exc).replace(f"column '{TIME}'", f"column '{label}'", 1)) from None
+def init_state(spec: TrackSpec, number: int) -> dict:
+    """Track ``number``'s initial state from ``[init]`` (its ``[init.N]`` over the common keys): ``{"time": s or
+    None, "pos": [lat rad, lon rad, alt m up], "v_n": (3,) m/s NED, "euler": (3,) rad}``. Refused in one line
+    naming the key: a missing key, a latitude beyond ±90°, a longitude beyond ±180°, a pitch beyond ±90°, a roll
+    or yaw beyond one turn, a speed of 20 m/s or more."""
+    own = (spec.init or {}).get(number, {})
+    tab = {**INIT_UNITS, **spec.init[0], **own}
+    where = f"init.{number}" if own else "init"
+    for key in INIT_NEEDED + (("depth",) if "alt" not in tab and "depth" not in tab else ()):
+        if key not in tab:
+            raise NespmError(f"{spec.path}: key '{where}.{key}' is missing (track {number}'s initial state needs "
+                             "lat, lon, depth or alt, v_north, v_east, v_down, roll, pitch, yaw)")
+    ang = factor("angle", tab["angle_unit"])
+    lat, lon, roll, pitch, yaw = (float(tab[k]) * ang for k in ("lat", "lon", "roll", "pitch", "yaw"))
+    up = float(tab["alt"]) if "alt" in tab else -float(tab["depth"])
+    v_n = np.array([float(tab[k]) for k in ("v_north", "v_east", "v_down")]) * factor("speed", tab["speed_unit"])
+    for key, value, limit in (("lat", lat, math.pi / 2), ("lon", lon, math.pi), ("pitch", pitch, math.pi / 2),
+                              ("roll", roll, 2 * math.pi), ("yaw", yaw, 2 * math.pi)):
+        if abs(value) > limit + 1e-12:
+            raise NespmError(f"{spec.path}: key '{where}.{key}': {tab[key]!r} {tab['angle_unit']} is beyond "
+                             f"±{math.degrees(limit):g} degrees (angle_unit = {tab['angle_unit']!r})")
+    if np.linalg.norm(v_n) >= 20.0:
+        raise NespmError(f"{spec.path}: key '{where}.v_north': the initial speed {np.linalg.norm(v_n):.4g} m/s is "
+                         "20 m/s or more (speed_unit?)")
+    wrap = lambda a: math.remainder(a, 2 * math.pi)  # noqa: E731  (-pi, pi]
+    return {"time": None if "time" not in tab else float(tab["time"]),
+            "pos": np.array([lat, lon, up * factor("length", tab["length_unit"])]),
+            "v_n": v_n, "euler": np.array([wrap(roll), pitch, wrap(yaw)])}
 
 
-def check_vertical_sign(spec_path: Path, track: SpecTrack, gt_labels: tuple) -> None:
-    """Refuse a GT whose vertical position moves against its vertical velocity: the RMS over the epochs of
-    ``|down increment - trapezoid integral of v_D| / dt`` [m/s] above :data:`VERTICAL_SIGN_MIN` and more than
-    twice that with the position's sign flipped (a depth mapped as an altitude, ``down`` for ``up``, or the
-    velocity's vertical sign wrong). Needs strictly increasing times (checked before)."""
-    t, alt, vd = track.gt[:, 0], track.gt[:, 3], track.gt[:, 6]
-    dt = np.diff(t)
-    inc, integ = -np.diff(alt), 0.5 * (vd[1:] + vd[:-1]) * dt
-    same, flip = (float(np.sqrt(np.mean(((inc + s * integ) / dt) ** 2))) for s in (-1.0, 1.0))
-    if same > VERTICAL_SIGN_MIN and flip < 0.5 * same:
-        key = track.gt_keys[3]
-        raise NespmError(
-            f"{track.gt_path}: columns '{gt_labels[3]}', '{gt_labels[6]}': the vertical position moves against the "
-            f"vertical velocity (RMS mismatch {same:.3g} m/s, {flip:.3g} m/s with the position's sign flipped): "
-            f"{spec_path.name} key '{key}' says positive {_direction(key)}; "
-            "map an altitude as alt (or up), a depth as depth (or down), or check the velocity's vertical")
-
-
-def check_channel(spec_path: Path, track: SpecTrack, name: str, t_ref: np.ndarray | None = None
-                  ) -> tuple[np.ndarray, np.ndarray]:
-    """``(t, z)`` of the converted depth or fix file ``track.channels[name]``, checked against the GT (its
-    time [s] and altitude [m, up]): stamps (strictly increasing, in the GT span), NaN in all values of a row
-    or none, the vertical's sign (:func:`_vertical_fit`), then the ranges of
-    :mod:`nespm_cli.data.sensor_files` (depth within [DEPTH_MIN, DEPTH_MAX] m, |lat| <= pi/2, |lon| <= pi,
-    |alt| <= MAX_ABS_FIX_ALT m). Without a GT (``track.gt`` None) the stamps are checked against the epochs
-    ``t_ref`` (N,) [s] and no sign against a GT."""
-    path, t, z, keys, names = track.channels[name]
-    t_gt = track.gt[:, 0] if track.gt is not None else np.asarray(t_ref, dtype=float)
-    bench = DEPTH_COLUMNS if name == "depth" else FIX_COLUMNS + ((FIX_ALT_COLUMN,) if z.shape[1] == 3 else ())
-    lab = labels(names, bench)
-    stamps_checked(path, t, t_gt, track.gt_path.name if track.gt is not None else "the DVL's epochs", lab[0])
-    check_nan_rows(path, z, lab[1:], "no measurement at this stamp")
-    if track.gt is not None and (name == "depth" or z.shape[1] == 3):
-        alt_gt = track.gt[:, 3]
-        j, sign = (0, -1.0) if name == "depth" else (2, 1.0)
-        _vertical_fit(spec_path, path, z[:, j], sign * np.interp(t, t_gt, alt_gt), lab[j + 1], keys[j + 1],
-                      track.gt_keys[3], name == "depth")
-    if name == "depth":
-        _bounds(path, z[:, 0], lab[1], DEPTH_MIN, DEPTH_MAX,
-                lambda v: f"{v!r} is outside {DEPTH_MIN:g} .. {DEPTH_MAX:g} m (metres, positive down, expected)")
-    else:
-        _bounds(path, z[:, 0], lab[1], -np.pi / 2, np.pi / 2, lambda v: f"|{v!r}| > pi/2 (radians expected)")
-        _bounds(path, z[:, 1], lab[2], -np.pi, np.pi, lambda v: f"|{v!r}| > pi (radians expected)")
-        if z.shape[1] == 3:
-            _bounds(path, z[:, 2], lab[3], -MAX_ABS_FIX_ALT, MAX_ABS_FIX_ALT,
-                    lambda v: f"|{v!r}| > {MAX_ABS_FIX_ALT:g} m (metres, positive up, expected)")
-    return t, z
-
-
-def _vertical_fit(spec_path: Path, path: Path, value: np.ndarray, gt: np.ndarray, label: str, key: str, gt_key: str,
-                  down: bool) -> None:
-    """Refuse vertical values (K,) [m] that fit the negated GT vertical ``gt`` (K,) [m, the same sign
-    convention: depth if ``down``, else altitude]: the median |value - gt| above :data:`DEPTH_SIGN_MIN` and
-    more than twice the median |value + gt| (NaN rows, no measurement, left out). The file or the GT has the
-    wrong sign: the message names both keys."""
-    ok = np.isfinite(value)
-    if not ok.any():
-        return
-    same, flip = float(np.median(np.abs(value[ok] - gt[ok]))), float(np.median(np.abs(value[ok] + gt[ok])))
-    if same > DEPTH_SIGN_MIN and flip < 0.5 * same:
-        is_, other = ("depth", "altitude") if down else ("altitude", "depth")
-        raise NespmError(
-            f"{path}: column '{label}': the values fit the GT's {other}, not its {is_}: median |value - GT {is_}| "
-            f"{same:.3g} m, |value + GT {is_}| {flip:.3g} m; {spec_path.name} key '{key}' says positive "
-            f"{'down' if down else 'up'} and '{gt_key}' says positive {_direction(gt_key)}: one of the two columns "
-            "has the other sign (map it with the other key: alt/up/altitude positive up, depth/down positive down)")
-
-
-def _direction(key: str) -> str:
-    """``"up"`` or ``"down"``: the sign of the vertical named by the spec key ``key`` (``gt.depth``)."""
-    return "up" if key.split(".")[-1] in UP_KEYS else "down"
-
-
-def _bounds(path: Path, x: np.ndarray, col: str, lo: float, hi: float, say) -> None:
-    """Refuse the first value of ``x`` outside [lo, hi] (NaN, no measurement, passes) with ``say(value)``."""
-    bad = np.flatnonzero((x < lo) | (x > hi))
-    if bad.size:
-        r = int(bad[0])
-        raise NespmError(f"{path}: data row {r + 1}, column '{col}': {say(float(x[r]))}")
-
-
-UNITS_HINT = "(degrees instead of radians?)"
-
-
-def relabel(findings: list, mapping: dict, hint: str | None = None) -> list:
-    """Plausibility findings with their bench column names replaced by ``mapping`` (``{bench: label}``) and,
-    with ``hint``, the units hint :data:`UNITS_HINT` replaced by it (the units were declared)."""
-    out = []
-    for f in findings:
-        cols = f.column and ", ".join(mapping.get(c.strip(), c.strip()) for c in f.column.split(","))
-        text = f.message.replace(UNITS_HINT, hint) if hint else f.message
-        out.append(dataclasses.replace(f, column=cols, message=text))
-    return out
