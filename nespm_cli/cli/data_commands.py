@@ -10,14 +10,15 @@ from typing import Optional
 import numpy as np
 import typer
 
-from nespm_cli.cli.options import CORRUPTION, DATA_DIR, with_options
+from nespm_cli.cli.options import ACCEPT_RESIDUAL, CORRUPTION, DATA_DIR, with_options
 from nespm_cli.cli.parsing import corruption_config, parse_tracks, warning_mode
 from nespm_cli.errors import NespmError
 
 
 def tracks(data_dir: Optional[str] = DATA_DIR,
            no_progress: bool = typer.Option(False, "--no-progress", help="Do not say which track is being read."),
-           data_warnings: str = typer.Option("warn", "--data-warnings", help="warn, ignore or error on data that looks wrong but may be legitimate.")) -> None:
+           data_warnings: str = typer.Option("warn", "--data-warnings", help="warn, ignore or error on data that looks wrong but may be legitimate."),
+           accept_residual: bool = typer.Option(False, ACCEPT_RESIDUAL[3], help=ACCEPT_RESIDUAL[4])) -> None:
     """List the tracks: duration, distance, speed, yaw rate, depth, DVL residual and lever arm."""
     from rich.console import Console
     from rich.markup import escape
@@ -37,7 +38,7 @@ def tracks(data_dir: Optional[str] = DATA_DIR,
     with Status("nespm tracks", enabled=not no_progress, plain=False) as status:
         for i, n in enumerate(numbers, 1):
             status(f"reading and fitting track {n} ({i}/{len(numbers)})")
-            s = track_summary(load_track(n, d))
+            s = track_summary(load_track(n, d, accept_residual=True if accept_residual else None))
             arm = ", ".join(f"{x:.2f}±{e:.2f}" for x, e in zip(s["lever_arm"], s["lever_arm_std"]))
             flag = " (?)" if s["lever_arm_warning"] else ""
             table.add_row(str(n), f"{s['duration_s']:.1f}", str(s["epochs"]), f"{s['distance_m']:.0f}",
@@ -79,7 +80,7 @@ def check(
     typer.echo(f"wrote {path} and {Path(out) / 'corrections.json'} (use: --corrections {Path(out) / 'corrections.json'})")
 
 
-@with_options(CORRUPTION)
+@with_options(CORRUPTION, [ACCEPT_RESIDUAL])
 def corrupt(
     tracks_: str = typer.Option("5 6", "--tracks", help="Track numbers, e.g. '5 6' or 5,6."),
     runs: int = typer.Option(100, "--runs", help="Monte Carlo runs per track."),
@@ -93,9 +94,9 @@ def corrupt(
     same options runs. A folder holding different realizations is never overwritten."""
     from nespm_cli.experiments.realizations import write_realizations
 
-    seed, data_dir = kw.pop("seed"), kw.pop("data_dir")
+    seed, data_dir, accept = kw.pop("seed"), kw.pop("data_dir"), kw.pop("accept_residual")
     path, fresh = write_realizations(parse_tracks(tracks_), runs, seed, corruption_config(kw), out, data_dir=data_dir,
-                                     materialize=materialize)
+                                     materialize=materialize, accept_residual=True if accept else None)
     typer.echo(f"wrote {path}" if fresh else f"{path} already holds these realizations; nothing written")
 
 

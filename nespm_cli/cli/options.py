@@ -62,8 +62,13 @@ KERNELS = ("kernels", Optional[str], None, "--kernels",
             "reference); default $NESPM_KERNELS, else auto. The same numbers to round-off either way (docs/architecture.md); not part of an "
             "experiment's identity, like --jobs.")
 
+#: --accept-residual (run, mc, sweep, tune through COMMON; corrupt, train, tracks): a track whose data contradict
+#: its declared conventions (docs/data-format.md) runs anyway
+ACCEPT_RESIDUAL = ("accept_residual", bool, default(Spec, "accept_residual"), "--accept-residual", "Run a track whose data contradict its declared attitude or frame conventions (a DVL residual or a heading far above the noise: nespm tracks shows it) instead of refusing it; its sentence is then a warning, recorded in the manifest (accepted_residuals) and the report's caveats. The track spec key gt.accept_residual = true does the same per track (the numbers may be wrong: fix the key the refusal names if you can).")
+
 COMMON = [  # the options that define an experiment: the realizations, the data, the filters
     *CORRUPTION,
+    ACCEPT_RESIDUAL,
     ("data_warnings", str, "warn", "--data-warnings", "Data that looks wrong but may be legitimate (irregular epoch steps, fast turns, a DVL speed far from the GT's, ...): warn (one line each), ignore, or error (exit 2). Clear mistakes are always errors."),
     ("scenario", str, default(Spec, "scenario"), "--scenario", "nominal, or outage: no DVL for --outage-length s from --outage-start s."),
     ("state", str, default(FilterConfig, "state"), "--state", "Error-state layout: 12 (the papers': velocity, attitude, biases), 15 (position first) or a comma list of blocks from pos,vel,att,ba,bg (docs/sensors.md)."),

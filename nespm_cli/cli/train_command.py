@@ -6,7 +6,7 @@ from typing import Optional
 
 import typer
 
-from nespm_cli.cli.options import DATA_DIR, IMU, RECORDED, with_options
+from nespm_cli.cli.options import ACCEPT_RESIDUAL, DATA_DIR, IMU, RECORDED, with_options
 from nespm_cli.cli.parsing import parse_tracks
 from nespm_cli.errors import NespmError
 
@@ -26,7 +26,7 @@ def _epoch_bar(bar, epochs: int):
     return progress
 
 
-@with_options(IMU, RECORDED)
+@with_options(IMU, RECORDED, [ACCEPT_RESIDUAL])
 def train(
     tracks_: str = typer.Option("1 2 3 4", "--tracks", help="Training tracks, e.g. '1 2 3 4'."),
     test_tracks: str = typer.Option("5 6", "--test-tracks", help="Held-out tracks for the Spearman check."),
@@ -78,7 +78,7 @@ def train(
     progress = _epoch_bar(bar, epochs) if bar is not None else None
     try:
         s = train_processnet(train_t, test_t, data_dir, out, runs=runs, epochs=epochs, seed=seed, progress=progress,
-                             imu=imu, corrections=corr)
+                             imu=imu, corrections=corr, accept_residual=True if kw["accept_residual"] else None)
     finally:
         if bar is not None:
             bar.stop()

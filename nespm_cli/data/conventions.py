@@ -336,7 +336,8 @@ def check_conventions(number: int, paths: dict, t, euler, v_n, dvl, imu, declare
     """Refuse (:class:`NespmError`, one line: the file, the likely cause, the key, the residual as declared and
     under the fix) a track whose data contradict its declared conventions (:func:`judge`). ``paths`` ``{"gt",
     "dvl", "imu": Path}``; ``accept`` True (else None: the spec's :data:`ACCEPT_KEY`) turns the refusal into a
-    :class:`~nespm_cli.data.plausibility.DataWarning`, recorded in :data:`ACCEPTED`; returns that sentence."""
+    :class:`~nespm_cli.data.plausibility.DataWarning` (once per track and sentence in a process: a command reads a
+    track more than once), recorded in :data:`ACCEPTED`; returns that sentence."""
     found = judge(t, euler, v_n, dvl, imu, declared)
     if found is None:
         return None
@@ -346,8 +347,10 @@ def check_conventions(number: int, paths: dict, t, euler, v_n, dvl, imu, declare
     if not accept:
         raise NespmError(one_line(path, f"{why}; {ACCEPT_HINT}"))
     text = one_line(path, f"{why} (accepted: --accept-residual or {ACCEPT_KEY}; the numbers may be wrong)")
-    ACCEPTED[(str(Path(paths["gt"]).parent), int(number))] = text
-    _warnings.warn(text, DataWarning, stacklevel=3)
+    key = (str(Path(paths["gt"]).parent), int(number))
+    if ACCEPTED.get(key) != text:
+        _warnings.warn(text, DataWarning, stacklevel=3)
+    ACCEPTED[key] = text
     return text
 
 

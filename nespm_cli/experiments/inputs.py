@@ -26,14 +26,15 @@ from nespm_cli.nav.synthesis import DEFAULT_IMU_RATE, ImuTruth, from_recorded, s
 READ_HASHES: dict[str, str] = {}
 
 
-def read_track(number: int, data_dir: str | None, imu: str) -> Track:
+def read_track(number: int, data_dir: str | None, imu: str, accept_residual: bool | None = None) -> Track:
     """Track ``number`` from ``data_dir`` (None: the embedded default), its files hashed around the
-    read into :data:`READ_HASHES`; a file that changes during the read is a one-line error."""
+    read into :data:`READ_HASHES`; a file that changes during the read is a one-line error.
+    ``accept_residual``: :func:`~nespm_cli.data.tracks.load_track`'s (None: the track spec's key decides)."""
     if data_dir is None:
         return embedded_track(number)
     files = track_files(number, data_dir, imu == "recorded")
     before = file_hashes(files)
-    track = load_track(number, data_dir)
+    track = load_track(number, data_dir, accept_residual=accept_residual)
     after = file_hashes(files)
     for path, digest in after.items():
         if before[path] != digest:
@@ -43,15 +44,16 @@ def read_track(number: int, data_dir: str | None, imu: str) -> Track:
 
 
 def prepared(number: int, data_dir: str | None, imu: str,
-             corrections: Corrections = Corrections(), imu_rate: float = DEFAULT_IMU_RATE) -> tuple[Track, ImuTruth]:
+             corrections: Corrections = Corrections(), imu_rate: float = DEFAULT_IMU_RATE,
+             accept_residual: bool | None = None) -> tuple[Track, ImuTruth]:
     """Track (corrected) and its IMU-rate truth/IMU, computed once per process and file version:
     the cache key holds the files' size, modification time and inode, so a file changed since it
     was read is read (and hashed) again. ``imu_rate`` [Hz]: the synthesized IMU's rate
-    (:func:`substeps_for`; a recorded IMU keeps its own)."""
+    (:func:`substeps_for`; a recorded IMU keeps its own). ``accept_residual``: as :func:`read_track`."""
     # None is the embedded default here (validate resolved $NESPM_DATA_DIR on the client), never
     # the worker's own $NESPM_DATA_DIR
     stamp = () if data_dir is None else tuple(file_stamp(p) for p in track_files(number, data_dir, imu == "recorded"))
-    return prepared_version(number, data_dir, imu, corrections, stamp, float(imu_rate))
+    return prepared_version(number, data_dir, imu, corrections, stamp, float(imu_rate), accept_residual)
 
 
 def file_stamp(path: Path) -> tuple:
@@ -65,10 +67,11 @@ def file_stamp(path: Path) -> tuple:
 
 @lru_cache(maxsize=16)
 def prepared_version(number: int, data_dir: str | None, imu: str, corrections: Corrections,
-                     stamp: tuple, imu_rate: float = DEFAULT_IMU_RATE) -> tuple[Track, ImuTruth]:
+                     stamp: tuple, imu_rate: float = DEFAULT_IMU_RATE,
+                     accept_residual: bool | None = None) -> tuple[Track, ImuTruth]:
     """:func:`prepared` of one version (``stamp``) of the track's files. A track without ground truth keeps
     its first epoch (its initial state): a ``--window`` or time offset that drops it is one line."""
-    track = read_track(number, data_dir, imu)
+    track = read_track(number, data_dir, imu, accept_residual)
     try:
         track = apply_corrections(track, corrections)
     except ValueError:  # Track: a track without truth lost the epoch of its initial state

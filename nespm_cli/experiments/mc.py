@@ -23,6 +23,7 @@ import pandas as pd
 from nespm_cli.data.corruption import draw, imu_errors, true_biases
 from nespm_cli.data.tracks import resolve_data_dir, track_files
 from nespm_cli.errors import NespmError
+from nespm_cli.experiments.accepted import accepted_residuals
 from nespm_cli.experiments.assembly import epoch_table
 from nespm_cli.experiments.backend import Execution
 from nespm_cli.experiments.chunking import chunk_detail, chunk_size_for
@@ -391,6 +392,7 @@ def run_cells(cells: list[Cell], options: dict, out_dir: str | Path, execution: 
                 sensors={c.tag or "all": labelled_record(c.spec) for c in cells})
     blocks = run_blocks(folder.old, first.runs)
     folder.manifest["run_blocks"] = [list(b) for b in blocks]
+    folder.manifest["accepted_residuals"] = accepted_residuals(c.spec for c in cells)  # docs/results-schema.md
     folder.save()
     out = folder.out
     cells = [dataclasses.replace(c, experiment=folder.experiment, inputs=tuple(sorted(inputs.items()))) for c in cells]

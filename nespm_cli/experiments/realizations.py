@@ -19,12 +19,16 @@ from nespm_cli.nav.synthesis import ImuTruth
 
 
 def write_realizations(tracks, runs: int, seed: int, config: CorruptionConfig, out: str | Path,
-                       data_dir: str | None = None, materialize: bool = False) -> tuple[Path, bool]:
+                       data_dir: str | None = None, materialize: bool = False,
+                       accept_residual: bool | None = None) -> tuple[Path, bool]:
     """Write ``out/realizations.parquet`` (one row per track x run, docs/results-schema.md) and
     ``out/realizations.json`` (the options that drew them).
 
     With ``materialize`` also ``out/imu_errors-<track>.parquet``: the additive IMU errors
     (run, step, e_fx..e_fz [m/s²], e_wx..e_wz [rad/s]) regenerated from the stored seeds.
+
+    ``accept_residual``: :func:`~nespm_cli.data.tracks.load_track`'s (``--accept-residual``: True; None: each
+    track spec's ``gt.accept_residual`` decides).
 
     Returns ``(path, written)``. A folder that already holds realizations of the same options
     is left as it is (``written`` False); one holding others is refused (never overwritten).
@@ -57,12 +61,15 @@ def write_realizations(tracks, runs: int, seed: int, config: CorruptionConfig, o
                 sorted(k for k in set(old) | set(options) if old.get(k) != options.get(k))))
             raise NespmError(f"--out {out}: already holds realizations ({what}); use a new folder or delete it")
         return path, False
+    truths = {}
+    for n in tracks:  # every track read (its conventions checked) before anything is written
+        # the IMU grid the errors are drawn on: the synthesized one, or a track without ground truth's recorded one
+        imu = "synthetic" if d is None or load_track(n, d, accept_residual=accept_residual).truth else "recorded"
+        truths[n] = prepared(n, str(d) if d else None, imu, accept_residual=accept_residual)[1]
     out.mkdir(parents=True, exist_ok=True)
     rows = []
     for n in tracks:
-        # the IMU grid the errors are drawn on: the synthesized one, or a track without ground truth's recorded one
-        imu = "synthetic" if d is None or load_track(n, d).truth else "recorded"
-        _, truth = prepared(n, str(d) if d else None, imu)
+        truth = truths[n]
         duration = float(truth.t[-1] - truth.t[0])
         real = draw(seed, n, np.arange(runs), duration, config)
         from nespm_cli.data.corruption import to_rows

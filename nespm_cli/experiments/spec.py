@@ -79,6 +79,9 @@ class Spec:
     smooth: tuple = ()  # filters whose RTS-smoothed solution is reported too, as <filter>-rts (filters.smoother)
     filter_options: tuple = ()  # ((filter, key, value), ...): --filter-option NAME.KEY=VALUE, [filters.NAME]
     save_series: str = "norms"  # per-run series kept in the chunks: norms, or axes (+ every component's error and std)
+    # run a track whose data contradict its declared conventions (a warning, recorded: experiments.accepted); False:
+    # each track spec's gt.accept_residual decides (data.conventions)
+    accept_residual: bool = False
     # options given explicitly (command line or config, e.g. "alpha"): checked for an effect (check_effective);
     # how an option was given is no part of the experiment: not compared, not recorded
     given: tuple = field(default=(), compare=False)
@@ -101,6 +104,8 @@ class Spec:
             d.pop("smooth")
         if self.save_series == "norms":
             d.pop("save_series")
+        if not self.accept_residual:
+            d.pop("accept_residual")
         if self.filter_options:
             d["filter_options"] = [list(o) for o in self.filter_options]
         else:
@@ -193,7 +198,7 @@ def validate(spec: Spec) -> Spec:
             where = d if d is not None else "the embedded default"
             raise NespmError(f"--tracks: no track {n} in {where}; available: {', '.join(map(str, have))}")
     for n in spec.tracks:
-        load_track(n, d)  # validates every file up front
+        load_track(n, d, accept_residual=accept_of(spec))  # validates every file up front
     spec = dataclasses.replace(spec, data_dir=str(Path(d).resolve()) if d is not None else None,
                                corrections=str(Path(spec.corrections).expanduser().resolve()) if spec.corrections else None,
                                weights=(str(Path(spec.weights).expanduser().resolve())
@@ -421,7 +426,13 @@ def track_inputs(spec: Spec, number: int) -> tuple[Track, ImuTruth]:
     IMU (:func:`nespm_cli.experiments.inputs.prepared`: read once per process)."""
     from nespm_cli.experiments.inputs import prepared
 
-    return prepared(number, spec.data_dir, spec.imu, corrections_for(spec, number), spec.imu_rate)
+    return prepared(number, spec.data_dir, spec.imu, corrections_for(spec, number), spec.imu_rate, accept_of(spec))
+
+
+def accept_of(spec: Spec) -> bool | None:
+    """``load_track``'s ``accept_residual`` of ``spec``: True with ``--accept-residual``, else None (each track
+    spec's ``gt.accept_residual`` decides; a key set true stays true)."""
+    return True if spec.accept_residual else None
 
 
 #: what a study on tracks without ground truth reports, in one line (docs/data.md)

@@ -70,10 +70,12 @@ DEFAULT_CLIP = VALIDITY_CLIP
 
 
 # ----------------------------------------------------------------------------- data
-def clean_imu(number: int, data_dir=None, imu: str = "synthetic", corrections: dict | None = None):
+def clean_imu(number: int, data_dir=None, imu: str = "synthetic", corrections: dict | None = None,
+              accept_residual: bool | None = None):
     """The clean IMU of a track (:class:`~nespm_cli.nav.synthesis.ImuTruth`): synthesized from the GT,
-    or the recorded one with the track's corrections (``corrections``: ``{track: Corrections}``)."""
-    track = load_track(int(number), data_dir)
+    or the recorded one with the track's corrections (``corrections``: ``{track: Corrections}``).
+    ``accept_residual``: :func:`~nespm_cli.data.tracks.load_track`'s (None: the track spec's key decides)."""
+    track = load_track(int(number), data_dir, accept_residual=accept_residual)
     c = (corrections or {}).get(int(number))
     if c is not None:
         track = apply_corrections(track, c)
@@ -82,7 +84,7 @@ def clean_imu(number: int, data_dir=None, imu: str = "synthetic", corrections: d
 
 def make_windows(track_numbers, data_dir=None, runs: int = DEFAULT_RUNS, seed: int = 0, schedule: str = "dynamic",
                  window: int = 100, stride: int = 100, config: CorruptionConfig | None = None,
-                 imu: str = "synthetic", corrections: dict | None = None) -> dict:
+                 imu: str = "synthetic", corrections: dict | None = None, accept_residual: bool | None = None) -> dict:
     """Windows of corrupted IMU readings and their injected noise levels.
 
     For every track, ``runs`` realizations are drawn exactly as the Monte Carlo runner
@@ -105,6 +107,7 @@ def make_windows(track_numbers, data_dir=None, runs: int = DEFAULT_RUNS, seed: i
         track_numbers: tracks to use; ``data_dir`` None means the embedded tracks.
         runs: realizations per track (run indices 0..runs-1).
         config: corruption std values (default: the protocol's, with ``schedule``).
+        accept_residual: :func:`clean_imu`'s (``--accept-residual``: True; None: the track spec's key).
 
     Returns:
         dict with ``X_acc``, ``X_gyro`` (K, window, 3) [m/s^2], [rad/s]; ``y_acc``,
@@ -119,7 +122,7 @@ def make_windows(track_numbers, data_dir=None, runs: int = DEFAULT_RUNS, seed: i
     cfg = config if config is not None else CorruptionConfig(schedule=schedule)
     parts = {k: [] for k in ("X_acc", "X_gyro", "y_acc", "y_gyro", "track", "run", "t0")}
     for n in track_numbers:
-        truth = clean_imu(int(n), data_dir, imu, corrections)
+        truth = clean_imu(int(n), data_dir, imu, corrections, accept_residual)
         t_rel = truth.t - truth.t[0]
         M = truth.steps
         if M < window:
@@ -251,12 +254,14 @@ def train_processnet(train_tracks=(1, 2, 3, 4), test_tracks=(5, 6), data_dir=Non
                      runs: int = DEFAULT_RUNS, epochs: int = DEFAULT_EPOCHS, seed: int = 0,
                      progress: Callable[[dict], None] | None = None, test_runs: int = DEFAULT_TEST_RUNS,
                      batch: int = 32, lr: float = 3e-3, val_frac: float = 0.15, patience: int = 4,
-                     imu: str = "synthetic", corrections: dict | None = None) -> dict:
+                     imu: str = "synthetic", corrections: dict | None = None,
+                     accept_residual: bool | None = None) -> dict:
     """Train the accelerometer and gyro ProcessNets and write them with their evaluation.
 
     Trains on ``runs`` dynamic-schedule realizations of ``train_tracks``, evaluates the
     Spearman correlation between predicted and injected noise std on ``test_runs``
-    realizations of the held-out ``test_tracks``, and writes
+    realizations of the held-out ``test_tracks`` (tracks read as :func:`make_windows` with
+    ``accept_residual``), and writes
 
     * ``out_path`` (.npz): both networks (``acc/...``, ``gyro/...``) with their
       normalizers, and ``meta`` (JSON: configuration, histories, test metrics);
@@ -272,8 +277,10 @@ def train_processnet(train_tracks=(1, 2, 3, 4), test_tracks=(5, 6), data_dir=Non
     if overlap:
         raise NespmError(f"training and test tracks overlap: {sorted(overlap)}")
     t0 = time.perf_counter()
-    tr = make_windows(train_tracks, data_dir, runs, seed, imu=imu, corrections=corrections)
-    te = make_windows(test_tracks, data_dir, test_runs, seed, imu=imu, corrections=corrections)
+    tr = make_windows(train_tracks, data_dir, runs, seed, imu=imu, corrections=corrections,
+                      accept_residual=accept_residual)
+    te = make_windows(test_tracks, data_dir, test_runs, seed, imu=imu, corrections=corrections,
+                      accept_residual=accept_residual)
     t_data = time.perf_counter() - t0
     nets, hists, tests, secs = {}, {}, {}, {}
     for s in SENSORS:

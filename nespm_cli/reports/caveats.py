@@ -1,6 +1,6 @@
 """The caveats of a report, each said once: what limits the numbers of the verdict and the tables
 (too few paired runs for the bootstrap, lost runs, inconsistent runs, undefined comparisons,
-RTS-smoother floors). Each function returns one sentence, or None when the caveat does not apply;
+RTS-smoother floors, tracks run with a convention residual accepted). Each function returns one sentence, or None when the caveat does not apply;
 a sweep's metrics (column ``value``) are judged per swept value.
 """
 from __future__ import annotations
@@ -15,7 +15,7 @@ from nespm_cli.reports.markdown import DASH, SMALL_MARK
 from nespm_cli.reports.results import causal_only, filters_in_order, is_smoother
 from nespm_cli.reports.stats import MIN_PAIRED_RUNS, lost_by_any
 
-__all__ = ["caveats", "caveats_md", "inconsistent_caveat", "lost_caveat", "small_sample_caveat",
+__all__ = ["caveats", "caveats_md", "inconsistent_caveat", "lost_caveat", "residual_caveats", "small_sample_caveat",
            "smoother_caveat", "undefined_caveat"]
 
 
@@ -95,6 +95,15 @@ def smoother_caveat(filters: Iterable[str]) -> str | None:
     return (f"{names}: RTS-smoother floor{'s' if many else ''} (hindsight: each epoch also uses the later "
             f"measurements), not {'causal filters' if many else 'a causal filter'}: shown beside the filters for "
             "how far a filter is from hindsight, never the best of the verdict nor the reference.")
+
+
+def residual_caveats(manifest: dict) -> list[str]:
+    """One sentence per track run although its data contradict its declared conventions (the manifest's
+    ``accepted_residuals``, ``{"<folder>#<track>": sentence}``: ``--accept-residual`` or the track spec's
+    ``gt.accept_residual``): ``"track N: convention residual accepted: <sentence>"``; ``[]`` without any (or in a
+    folder made before the key)."""
+    found = manifest.get("accepted_residuals") or {}
+    return [f"track {key.rsplit('#', 1)[-1]}: convention residual accepted: {text}" for key, text in found.items()]
 
 
 def caveats(metrics: pd.DataFrame, comps: pd.DataFrame, min_pairs: int = MIN_PAIRED_RUNS,
