@@ -40,7 +40,7 @@ RESID_SIGMAS = 6.0  # the bound in DVL noise stds (Snapir: 3.2 at most on a corr
 RESID_FLOOR = 0.05  # [m/s] the bound's floor: above the 1 Hz GT's own error (Snapir residuals 0.004-0.036 m/s)
 FLAT_RISE = 0.1  # an offset curve rising by less than this fraction of its minimum over the search is flat
 FRAME_RATIO = 0.5  # another frame is named when its residual is at most this fraction of the declared one's
-DVL_FRAME_KEY = "dvl.frame"  # the track spec key declaring the DVL vector's frame (body, ned, enu): track_spec.SCHEMA
+DVL_FRAME_KEY = "dvl.frame"  # the track spec key declaring the DVL vector's frame (body, ned, enu): track_spec.schema.SCHEMA
 DVL_AXES_KEY = "dvl.axes"  # the track spec key that maps the DVL file's axes onto the body axes
 FRAME_NAMES = {"ned": "earth-frame NED", "enu": "earth-frame ENU"}
 

@@ -6,7 +6,7 @@ A data folder holds ``TrajectoryN/GT_trajectoryN.csv`` and ``TrajectoryN/DVL_tra
 header name is ignored, extra columns are ignored; a DVL row of three NaN is a missing epoch), and
 optionally ``DEPTH_``/``FIX_trajectoryN.csv`` (:mod:`nespm_cli.data.sensor_files`, ``Track.channels``).
 A folder holding a track spec (``nespm-data.toml``, :mod:`nespm_cli.data.track_spec`, docs/data.md) is read
-through it instead: the files it names converted (:mod:`nespm_cli.data.spec_reader`), then checked alike.
+through it instead: the files it names converted (:mod:`nespm_cli.data.track_spec.convert`), then checked alike.
 Without a data folder (no ``--data-dir`` and no ``NESPM_DATA_DIR``) the deterministic embedded
 tracks of :mod:`nespm_cli.data.embedded` are used.
 
@@ -30,7 +30,7 @@ import numpy as np
 from nespm_cli.data import conventions, plausibility
 from nespm_cli.data.csvtable import QUOTE_LIMIT, read_table as _read_table, write_table as _write_csv  # noqa: F401
 from nespm_cli.data.sensor_files import CHANNEL_KINDS, check_dvl_nan, dvl_at_epochs, read_channels, write_channels
-from nespm_cli.data import track_spec as spec_reader  # the reader's public names: convert, data_checks
+from nespm_cli.data import track_spec  # the reader's public names: convert, data_checks
 from nespm_cli.data.imu_file import (IMU_MAX_ACC, IMU_MAX_GYRO, IMU_MAX_STEP, IMU_MIN_STEP,  # noqa: F401
                                       IMU_STEP_TOL, check_imu, check_imu_units)
 from nespm_cli.data.track import Track
@@ -133,7 +133,7 @@ def track_files(number: int, data_dir: str | Path | None, imu: bool = False) -> 
     folder's spelling). ``data_dir`` None: the embedded tracks, no files (``$NESPM_DATA_DIR`` is not
     consulted: pass a resolved folder). Raises :class:`NespmError` as :func:`load_track` does on an
     unknown track or an ambiguous folder. A folder with a track spec: the spec file, then the files it names
-    (:func:`nespm_cli.data.track_spec.spec_files`)."""
+    (:func:`nespm_cli.data.track_spec.files.spec_files`)."""
     if data_dir is None:
         return []
     if (spec := find_spec(folder := Path(data_dir).expanduser())) is not None:
@@ -166,7 +166,7 @@ def load_track(number: int, data_dir: str | Path | None = None, *, warnings: str
 
     The files are those of :func:`track_files` (folder and file names may carry leading zeros), or those
     a track spec in the folder names, converted first (docs/data.md; the checks below run on the converted
-    arrays, plus the spec's sign checks of :mod:`nespm_cli.data.spec_reader`; a spec without ``[gt]`` gives a
+    arrays, plus the spec's sign checks of :mod:`nespm_cli.data.track_spec.data_checks`; a spec without ``[gt]`` gives a
     track without truth, ``Track.truth`` False: :func:`_truth_free_track`). Raises :class:`NespmError`
     (one line, naming the file and first bad data row / column) on an unknown track number, two folders or
     files of one track, a missing or empty file, a missing column, non-numeric text, NaN/inf, time not
@@ -209,24 +209,24 @@ def load_track(number: int, data_dir: str | Path | None = None, *, warnings: str
 
 
 def _load_spec_track(spec: TrackSpec, number: int, warnings: str | None, accept: bool | None = None) -> Track:
-    """:func:`load_track` through a track spec: the files converted (:mod:`~nespm_cli.data.spec_reader`), then
+    """:func:`load_track` through a track spec: the files converted (:mod:`~nespm_cli.data.track_spec.convert`), then
     the A-KIT checks on the arrays (messages naming the user's file and column) and the spec's sign checks."""
-    sp = spec_reader.read_spec_track(spec, number)
+    sp = track_spec.read_spec_track(spec, number)
     if sp.gt is None:
         return _truth_free_track(spec, sp, number)
-    gt_cols, dvl_cols = spec_reader.labels(sp.gt_names, GT_COLUMNS), spec_reader.labels(sp.dvl_names, DVL_COLUMNS)
+    gt_cols, dvl_cols = track_spec.labels(sp.gt_names, GT_COLUMNS), track_spec.labels(sp.dvl_names, DVL_COLUMNS)
     _check_gt(sp.gt_path, sp.gt, gt_cols)
-    spec_reader.check_vertical_sign(spec.path, sp, gt_cols)
+    track_spec.check_vertical_sign(spec.path, sp, gt_cols)
     t_gt = sp.gt[:, 0]
     dvl, channels = _check_dvl(sp.dvl_path, sp.dvl, dvl_cols, sp.gt_path, t_gt)
     if sp.imu is not None:
-        check_imu(sp.imu_path, sp.imu, sp.gt_path, t_gt, spec_reader.labels(sp.imu_names, IMU_COLUMNS))
+        check_imu(sp.imu_path, sp.imu, sp.gt_path, t_gt, track_spec.labels(sp.imu_names, IMU_COLUMNS))
     for name in sp.channels:
-        channels[name] = spec_reader.check_channel(spec.path, sp, name)
+        channels[name] = track_spec.check_channel(spec.path, sp, name)
     names = dict(zip(GT_COLUMNS + DVL_COLUMNS, gt_cols + dvl_cols))
     return _track(number, sp.gt_path, sp.gt, sp.dvl_path, dvl, sp.imu, channels, warnings, names, sp.imu_path,
-                  spec_reader.labels(sp.imu_names, IMU_COLUMNS) if sp.imu is not None else IMU_COLUMNS,
-                  ("imu.acceleration_unit", "imu.rate_unit"), spec_reader.angle_hint(spec),
+                  track_spec.labels(sp.imu_names, IMU_COLUMNS) if sp.imu is not None else IMU_COLUMNS,
+                  ("imu.acceleration_unit", "imu.rate_unit"), track_spec.angle_hint(spec),
                   (conventions.declared_of(spec), accept))
 
 
@@ -235,7 +235,7 @@ def _truth_free_track(spec: TrackSpec, sp, number: int) -> Track:
     state's time (``init.time``, else the first DVL stamp; an ``init.time`` that is no DVL stamp is an epoch
     without a measurement), the DVL, IMU and channel files checked as usual against those epochs (no check
     against a truth), ``pos``, ``v_n``, ``euler`` the initial state in the first row and NaN after."""
-    dvl_cols = spec_reader.labels(sp.dvl_names, DVL_COLUMNS)
+    dvl_cols = track_spec.labels(sp.dvl_names, DVL_COLUMNS)
     check_dvl_nan(sp.dvl_path, sp.dvl[:, 1:4], dvl_cols[1:4])
     _check_time(sp.dvl_path, sp.dvl[:, 0], dvl_cols[0])
     _check_speed(sp.dvl_path, sp.dvl[:, 1:4], dvl_cols[1:4])
@@ -248,10 +248,10 @@ def _truth_free_track(spec: TrackSpec, sp, number: int) -> Track:
         dvl = np.vstack([np.r_[t0, np.full(3, np.nan)], dvl])
     t = dvl[:, 0]
     try:
-        check_imu(sp.imu_path, sp.imu, sp.dvl_path, t, spec_reader.labels(sp.imu_names, IMU_COLUMNS))
+        check_imu(sp.imu_path, sp.imu, sp.dvl_path, t, track_spec.labels(sp.imu_names, IMU_COLUMNS))
     except NespmError as exc:  # its span against the DVL's epochs, not a GT
         raise NespmError(str(exc).replace("GT epoch", "epoch").replace("the GT span", "the DVL's epochs")) from None
-    channels = {name: spec_reader.check_channel(spec.path, sp, name, t) for name in sp.channels}
+    channels = {name: track_spec.check_channel(spec.path, sp, name, t) for name in sp.channels}
     nan = np.full((len(t), 3), np.nan)
     pos, v_n, euler = nan.copy(), nan.copy(), nan.copy()
     pos[0], v_n[0], euler[0] = sp.init["pos"], sp.init["v_n"], sp.init["euler"]
@@ -264,7 +264,7 @@ def _track(number, gt_path: Path, gt, dvl_path: Path, dvl, imu, channels: dict, 
     """The plausibility checks (their columns renamed by ``names``, the units hint replaced by ``hint``), the
     conventions (``conv`` = (declared, accept): :func:`~nespm_cli.data.conventions.check_conventions`), the IMU's
     units against the GT (:func:`~nespm_cli.data.imu_file.check_imu_units`), then the :class:`Track`."""
-    findings = spec_reader.relabel(plausibility.check_track_arrays(gt_path, gt, dvl_path, dvl), names or {}, hint)
+    findings = track_spec.relabel(plausibility.check_track_arrays(gt_path, gt, dvl_path, dvl), names or {}, hint)
     errors = [f for f in findings if f.level == "error"]
     if errors:
         raise NespmError(errors[0].text)
@@ -336,7 +336,7 @@ def _check_dvl(path: Path, dvl: np.ndarray, cols: tuple[str, ...], gt_path: Path
     if not _on_epochs(dvl[:, 0], t_gt):
         if len(dvl) < 2:
             _check_epochs(path, dvl[:, 0], gt_path, t_gt)
-        spec_reader.stamps_checked(path, dvl[:, 0], t_gt, gt_path.name, cols[0])
+        track_spec.stamps_checked(path, dvl[:, 0], t_gt, gt_path.name, cols[0])
         channels["dvl"] = (dvl[:, 0].copy(), dvl[:, 1:4].copy())
         dvl = np.column_stack([t_gt, dvl_at_epochs(dvl[:, 0], dvl[:, 1:4], t_gt)])
     _check_speed(path, dvl[:, 1:4], cols[1:4])
