@@ -8,8 +8,11 @@ from the truth and the *true* statistics of the realizations, whatever the filte
   scaled at a segment boundary by the ratio of the factors with ``--dynamic-bias segment``;
 * IMU white noise: the corruption's per-sample std times the segment's factor, as the filters'
   PSD ``std² dt_imu`` added once per span (``--time-update imu``: once per IMU step);
-* each sensor of the suite: its synthetic noise std (``std``, never its ``r_std``), times, outages,
-  dropouts and lost components, from the same streams as the runs (``build_channel``).
+* each sensor of the suite: its synthetic noise std (``std``, never its ``r_std``), times the factor
+  of its ``noise_schedule`` at each measurement (:meth:`Sensor.noise_factor`, a dynamic one per run
+  from the run's own stream: R(t), passed to ``pcrb(r_factors=)``), and its times, outages, dropouts
+  and lost components, from the same streams as the runs (``build_channel``). Outliers are left out:
+  the bound is that of the Gaussian part.
 
 **What is averaged.** The runs may differ in what the bound depends on (dropouts, the dynamic
 schedule's factors). The bound is computed per run, conditioned on that run's pattern, and the
@@ -96,8 +99,10 @@ def track_bound(spec: Spec, number: int, runs, within_span: bool = True) -> tupl
     channels = [build_channel(true_sensor(s), track, truth, spec.seed, number, runs, clean=True)
                 for s in sensor_suite(spec)]
     fa, fg = real.acc_factors, real.gyro_factors  # (R, S)
+    factors = schedule_factors(channels, spec.seed, number, runs)
     # the patterns: what the bound of a run depends on
-    key = [fa, fg] + [ch.ok for ch in channels] + [np.isnan(ch.z).reshape(len(runs), -1) for ch in channels]
+    key = ([fa, fg] + [ch.ok for ch in channels] + [np.isnan(ch.z).reshape(len(runs), -1) for ch in channels]
+           + [f for f in factors if f is not None])
     _, first, inverse = np.unique(np.concatenate([np.asarray(k, float).reshape(len(runs), -1) for k in key], axis=1),
                                   axis=0, return_index=True, return_inverse=True)
     inverse = np.asarray(inverse).reshape(-1)
@@ -125,11 +130,27 @@ def track_bound(spec: Spec, number: int, runs, within_span: bool = True) -> tupl
         P0 = np.einsum("bi,ij->bij", np.concatenate(p0, axis=1), np.eye(lay.n))
         process = _process(lay, c, pa, pg, S, dt_imu)
         chs = [dataclasses.replace(ch, z=ch.z[idx], ok=ch.ok[idx]) for ch in channels]
+        r_factors = None if all(f is None for f in factors) else [None if f is None else f[idx] for f in factors]
         res = pcrb(lay, nav0, truth.f_b, truth.w_ib_b, truth.dt, e, chs, P0, process,
-                   per_step=spec.filter_config.time_update == "imu", within_span=within_span)
+                   per_step=spec.filter_config.time_update == "imu", within_span=within_span, r_factors=r_factors)
         out[lo:lo + len(idx)] = res.diag
     labels = [lab for b in lay.blocks for lab in BLOCKS[b][2]]
     return out[inverse], labels
+
+
+def schedule_factors(channels: list, seed: int, number: int, runs: np.ndarray) -> list:
+    """Per channel, (R, K) the factor of its sensor's ``noise_schedule`` on the noise std at each of its
+    K measurement times in each run (:meth:`nespm_cli.sensors.source.Sensor.noise_factor`: the factor the
+    realizations draw with), or None: no schedule (R as the sensor's model gives it) or a recorded sensor."""
+    out = []
+    for ch in channels:
+        opt = ch.sensor.opt
+        if getattr(opt, "source", "synthetic") != "synthetic" or not getattr(opt, "noise_schedule", ""):
+            out.append(None)
+            continue
+        f = ch.sensor.noise_factor(ch.t, seed, number, np.asarray(runs, dtype=np.int64))
+        out.append(None if f is None else np.asarray(f, dtype=float))
+    return out
 
 
 def _process(lay, c, pa: np.ndarray, pg: np.ndarray, S: int, dt_imu: float):
@@ -301,5 +322,5 @@ def _rmse_3sigma(runs: pd.DataFrame | None, block: str, rmse: float) -> float:
 
 
 __all__ = ["CONVERGED_BLOCKS", "CONVERGED_S", "EFFICIENCY_BLOCKS", "add_pcrb", "bound_columns", "bound_layout",
-           "efficiency", "track_bound", "true_sensor", "unknown_columns", "unknown_reason", "window_mask",
-           "window_text"]
+           "efficiency", "schedule_factors", "track_bound", "true_sensor", "unknown_columns", "unknown_reason",
+           "window_mask", "window_text"]
