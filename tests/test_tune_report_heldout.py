@@ -12,10 +12,12 @@ import pandas as pd
 import pytest
 
 from nespm_cli.cli import main
+from nespm_cli.reports.block_consistency import block_consistency
 from nespm_cli.reports.markdown import fmt
 from nespm_cli.reports.stats import improvement
-from nespm_cli.reports.tune import heldout_rows, model_lines, model_note
+from nespm_cli.reports.tune_heldout import heldout_rows, model_lines, model_note
 from nespm_cli.reports.tune_searches import consistency_scores, convergence_of, convergence_text, filter_values
+from nespm_cli.reports.verdict import consistency_summary
 from nespm_cli.tuning.refine import verdict
 from nespm_cli.tuning.spec import training_seed
 
@@ -73,6 +75,20 @@ def test_heldout_vrmse_leaves_t0_out_as_the_mc_report(tuned):
         cells = [c.strip() for c in line.split("|")[1:-1]]
         assert cells[1:3] == [fmt(r["vrmse"][0]), fmt(r["vrmse"][1])]
         assert fmt(rms(tuned / "heldout-tuned", f, 0)) not in cells
+        # the ANEES by the same rule: each run's mean NEES after t = 0 (nees_post), not the every-epoch nees
+        assert r["posterior_nees"]
+        for i, (side, part) in enumerate((("default", d), ("tuned", t))):
+            mine = part[(part["filter"] == f) & ~part["diverged"]]
+            post, every = float(mine["nees_post"].mean()), float(mine["nees"].mean())
+            assert abs(post / every - 1) > 1e-3 and r["nees"][side][0] == pytest.approx(post, rel=1e-12)
+            assert cells[4 + i].startswith(fmt(post, ".3g") + " [")
+        # the consistency in the mc report's one wording (verdict.consistency_summary)
+        held = tuned / "heldout-tuned"
+        table = block_consistency(pd.read_parquet(held / "epochs.parquet"),
+                                  json.loads((held / "manifest.json").read_text()))
+        words = consistency_summary(table, t)
+        assert row_of(text, f"| {f} | ", "in the mc report's words").endswith(f"| {words[f]} |")
+    assert "run's mean NEES over the epochs after t = 0 (`nees_post`), as the mc report's" in text
     # the tuned filters compared: the same rule over the runs no filter lost
     vals = filter_values(t, "vrmse")
     for f in ("ekf", "ukf"):
@@ -152,9 +168,12 @@ def test_model_lines_name_the_lever_arm():
     synthetic = model_note("ekf", record, {"dvl": {"source": "synthetic", "lever_arm": [0.0, 0.0, 0.0]}})
     assert "lever_arm_x_dvl" not in synthetic and "synthetic, drawn with its model's lever arms" in synthetic
     rows = [{"filter": "ekf", "nees": {"tuned": (4.0, 100)}}, {"filter": "ukf", "nees": {"tuned": (6.0, 100)}}]
-    lines = model_lines(rows, {"ekf": "consistent", "ukf": "consistent"}, record, sensors)
-    assert len([x for x in lines if x.startswith("- **")]) == 1 and "**ekf** tuned: ANEES conservative" in lines[2]
+    words = {"ekf": "consistent; mean NEES 4 below its band [5.3, 6.7], driven by velocity", "ukf": "consistent"}
+    lines = model_lines(rows, words, record, sensors)  # the one wording (verdict.consistency_summary) as given
+    assert len([x for x in lines if x.startswith("- **")]) == 1 and f"**ekf** tuned: {words['ekf']}. Its" in lines[2]
     assert model_lines(rows[1:], {"ukf": "consistent"}, record, sensors) == []
+    lines = model_lines(rows, {}, record, sensors)  # no wording: the mean NEES's band word
+    assert len(lines) == 4 and lines[2].startswith("- **ekf** tuned: conservative. Its model puts")
 
 
 def test_objective_error_and_older_folders(tuned, tmp_path):

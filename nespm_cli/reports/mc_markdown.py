@@ -29,6 +29,7 @@ from nespm_cli.reports.pcrb import SECTION as PCRB_SECTION
 from nespm_cli.reports.published import PUBLISHED, published_tables
 from nespm_cli.reports.block_consistency import consistency_md, consistency_words
 from nespm_cli.reports.results import filters_in_order, is_smoother, scenario_of, sensor_dims, smoother_label
+from nespm_cli.reports.robust_counts import rejection_md
 from nespm_cli.reports.stats import (
     METRICS,
     MIN_PAIRED_RUNS,
@@ -41,10 +42,11 @@ from nespm_cli.reports.stats import (
     paired_run_counts,
     percentile_ci,
     lost_by_any,
+    posterior_view,
     track_average,
 )
 from nespm_cli.reports.tables import filter_table, horizontal_table
-from nespm_cli.reports.verdict import verdict_table
+from nespm_cli.reports.verdict import consistency_summary, verdict_table
 from nespm_cli.reports.verdict_markdown import pairwise_md, verdict_intro, verdict_md
 from nespm_cli.reports.tune import training_caveats
 
@@ -53,9 +55,13 @@ __all__ = ["beside_md", "folder_label", "render_report"]
 #: the caption of the main tables: the t = 0 rule (docs/report.md)
 TABLE_CAPTION = ("VRMSE and MRMSE: eq 50 of `anukf.md` (Levy and Klein, \"Adaptive Neural Unscented Kalman "
                  "Filter\"; docs/references.md) per track, eq 51 over tracks; the improvement columns are the papers' "
-                 "\"Imprv.\" of the reference over the row. {verdict} The mean NEES is the mean of each run's NEES over "
-                 "every epoch, t = 0 included (1 epoch in N; `metrics.parquet` has no posterior NEES). RTS-smoother "
-                 "floors stand in their own rows, without an improvement.")
+                 "\"Imprv.\" of the reference over the row. {verdict} {nees} RTS-smoother floors stand in their own "
+                 "rows, without an improvement.")
+#: what the caption says of the mean NEES: after t = 0 (``nees_post``), or every epoch for a folder without it
+NEES_EPOCHS = {True: ("The mean NEES is the mean over the runs not lost of each run's mean NEES over the epochs "
+                      "after t = 0 (`nees_post`), as the errors."),
+               False: ("The mean NEES is the mean of each run's NEES over every epoch, t = 0 included (1 epoch in "
+                       "N; this folder's `metrics.parquet` has no `nees_post`: written by an older nespm).")}
 #: what the caption says of the epochs, with the posterior sums and for a folder without them
 VERDICT_EPOCHS = {True: ("Every error here, as everywhere in this report, is over the epochs after t = 0 "
                          "(docs/report.md, \"The t = 0 rule\"); the papers' every-epoch values stand only beside the "
@@ -64,7 +70,8 @@ VERDICT_EPOCHS = {True: ("Every error here, as everywhere in this report, is ove
 PAIRWISE_CAPTION = ("The best filter of each metric against every other filter: its improvement [95 % CI] over the "
                     "runs both kept, the errors as in the verdict.")
 CONSISTENCY_CAPTION = (" Consistency: judged per block and sensor from the share of epochs inside the 95 % bounds "
-                       "(section \"Consistency per block and sensor\"), not from the mean NEES.")
+                       "(section \"Consistency per block and sensor\"), not from the mean NEES; where the mean NEES "
+                       "lies outside its band, the words say where and name the block that drives it.")
 
 
 def _nees_cells(nees: float, lo: float, hi: float, word: str) -> list[str]:
@@ -75,7 +82,8 @@ def _nees_cells(nees: float, lo: float, hi: float, word: str) -> list[str]:
 def _main_table(table: pd.DataFrame, words: dict | None = None) -> str:
     """Markdown of :func:`filter_table`: the causal filters, then the RTS-smoother floors in their own rows
     (their value only: a floor is no improvement). ``words``: per filter the consistency judged per block
-    (:func:`block_consistency.consistency_words`), else the mean NEES's band word."""
+    (:func:`verdict.consistency_summary`: the blocks' words and, with the mean NEES outside its band, the block
+    that drives it), else the mean NEES's band word."""
     ref = table.attrs["reference"]
     words = words or {}
     min_pairs = table.attrs.get("min_pairs", MIN_PAIRED_RUNS)
@@ -121,7 +129,9 @@ def _horizontal_md(metrics: pd.DataFrame) -> str:
         return ("No horizontal-position columns (`hpe_final`, `hpe_rms`, `hpe_final_pct`, ...) in "
                 "`metrics.parquet`: the folder was written by an older nespm; re-run `nespm mc` into a "
                 "new folder to get them.")
-    vert = vertical_rms(metrics)
+    view = posterior_view(metrics)  # the t = 0 rule: vert_rms_post where the folder has it
+    post = bool(view.attrs["posterior"]) and "vert_rms_post" in metrics.columns
+    vert = vertical_rms(view)
     headers = ["Track", "Method", "distance [m]", "final HPE [m]", "RMS HPE [m]",
                "final HPE [% of distance]", "CEP50 [m]", "R95 [m]", *(["vertical RMS [m]"] if vert else []),
                "diverged"]
@@ -136,11 +146,15 @@ def _horizontal_md(metrics: pd.DataFrame) -> str:
             "tracks; RMS HPE: eq 50 with `sse_hpe` over the epochs after t = 0 per track and eq 51 over tracks; CEP50 and R95: the "
             "radii holding 50 % and 95 % of those runs' final horizontal errors (per track; mean over "
             "tracks on the average rows); distance: the truth's horizontal distance travelled"
-            + ("; vertical RMS: the RMS over those runs and the epochs of the vertical error (eq 51 over tracks; every "
-               "epoch, t = 0 included: `metrics.parquet` has no posterior sum of it, and its t = 0 error is the "
-               "initial one, `--pos-v-std`)"
-               if vert else "") + ".\n\n"
+            + (f"; vertical RMS: the RMS over those runs and {VERT_EPOCHS[post]} of the vertical error (eq 51 over "
+               "tracks)" if vert else "") + ".\n\n"
             + md_table(headers, rows))
+
+
+#: the epochs of the vertical RMS: after t = 0 (``vert_rms_post``), or every epoch for a folder without it
+VERT_EPOCHS = {True: "the epochs after t = 0 (`vert_rms_post`, as RMS HPE)",
+               False: ("every epoch, t = 0 included (this folder's `metrics.parquet` has no `vert_rms_post`; its "
+                       "t = 0 error is the initial one, `--pos-v-std`)")}
 
 
 def nis_md(metrics: pd.DataFrame, manifest: dict) -> str:
@@ -297,6 +311,8 @@ def beside_md(metrics: pd.DataFrame, label: str, others: Sequence[tuple[str, pd.
             + md_table(headers, rows))
 
 
+#: the heading of the section on the robust updates' counts (reports.robust_counts), when a filter has one
+ROBUST_SECTION = "## Robust updates: rejected and applied samples"
 #: the heading of the section on each adaptive filter's share of its oracle's gain (reports.oracle_share)
 ORACLE_SECTION = "## Share of the oracle's gain"
 
@@ -342,7 +358,9 @@ def render_report(
                        min_pairs=min_pairs, comps=comps, consistency=consistency)
     has_blocks = consistency is not None and not consistency.empty
     posterior = bool(vt.attrs["posterior"])
-    words = consistency_words(consistency, shares=False) if has_blocks else {}
+    words = consistency_summary(consistency, metrics, shares=False) if has_blocks else {}
+    nees_post = bool(posterior_view(metrics).attrs["posterior_nees"])
+    robust = rejection_md(metrics, manifest)
     track_words = consistency_words(consistency_by_track, shares=False) if consistency_by_track is not None else {}
     tracks = int(metrics["track"].nunique())
     return "\n\n".join(
@@ -356,11 +374,13 @@ def render_report(
             + verdict_md(vt, comps, tracks),
             *([all_runs_section(metrics, ref, n_boot, seed)] if all_runs == "median" and vt.attrs["any_lost"] else []),
             "## Caveats\n\n" + caveats_md(caveats(metrics, comps, min_pairs, [*notes, *training_caveats(manifest)])),
-            "## Track-averaged results (eq 51)\n\n" + TABLE_CAPTION.format(verdict=VERDICT_EPOCHS[posterior]) + (CONSISTENCY_CAPTION if has_blocks else "")
-            + "\n\n" + _main_table(table, words),
+            "## Track-averaged results (eq 51)\n\n"
+            + TABLE_CAPTION.format(verdict=VERDICT_EPOCHS[posterior], nees=NEES_EPOCHS[nees_post])
+            + (CONSISTENCY_CAPTION if has_blocks else "") + "\n\n" + _main_table(table, words),
             *(["## Consistency per block and sensor\n\n" + consistency_md(consistency, smoother_label)]
               if has_blocks else ["## Innovations per sensor\n\n" + nis_md(metrics, manifest)]
               if nis_md(metrics, manifest) else []),
+            *([ROBUST_SECTION + "\n\n" + robust] if robust else []),
             "## Figures\n\n" + figures_md(figures, out_dir),
             "## Per-track results (eqs 50, 52)\n\n" + _track_md(tt, track_words),
             "## Horizontal position error\n\n" + _horizontal_md(metrics),

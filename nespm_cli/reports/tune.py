@@ -4,12 +4,9 @@ Sections: what was tuned on (and whether the held-out tracks overlap it); per fi
 and tuned training score and whether its search converged (:mod:`nespm_cli.reports.tune_searches`);
 the tuned values beside the defaults with their range, importance and profile (a flat profile: the
 objective cannot see the parameter); on the held-out runs (naming their time window), per filter the
-default against the tuned settings on the objective's error (the horizontal RMS error with position
-in the state, else the VRMSE; the VRMSE beside) by the mc report's rule (the epochs after t = 0, eq 50
-per track, eq 51 over tracks; paired bootstrap 95 % interval of the improvement), the ANEES against
-its band and the consistency per block, a line per tuned filter left inconsistent on where a model
-parameter (a lever arm) may explain it, the tuned filters against each other (the fair comparison),
-and with ``--repeats K`` the searches compared over runs and searches; figures: convergence (best
+default against the tuned settings by the mc report's rules (the epochs after t = 0), the consistency in
+its one wording, where a model parameter may explain an inconsistency, the tuned filters against each
+other and with ``--repeats K`` the searches (:mod:`nespm_cli.reports.tune_heldout`); figures: convergence (best
 score so far against trial) and parameter importance. The setup counts each filter's training trials per
 phase (search, refinement, checks) and the level's and held-out runs, so the cost beyond the search shows.
 Without a ground truth (``tune.json``'s ``ground_truth`` false: ``--objective innovation`` on a track spec
@@ -19,7 +16,6 @@ without ``[gt]``) the training scores are the innovation statistics and the held
 from __future__ import annotations
 
 import json
-import math
 from pathlib import Path
 
 import numpy as np
@@ -30,15 +26,11 @@ from nespm_cli.errors import NespmError
 from nespm_cli.tuning.heldout import DEFAULT_DIR, TUNED_DIR
 from nespm_cli.tuning.profile import FLAT, stopped_short
 from nespm_cli.filters.options import TUNED_ON, training_overlap
-from nespm_cli.reports.block_consistency import block_consistency, consistency_words
 from nespm_cli.reports.figures import save_figure, use_agg
 from nespm_cli.reports.innovation import heldout_innovation_section
-from nespm_cli.reports.markdown import fmt, fmt_imprv, md_table
-from nespm_cli.reports.results import load_results
-from nespm_cli.reports.stats import (ci_marks, improvement, nees_check, paired_averages, paired_bootstrap,
-                                     paired_improvement, paired_run_counts, percentile_ci, posterior_view)
-from nespm_cli.reports.tune_searches import (ACCURACY, accuracy_key, consistency_scores, convergence_of,
-                                             convergence_text, filter_values, searches_section)
+from nespm_cli.reports.markdown import fmt, md_table
+from nespm_cli.reports.tune_heldout import heldout_section, window_text
+from nespm_cli.reports.tune_searches import convergence_of, convergence_text
 
 
 def is_tune_folder(out_dir: Path) -> bool:
@@ -153,160 +145,6 @@ def cost_lines(record: dict, trials: pd.DataFrame) -> list[str]:
             f"per trial{held}):", ""] + out + [""]
 
 
-def heldout_rows(default: pd.DataFrame, tuned: pd.DataFrame, keys: list[str], n_boot: int) -> list[dict]:
-    """Per filter: default against tuned on the same held-out runs, by the mc report's rule for each error
-    ``key`` of ``keys`` (``vrmse``, ``hpe``): the posterior sums (t = 0 out, :func:`stats.posterior_view`),
-    eq 50 per track over the runs neither lost, eq 51 over tracks; ``{key: (default, tuned, improvement of
-    tuned [%], lo, hi, mark)}`` (paired bootstrap 95 % interval, ``†`` under 10 pairs on a track), and
-    ``nees`` ({"default", "tuned"}: the mean per-run NEES over the runs each kept), ``lost``, ``posterior``
-    (False: a folder without the posterior sums, every epoch counted)."""
-    rows = []
-    for f in sorted(set(default["filter"]) & set(tuned["filter"]), key=list(default["filter"].unique()).index):
-        a, b = f"{f} default", f"{f} tuned"
-        m = posterior_view(pd.concat([default[default["filter"] == f].assign(filter=a),
-                                      tuned[tuned["filter"] == f].assign(filter=b)], ignore_index=True))
-        row = {"filter": f, "posterior": bool(m.attrs["posterior"]), "nees": {}, "lost": {}}
-        averages = paired_averages(m, a, b, keys)
-        boot = paired_bootstrap(m, a, b, n_boot=n_boot, keys=keys)
-        counts = paired_run_counts(m, a, b)
-        for k in keys:
-            lo, hi = percentile_ci(boot[k])
-            row[k] = (*averages[k], float(improvement(*averages[k])), lo, hi,
-                      ci_marks(lo, hi, min(counts.values()) if counts else 0)[2])
-        for side, part in (("default", default), ("tuned", tuned)):
-            mine = part[part["filter"] == f]
-            row["nees"][side] = (float(mine.loc[~mine["diverged"], "nees"].mean()), int((~mine["diverged"]).sum()))
-            row["lost"][side] = int(mine["diverged"].sum())
-        rows.append(row)
-    return rows
-
-
-def heldout_table(rows: list[dict], keys: list[str], scores: tuple[dict, dict] | None) -> str:
-    """Markdown of :func:`heldout_rows`; ``scores`` (default, tuned) ``{filter: consistency score}`` adds
-    the consistency objective's own score beside."""
-    head = ["filter"]
-    for k in keys:
-        name = ACCURACY[k][0]
-        head += [f"{name} default", f"{name} tuned", f"{name}: tuned vs default (+: tuned better)"]
-    head += (["consistency score default", "consistency score tuned"] if scores else []) + [
-        "ANEES default", "ANEES tuned", "lost default", "lost tuned"]
-    out = []
-    for r in rows:
-        cells = [r["filter"]]
-        for k in keys:
-            d, t, point, lo, hi, mark = r[k]
-            cells += [fmt(d), fmt(t), fmt_imprv(point, lo, hi, mark)]
-        if scores:
-            cells += [fmt(scores[0].get(r["filter"], math.nan)), fmt(scores[1].get(r["filter"], math.nan))]
-        for side in ("default", "tuned"):
-            nees, n = r["nees"][side]
-            lo, hi, word = nees_check(nees, n)
-            cells.append(f"{fmt(nees, '.3g')} [{fmt(lo, '.3g')}, {fmt(hi, '.3g')}] {word}")
-        out.append(cells + [str(r["lost"]["default"]), str(r["lost"]["tuned"])])
-    return md_table(head, out)
-
-
-def heldout_consistency(epochs: pd.DataFrame | None, manifest: dict) -> dict:
-    """Per filter of a held-out mc folder (its ``epochs.parquet`` and manifest): the per-block consistency
-    words (the mc report's rule: the share of epochs inside the 95 % bounds, docs/report.md
-    "Consistency"); {} without per-epoch columns."""
-    return {} if epochs is None else consistency_words(block_consistency(epochs, manifest))
-
-
-def fair_rows(tuned: pd.DataFrame, key: str, n_boot: int) -> list[list[str]]:
-    """The tuned filters against the most accurate tuned one on error ``key`` (:func:`filter_values`:
-    t = 0 out, over the runs no filter lost; improvements paired over the runs each pair kept)."""
-    values = filter_values(tuned, key)
-    m = posterior_view(tuned)
-    best = min(values, key=values.get)
-    rows = []
-    for f in sorted(values, key=values.get):
-        if f == best:
-            rows.append([f, fmt(values[f]), "(reference)"])
-            continue
-        point = paired_improvement(m, f, best, keys=[key])[key]
-        lo, hi = percentile_ci(paired_bootstrap(m, f, best, n_boot=n_boot, keys=[key])[key])
-        counts = paired_run_counts(m, f, best)
-        rows.append([f, fmt(values[f]), fmt_imprv(point, lo, hi, ci_marks(lo, hi, min(counts.values()))[2])])
-    return rows
-
-
-def sensor_cells(manifest: dict) -> dict[str, dict]:
-    """``{sensor: its recorded options}`` of an mc folder's manifest (the first cell holding each)."""
-    out: dict[str, dict] = {}
-    for cell in (manifest.get("sensors") or {}).values():
-        for name, o in (cell.items() if isinstance(cell, dict) else ()):
-            if isinstance(o, dict):
-                out.setdefault(name, o)
-    return out
-
-
-def model_note(f: str, record: dict, sensors: dict[str, dict]) -> str:
-    """Where a model parameter may explain filter ``f``'s tuned held-out inconsistency: per sensor whose
-    model reads a lever arm, the lever arm of ``f``'s model (searched, or fixed while the sensor's
-    measurements are recorded: a wrong one adds ``ω × l`` in every turn, which no Q, R or P0 covers on
-    every track); with every lever arm searched or synthetic, the model parameters ``f`` does not hold;
-    and the spread of its training tracks' ANEES at the fitted level."""
-    from nespm_cli.filters.options import AXES, lever_key
-    from nespm_cli.sensors.registry import get_sensor
-
-    b = record["best"][f]
-    searched = {p["key"] for p in record["space"].get(f, []) if p.get("kind") == "model"}
-    given = {o[1]: o[2] for o in (record.get("spec") or {}).get("filter_options", []) if o[0] == f}
-    parts, open_lever = [], False
-    for s, o in sensors.items():
-        try:
-            if "lever_arm" not in o or not get_sensor(s).has_lever:
-                continue
-        except NespmError:  # a plugin sensor not loaded here: its model is unknown
-            continue
-        keys = [lever_key(s, a) for a in AXES]
-        arm = [float(b["values"].get(k, given.get(k, v))) for k, v in zip(keys, o["lever_arm"])]
-        where = "(" + ", ".join(f"{v:.3g}" for v in arm) + ") m"
-        done = [k for k in keys if k in searched]
-        if done:
-            parts.append(f"its {s} lever arm was searched ({', '.join(done)}): {where}")
-        if o.get("source") == "recorded" and len(done) < len(keys):
-            open_lever = True
-            parts.append(f"its model puts the {s} at {where} from the IMU{' (the other axes fixed)' if done else ''} "
-                         f"while the {s} measurements are recorded: a lever arm the model gets wrong adds `ω × l` in "
-                         "every turn, an error no Q, R or P0 covers on every track (the embedded and Snapir DVLs sit "
-                         f"1.6-2.1 m aft); search it (`--tune-range '*.{lever_key(s, 'x')}=-3:3'`) or give it "
-                         f"(`--filter-option {f}.{lever_key(s, 'x')}=...`)")
-    recorded = (record.get("spec") or {}).get("imu") == "recorded" or any(
-        o.get("source") == "recorded" for o in sensors.values())
-    if recorded and not open_lever:
-        parts.append("what is left may be a model parameter the filter does not hold (a sensor's time offset, scale "
-                     "factor or misalignment: `nespm check` fits them) or held-out tracks unlike the training ones")
-    elif not recorded:
-        parts.append("its IMU and sensors are synthetic, drawn with its model's lever arms: not a model parameter but "
-                     f"the noise's shape or level (the level fitted on {b.get('level_runs', '—')} runs per track "
-                     "carries their sampling spread) or held-out tracks unlike the training ones")
-    spread = [float(v) for v in (b.get("at_level_tracks") or {}).values() if np.isfinite(v)]
-    if len(spread) > 1:
-        parts.append(f"its training tracks' ANEES at the level spread from {min(spread):.3g} to {max(spread):.3g} "
-                     "(a wide spread: the model misses something the noise cannot cover)")
-    text = "; ".join(parts)
-    return text[:1].upper() + text[1:]
-
-
-def model_lines(rows: list[dict], words: dict, record: dict, sensors: dict[str, dict]) -> list[str]:
-    """A line per filter whose tuned settings are not consistent on the held-out runs (its mean ANEES
-    outside its band, or a block or sensor by the share rule), with :func:`model_note`."""
-    lines = []
-    for r in rows:
-        f = r["filter"]
-        word = nees_check(*r["nees"]["tuned"])[2]
-        blocks = words.get(f, "consistent")
-        if word in ("consistent", "—") and blocks in ("consistent", "—"):
-            continue
-        lines.append(f"- **{f}** tuned: ANEES {word}, blocks {blocks}. {model_note(f, record, sensors)}.")
-    if not lines:
-        return []
-    return ["Where a model parameter may explain it (docs/tuning.md, \"When tuning cannot make a filter "
-            "consistent\"):", ""] + lines + [""]
-
-
 def figures(record: dict, trials: pd.DataFrame, fig_dir: Path) -> list[str]:
     """convergence.png (best score so far against trial; with ``--repeats`` the other searches dotted) and
     importance.png; their file names."""
@@ -374,63 +212,6 @@ def cross_section(record: dict) -> list[str]:
              md_table(["filter", "own best"] + [f"with {g}'s values" for g in names], rows), ""]
     return lines + (short + [""] if short else ["Every filter's own best is at least as good as the others' "
                                                   f"values (within {100 * FLAT:.0f} %).", ""])
-
-
-def window_text(record: dict) -> str:
-    """The time window the runs used: ``window 0:60 s of each track's GT time`` or ``whole tracks``."""
-    w = (record.get("spec") or {}).get("window")
-    return f"window {w} s of each track's GT time (`--window`)" if w else "whole tracks"
-
-
-def heldout_section(out_dir: Path, record: dict, n_boot: int) -> list[str]:
-    """"Held out": per filter the default against the tuned settings on the objective's error (and the
-    VRMSE beside it), the consistency per block, where a model parameter may explain an inconsistency,
-    the tuned filters compared and (``--repeats``) the searches."""
-    test = record["test"]
-    (default, ep_d, man_d), (tuned, ep_t, manifest) = (load_results(out_dir / DEFAULT_DIR),
-                                                       load_results(out_dir / TUNED_DIR))
-    key = accuracy_key(record)
-    keys = list(dict.fromkeys([key, "vrmse"]))
-    rows = heldout_rows(default, tuned, keys, n_boot)
-    scores = None
-    if record.get("objective") == "consistency":
-        scores = (consistency_scores(ep_d, man_d), consistency_scores(ep_t, manifest))
-    words_d, words_t = heldout_consistency(ep_d, man_d), heldout_consistency(ep_t, manifest)
-    epochs = ("the epochs after t = 0 (posterior sums; the mc report's verdict and comparisons, docs/report.md "
-              "\"The t = 0 rule\")" if all(r["posterior"] for r in rows) else
-              "every epoch including t = 0 (a folder written before the posterior sums: the improvements are "
-              "diluted towards 0; rerun `nespm tune` into a new folder)")
-    name = ACCURACY[key][0]
-    own = ("The consistency score is the objective's own (the mean over blocks and sensors of log(ANEES/3)² and "
-           "log(ANIS/m)² over the epochs after t = 0, from the per-epoch averages; no interval). "
-           if scores else "")
-    scored = record.get("objective") in ("rmse", "rmse-consistent")
-    what = (f"The {name} ({'the error the objective scores' if scored else 'not scored by this objective'})"
-            + ("" if key == "vrmse" else " and the VRMSE beside it"))
-    where = (f"tracks {' '.join(map(str, test['tracks']))}, {test['runs']} runs (seed {test['seed']}), "
-             f"{window_text(record)}")
-    lines = [f"## Held out: {where}", "",
-             f"Default and tuned settings on the same realizations. {own}{what}: over {epochs}, eq 50 per track "
-             "over the runs neither setting lost, eq 51 over tracks; the improvement of the tuned over the default "
-             "paired by run with its bootstrap 95 % interval (`†`: fewer than 10 paired runs on a track, too few "
-             "for the interval); ANEES (6 dof, the mean per-run NEES over all epochs, as the mc report's) with its "
-             "95 % band.", "", heldout_table(rows, keys, scores), "",
-             "Consistency per state block and sensor on the held-out runs (the mc report's rule: the share "
-             "of epochs inside the 95 % bounds; the mean ANEES above only places the average):", "",
-             md_table(["filter", "default", "tuned"],
-                      [[f, words_d.get(f, "—"), words_t.get(f, "—")] for f in dict.fromkeys(default["filter"])]),
-             ""]
-    lines += model_lines(rows, words_t, record, sensor_cells(manifest))
-    many = int(record.get("repeats", 1) or 1) > 1 and record.get("searches")
-    lines += ["### The tuned filters compared", "",
-              f"Each tuned filter (search 0: `tuned.toml`) against the most accurate one on the {name}, by the same "
-              "rule (the runs no filter lost; improvements paired by run). " +
-              ("The intervals cover the runs only: the searches below say how much a search's luck moves it."
-               if many else "One search per filter: the intervals cover the runs, not the search's luck "
-               "(`nespm tune --repeats K` runs K searches and compares over both)."), "",
-              md_table(["filter (tuned)", name, "improvement of the best over it"], fair_rows(tuned, key, n_boot)),
-              ""]
-    return lines + searches_section(out_dir, record, n_boot)
 
 
 def write_tune_report(out_dir: Path, n_boot: int = 2000) -> Path:

@@ -16,7 +16,9 @@ the filter has one (``tunable``); a plugin's own options where the class declare
 
 ``--tune-range NAME.KEY=LOW:HIGH`` (``NAME`` may be ``*``: every filter that has ``KEY``) or a
 ``[tune]`` config table (``"ekf.acc_noise_scale" = [0.5, 2]``) narrows or widens a range;
-``=off`` drops a parameter from the search (it keeps its default). Every mistake is one line.
+``=off`` drops a parameter from the search (it keeps its default). A noise scale's range (Q, R, P0) stays
+within :data:`nespm_cli.filters.options.SCALE_LIMITS` (1e-3 to 1e3), the limits ``--filter-option`` puts on
+the value a trial would write (:func:`check_scale_range`). Every mistake is one line.
 
 Off by default, on with a range (:func:`optional_space`): a sensor's lever arm in the filter's model,
 ``lever_arm_<axis>_<sensor>`` [m, body, linear], from the sensor's ``lever_arm``. Not a noise
@@ -30,7 +32,7 @@ import math
 from dataclasses import asdict, dataclass
 
 from nespm_cli.errors import NespmError
-from nespm_cli.filters.options import AXES, lever_key, noise_scales, r_scale_key
+from nespm_cli.filters.options import AXES, SCALE_LIMITS, lever_key, noise_scales, r_scale_key
 from nespm_cli.nav.state import StateLayout
 
 SCALE_RANGE = (0.1, 10.0)  # a std factor: two decades around the study's value
@@ -109,6 +111,22 @@ def check_range(where: str, low: float, high: float, log: bool) -> None:
         raise NespmError(f"--tune-range {where}: a log-scale range needs LOW > 0, got {low:g}")
 
 
+#: the kinds of :class:`Param` that are noise scales (a factor on a std of Q, R or P0)
+SCALE_KINDS = ("Q", "R", "P0")
+
+
+def check_scale_range(where: str, low: float, high: float) -> None:
+    """Refuse a noise scale's range reaching outside :data:`~nespm_cli.filters.options.SCALE_LIMITS` (one line
+    naming ``--tune-range``, the parameter ``where`` (NAME.KEY), the range and the limits): a trial there would
+    run a factor ``--filter-option`` refuses (more than three decades from the study's std is a units
+    mistake, not a tuning)."""
+    lo, hi = SCALE_LIMITS
+    if low < lo or high > hi:
+        raise NespmError(f"--tune-range {where}={low:g}:{high:g}: outside the limits of a noise scale, {lo:g} to "
+                         f"{hi:g} (a factor on the study's std, filters.options.SCALE_LIMITS; beyond is a units "
+                         "mistake, not a tuning)")
+
+
 def parse_range(text: str) -> tuple[str, str, float | None, float | None]:
     """``NAME.KEY=LOW:HIGH`` or ``NAME.KEY=off`` -> ``(NAME, KEY, LOW, HIGH)`` (None, None: off)."""
     head, eq, value = str(text).partition("=")
@@ -130,7 +148,8 @@ def apply_ranges(space: dict[str, list[Param]], ranges, optional: dict | None = 
     """``space`` ({filter: [Param]}) with ``ranges`` (``(NAME, KEY, LOW, HIGH)``, in order, the last
     winning; NAME ``*`` for every filter that has KEY) applied; a range on a parameter of
     ``optional`` ({filter: [Param]}, :func:`optional_space`) adds it. An unknown filter or
-    parameter, an empty or inverted range, or a space left empty is one line."""
+    parameter, an empty or inverted range, a noise scale's range outside ``SCALE_LIMITS``
+    (:func:`check_scale_range`), or a space left empty is one line."""
     out = {f: {p.key: p for p in ps} for f, ps in space.items()}
     space = {f: list(ps) + list((optional or {}).get(f, ())) for f, ps in space.items()}
     for name, key, low, high in ranges:
@@ -148,6 +167,8 @@ def apply_ranges(space: dict[str, list[Param]], ranges, optional: dict | None = 
                 out[f].pop(key, None)
                 continue
             check_range(where, low, high, p.log)
+            if p.kind in SCALE_KINDS:
+                check_scale_range(where, low, high)
             out[f][key] = Param(f, key, float(low), float(high), p.log, p.default, p.kind)
     result = {f: list(ps.values()) for f, ps in out.items()}
     for f, ps in result.items():
@@ -156,5 +177,5 @@ def apply_ranges(space: dict[str, list[Param]], ranges, optional: dict | None = 
     return result
 
 
-__all__ = ["ALPHA_RANGE", "P0_KEYS", "Param", "SCALE_RANGE", "apply_ranges", "check_range", "default_space",
-           "optional_space", "parse_range"]
+__all__ = ["ALPHA_RANGE", "P0_KEYS", "Param", "SCALE_KINDS", "SCALE_RANGE", "apply_ranges", "check_range",
+           "check_scale_range", "default_space", "optional_space", "parse_range"]
