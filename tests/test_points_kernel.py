@@ -53,3 +53,28 @@ def test_soa_points_bit_identical_to_scalar_kernel(n):
         assert np.all(b[3][:, 0] == 0.0) and np.any(b[3][:, 1:] != 0.0)
     else:
         assert np.all(b[3] == -1.0)  # dp untouched without the position block
+
+
+def test_division_without_divide_is_bit_exact():
+    """series_ab's ``th2 / q`` as div_by (two FMAs and a product, no division) equals IEEE division to the
+    bit for each of its six constants, on squared angles of the series' range and on magnitudes from
+    1e-30 to 1e2, including the neighbours of exact multiples (ties and near-ties of the rounding)."""
+    if not kernels.compiled_enabled():
+        pytest.skip("numba not installed")
+    from nespm_cli.nav.kernels import njit
+
+    @njit
+    def mismatches(x, q, r):
+        bad = 0
+        for i in range(x.size):
+            if pk.div_by(x[i], q, r) != x[i] / q:
+                bad += 1
+        return bad
+
+    rng = np.random.default_rng(7)
+    for q in (6.0, 20.0, 42.0, 24.0, 30.0, 56.0):
+        m = rng.uniform(0.0, 1e-4, 100_000)
+        x = np.concatenate([rng.uniform(0.0, 1e-4, 200_000), 10.0 ** rng.uniform(-30, 2, 200_000), [0.0, 1e-4],
+                            m * q, np.nextafter(m * q, 0.0), np.nextafter(m * q, 1.0)])
+        assert mismatches(x, q, 1.0 / q) == 0
+    assert np.isnan(pk.series_ab(np.nan)[0])

@@ -20,14 +20,44 @@ from nespm_cli.filters.transition_kernel import point_start
 from nespm_cli.nav.earth import A, E2, F, GAMMA_E, K_SOMIGLIANA, OMEGA_IE
 from nespm_cli.nav.kernels import GRAV_M, SERIES2, exp_from, mul_t, njit
 
+try:  # numba is a dependency; this module is imported only where it is installed (filters.kernels)
+    from numba.core import types
+    from numba.extending import intrinsic
+except ImportError:  # pragma: no cover
+    intrinsic = None
+
 L = 32  # the row stride of the points' state table: the most points of one run (12 states: 25, 15: 31)
+
+
+if intrinsic is not None:
+    @intrinsic
+    def fma(typingctx, x, y, z):
+        """``x y + z`` rounded once (LLVM's ``llvm.fma.f64``: the FMA instruction, vectorised), float64."""
+        sig = types.float64(types.float64, types.float64, types.float64)
+
+        def codegen(context, builder, signature, args):
+            return builder.fma(*args)
+
+        return sig, codegen
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def div_by(x, q, r):
+    """``x / q`` to the bit (IEEE division, round to nearest) for a constant ``q`` with ``r`` = fl(1/q),
+    without a division: ``y = fl(x r)`` is within one ulp of x/q, the remainder ``x − y q`` is exact in
+    one FMA, and ``fl(y + (x − y q) r)`` is the correctly rounded quotient (Markstein's theorem; not at
+    the edges of the range: x/q subnormal, x infinite, which the points never reach; NaN stays NaN).
+    3 FMA-unit operations against one division (~5x their throughput on this CPU)."""
+    y = x * r
+    return fma(fma(-y, q, x), r, y)
 
 
 @njit(cache=True, error_model="numpy", inline="always")
 def series_ab(th2):
-    """exp_t's series coefficients ``(a, b)`` for the squared angle ``th2`` (rotations.exp_so3 below 0.01 rad)."""
-    a = 1.0 - th2 / 6.0 * (1.0 - th2 / 20.0 * (1.0 - th2 / 42.0))
-    b = 0.5 - th2 / 24.0 * (1.0 - th2 / 30.0 * (1.0 - th2 / 56.0))
+    """exp_t's series coefficients ``(a, b)`` for the squared angle ``th2`` (rotations.exp_so3 below 0.01 rad):
+    ``th2 / 6`` ... ``th2 / 56`` as :func:`div_by` (the same bits)."""
+    a = 1.0 - div_by(th2, 6.0, 1.0 / 6.0) * (1.0 - div_by(th2, 20.0, 1.0 / 20.0) * (1.0 - div_by(th2, 42.0, 1.0 / 42.0)))
+    b = 0.5 - div_by(th2, 24.0, 1.0 / 24.0) * (1.0 - div_by(th2, 30.0, 1.0 / 30.0) * (1.0 - div_by(th2, 56.0, 1.0 / 56.0)))
     return a, b
 
 
