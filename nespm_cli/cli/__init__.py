@@ -9,44 +9,35 @@ import sys
 import typer
 from typer.exceptions import Abort, Exit, TyperException
 
-from nespm_cli.cli.config import expand_config, normalize_argv
-from nespm_cli.cli.data_commands import check, corrupt, simulate, tracks
-from nespm_cli.cli.experiment_commands import gp_ukf_cmd, mc, run, sweep
-from nespm_cli.cli.import_command import import_cmd
+from nespm_cli.cli.command_table import group
+from nespm_cli.cli.config import expand_config, normalize_argv, set_argv
 from nespm_cli.cli.messages import MAX_MESSAGE, interrupted, one_line, os_error_line, show_warning
-from nespm_cli.cli.options import COMMON, CORRUPTION, DATA_DIR, KERNELS, PARALLEL, RECORDED, RUNNER, default
-from nespm_cli.cli.parsing import CORRUPTION_FIELDS, FILTER_FIELDS, build_spec, set_argv
-from nespm_cli.cli.result_commands import compare, export, report
-from nespm_cli.cli.train_command import train
-from nespm_cli.cli.tune_command import tune
-from nespm_cli.cli.warmup_command import warm_up_cmd
 from nespm_cli.errors import NespmError
 
 __all__ = ["app", "main", "one_line", "os_error_line", "MAX_MESSAGE", "default", "DATA_DIR", "CORRUPTION_FIELDS",
            "FILTER_FIELDS", "COMMON", "CORRUPTION", "KERNELS", "PARALLEL", "RECORDED", "RUNNER", "build_spec",
            "expand_config", "normalize_argv"]
 
-app = typer.Typer(
-    add_completion=False,
-    no_args_is_help=True,
-    pretty_exceptions_enable=False,
-    rich_markup_mode=None,
-    help="Monte Carlo experiments for nonlinear INS/DVL navigation filters (EKF, UKF, UKF-NESPM and their "
-    "adaptive ProcessNet versions ANEKF, ANUKF, ANUKF-NESPM).\n\n"
-    "Tracks come from --data-dir (A-KIT layout: TrajectoryN/{GT,DVL}_trajectoryN.csv), else "
-    "$NESPM_DATA_DIR, else six embedded Snapir-like tracks.",
-)
+#: names this package gives on first use (their modules import the numeric stack): name -> (module, attribute);
+#: the underscored ones are the names it had before it became a package (tests read them)
+LAZY = {**{n: ("nespm_cli.cli.options", n) for n in ("COMMON", "CORRUPTION", "DATA_DIR", "KERNELS", "PARALLEL",
+                                                      "RECORDED", "RUNNER", "default")},
+        **{n: ("nespm_cli.cli.parsing", n) for n in ("CORRUPTION_FIELDS", "FILTER_FIELDS", "build_spec")},
+        "_COMMON": ("nespm_cli.cli.options", "COMMON"), "_RUNNER": ("nespm_cli.cli.options", "RUNNER"),
+        "_spec": ("nespm_cli.cli.parsing", "build_spec"), "_expand_config": ("nespm_cli.cli.config", "expand_config")}
 
-# the commands, in the order of ``nespm --help``
-for command in (tracks, check, corrupt, run, mc, sweep, tune, report, compare, export, train, simulate):
-    app.command()(command)
-app.command("import")(import_cmd)
-app.command("gp-ukf")(gp_ukf_cmd)
-app.command("warm-up")(warm_up_cmd)
-del command
 
-# the names this module had before it became a package (tests read them)
-_COMMON, _RUNNER, _spec, _expand_config = COMMON, RUNNER, build_spec, expand_config
+def __getattr__(name: str):
+    if name == "app":  # the Typer app with every command registered (imports them all)
+        from nespm_cli.cli.command_table import full_app
+
+        return full_app()
+    if name in LAZY:
+        import importlib
+
+        module, attr = LAZY[name]
+        return getattr(importlib.import_module(module), attr)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -62,7 +53,7 @@ def main(argv: list[str] | None = None) -> int:
         if not argv:
             argv = ["--help"]
         argv = normalize_argv(expand_config(argv))
-        rv = typer.main.get_command(app).main(args=argv, prog_name="nespm", standalone_mode=False)
+        rv = group().main(args=argv, prog_name="nespm", standalone_mode=False)
         if rv == 130:  # typer turns Ctrl-C into a returned exit code 130
             typer.echo(interrupted(argv), err=True)
         return rv if isinstance(rv, int) else 0

@@ -6,27 +6,10 @@ from __future__ import annotations
 import re
 from typing import Optional
 
+from nespm_cli.cli.config import ARGV, GIVEN
 from nespm_cli.data.corruption import CorruptionConfig
 from nespm_cli.errors import NespmError
 from nespm_cli.filters import FilterConfig
-
-ARGV: list[str] = []  # the command line main() received, for the manifest
-GIVEN: set[str] = set()  # the options given explicitly, on the command line or in a --config file ("alpha")
-
-
-def set_argv(argv: list[str]) -> None:
-    """Remember the command line (:data:`ARGV`) for the manifests that :func:`execution` feeds, and
-    the options it gives explicitly (:data:`GIVEN`, with those of its ``--config`` files), which the
-    library checks for an effect (``Spec.given``, experiments.spec.check_effective)."""
-    from nespm_cli.cli.config import expand_config
-
-    ARGV[:] = list(argv)
-    try:
-        words = expand_config(list(argv))
-    except NespmError:
-        words = list(argv)  # main() reports the config error itself
-    GIVEN.clear()
-    GIVEN.update(w[2:].split("=", 1)[0].replace("-", "_") for w in words if w.startswith("--") and len(w) > 2)
 
 
 def parse_tracks(text: str) -> tuple[int, ...]:

@@ -8,7 +8,8 @@ from typing import List, Optional
 import typer
 
 from nespm_cli.cli.options import COMMON, KERNELS, with_options
-from nespm_cli.cli.parsing import ARGV, build_spec, check_jobs, parse_filters, parse_tracks
+from nespm_cli.cli.config import ARGV
+from nespm_cli.cli.parsing import build_spec, check_jobs, parse_filters, parse_tracks
 from nespm_cli.cli.result_commands import non_empty_out
 
 TUNE = [  # (name, type, default, flag, help)
