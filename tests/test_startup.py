@@ -4,7 +4,9 @@
 neither pandas, scipy, matplotlib nor numba: those cost about a second before any work
 (``python -X importtime -c "import nespm_cli.cli"``). Each case runs in a fresh interpreter
 and reads ``sys.modules`` after the command returned, so the verdict does not depend on the
-machine's speed (no timing here; benchmarks/ measures the time).
+machine's speed (no timing here; benchmarks/ measures the time). ``nespm tracks`` also imports
+neither the option tables of the experiment commands nor what their defaults pull (the experiment
+spec, the filters, the sensors: issue 41).
 """
 from __future__ import annotations
 
@@ -66,6 +68,22 @@ def test_tracks_on_the_embedded_default_imports_no_heavy_package():
     rows = [line for line in r["out"].splitlines() if line.strip("│ ").split(" ")[0] in "123456"]
     assert len(rows) >= 6, r["out"]  # all six tracks listed, with their numbers
     assert heavy(r["modules"]) == [], f"nespm tracks imported {heavy(r['modules'])}"
+
+
+#: what ``nespm tracks`` does not need (issue 41): the option tables of the experiment commands, whose
+#: defaults come from the experiment spec, and through it the filter engine, the sensors and the metrics
+NOT_FOR_TRACKS = ("nespm_cli.cli.options", "nespm_cli.experiments.spec", "nespm_cli.experiments.metrics",
+                  "nespm_cli.filters", "nespm_cli.sensors", "nespm_cli.learn")
+
+
+def test_tracks_on_the_embedded_default_imports_no_filter_spec_or_option_table():
+    """``nespm tracks`` takes its options from the light cli.data_options and lists the embedded tracks
+    without importing the filters (or any module under them), the sensors or the experiment spec."""
+    r = imported_by(["tracks", "--no-progress"])
+    assert r["rc"] == 0 and "the embedded default" in r["out"]
+    loaded = [m for m in r["modules"] if any(m == p or m.startswith(p + ".") for p in NOT_FOR_TRACKS)]
+    assert loaded == [], f"nespm tracks imported {loaded}"
+    assert "nespm_cli.cli.tracks_command" in r["modules"]
 
 
 def test_the_light_modules_keep_their_old_names():

@@ -23,7 +23,7 @@ APP_HELP = (
 
 #: name -> (module, function, the one line of ``nespm --help``), in the order of ``nespm --help``
 COMMANDS: dict[str, tuple[str, str, str]] = {
-    "tracks": ("nespm_cli.cli.data_commands", "tracks", "List the tracks: duration, distance, speed, depth."),
+    "tracks": ("nespm_cli.cli.tracks_command", "tracks", "List the tracks: duration, distance, speed, depth."),
     "check": ("nespm_cli.cli.data_commands", "check", "Check a track folder's IMU and DVL against its truth."),
     "corrupt": ("nespm_cli.cli.data_commands", "corrupt", "Draw the realizations into DIR/realizations.parquet."),
     "run": ("nespm_cli.cli.experiment_commands", "run", "Run one realization of one filter on one track."),

@@ -9,6 +9,8 @@ from typing import List, Optional, Tuple
 
 import typer
 
+# DATA_DIR is given from here too (check, train, nespm_cli.cli.DATA_DIR); it lives in the light data_options for tracks
+from nespm_cli.cli.data_options import ACCEPT_RESIDUAL_FLAG, ACCEPT_RESIDUAL_HELP, DATA_DIR, DATA_DIR_HELP
 from nespm_cli.data.corruption import CorruptionConfig
 from nespm_cli.experiments.metrics import DivergenceRule
 from nespm_cli.experiments.spec import Spec
@@ -17,8 +19,6 @@ from nespm_cli.filters.registry import get_filter
 
 #: the built-in filters with an RTS smoother (``--smooth``), from the registry: never stale
 SMOOTHABLE = tuple(f for f in FILTERS if getattr(get_filter(f), "smoothable", False))
-
-DATA_DIR = typer.Option(None, "--data-dir", help="Folder in the A-KIT layout, or with a track spec nespm-data.toml (docs/data.md) (default: $NESPM_DATA_DIR, else the embedded tracks).")
 
 
 def default(cls, name: str):
@@ -34,7 +34,7 @@ CORRUPTION = [  # (name, type, default, flag, help): the realizations (mc, sweep
     ("segment_length", float, default(CorruptionConfig, "segment_s"), "--segment-length", "Dynamic schedule segment [s]."),
     ("dynamic_bias", str, default(CorruptionConfig, "dynamic_bias"), "--dynamic-bias", "Dynamic schedule biases: run (x the run's first-segment factor, held) or segment (x every segment's factor: 20 s bias steps)."),
     ("seed", int, default(Spec, "seed"), "--seed", "Master seed; run r of track N draws from SeedSequence(seed, spawn_key=(N, r, stream))."),
-    ("data_dir", Optional[str], default(Spec, "data_dir"), "--data-dir", "Folder in the A-KIT layout, or with a track spec nespm-data.toml (docs/data.md) (default: $NESPM_DATA_DIR, else the embedded tracks)."),
+    ("data_dir", Optional[str], default(Spec, "data_dir"), "--data-dir", DATA_DIR_HELP),
     ("dvl_noise", float, default(CorruptionConfig, "dvl_noise"), "--dvl-noise", "Synthetic DVL noise std [m/s]."),
     ("misalignment_deg", float, default(CorruptionConfig, "misalignment_deg"), "--misalignment-deg", "Initial misalignment std per axis [deg]."),
     ("heading_deg", Optional[float], default(CorruptionConfig, "heading_deg"), "--heading-deg", "Initial heading (yaw-axis) misalignment std [deg]; default: --misalignment-deg."),
@@ -64,7 +64,7 @@ KERNELS = ("kernels", Optional[str], None, "--kernels",
 
 #: --accept-residual (run, mc, sweep, tune through COMMON; corrupt, train, tracks): a track whose data contradict
 #: its declared conventions (docs/data-format.md) runs anyway
-ACCEPT_RESIDUAL = ("accept_residual", bool, default(Spec, "accept_residual"), "--accept-residual", "Run a track whose data contradict its declared attitude or frame conventions (a DVL residual or a heading far above the noise: nespm tracks shows it) instead of refusing it; its sentence is then a warning, recorded in the manifest (accepted_residuals) and the report's caveats. The track spec key gt.accept_residual = true does the same per track (the numbers may be wrong: fix the key the refusal names if you can).")
+ACCEPT_RESIDUAL = ("accept_residual", bool, default(Spec, "accept_residual"), ACCEPT_RESIDUAL_FLAG, ACCEPT_RESIDUAL_HELP)
 
 COMMON = [  # the options that define an experiment: the realizations, the data, the filters
     *CORRUPTION,

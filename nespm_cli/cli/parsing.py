@@ -1,15 +1,17 @@
 """Option values into library objects: track and filter lists, the corruption, the Spec of the
 common options, the Execution of the parallel options. Every coupling of options lives in the
-library (experiments.spec.validate), not here."""
+library (experiments.spec.validate), not here. Light at import (the config classes are imported by
+the functions that build them), so ``nespm tracks`` uses :func:`warning_mode` without the filters."""
 from __future__ import annotations
 
 import re
-from typing import Optional
+from typing import TYPE_CHECKING, Optional
 
 from nespm_cli.cli.config import ARGV, GIVEN
-from nespm_cli.data.corruption import CorruptionConfig
 from nespm_cli.errors import NespmError
-from nespm_cli.filters import FilterConfig
+
+if TYPE_CHECKING:
+    from nespm_cli.data.corruption import CorruptionConfig
 
 
 def parse_tracks(text: str) -> tuple[int, ...]:
@@ -38,6 +40,8 @@ FILTER_FIELDS = ("acc_bias_rw", "gyro_bias_rw", "alpha", "tau", "tau_a", "tau_g"
 
 def corruption_config(kw: dict) -> CorruptionConfig:
     """Pop the corruption options (:data:`CORRUPTION_FIELDS`) from ``kw``."""
+    from nespm_cli.data.corruption import CorruptionConfig
+
     return CorruptionConfig(**{field: kw.pop(opt) for opt, field in CORRUPTION_FIELDS.items()})
 
 
@@ -63,6 +67,7 @@ def build_spec(**kw):
     flags as the DVL's options) happens in the library (experiments.spec.validate), not here."""
     from nespm_cli.experiments.metrics import DivergenceRule
     from nespm_cli.experiments.spec import Spec
+    from nespm_cli.filters import FilterConfig
 
     warning_mode(kw.pop("data_warnings"))
     corr = corruption_config(kw)
