@@ -9,7 +9,7 @@ import numpy as np
 import pandas as pd
 
 from nespm_cli.reports.all_runs import all_runs_section
-from nespm_cli.reports.caveats import caveats, caveats_md
+from nespm_cli.reports.caveats import caveats, caveats_md, residual_caveats
 from nespm_cli.reports.comparisons import compare_filters
 from nespm_cli.reports.markdown import (
     DASH,
@@ -373,7 +373,8 @@ def render_report(
                                                   consistency=consistency.attrs.get("share") if has_blocks else None) + "\n\n"
             + verdict_md(vt, comps, tracks),
             *([all_runs_section(metrics, ref, n_boot, seed)] if all_runs == "median" and vt.attrs["any_lost"] else []),
-            "## Caveats\n\n" + caveats_md(caveats(metrics, comps, min_pairs, [*notes, *training_caveats(manifest)])),
+            "## Caveats\n\n" + caveats_md(caveats(metrics, comps, min_pairs,
+                                                    [*notes, *training_caveats(manifest), *residual_caveats(manifest)])),
             "## Track-averaged results (eq 51)\n\n"
             + TABLE_CAPTION.format(verdict=VERDICT_EPOCHS[posterior], nees=NEES_EPOCHS[nees_post])
             + (CONSISTENCY_CAPTION if has_blocks else "") + "\n\n" + _main_table(table, words),

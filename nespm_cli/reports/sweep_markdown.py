@@ -10,7 +10,7 @@ import pandas as pd
 
 from nespm_cli.experiments.metrics import nees_band
 from nespm_cli.reports.all_runs import all_runs_section
-from nespm_cli.reports.caveats import caveats, caveats_md
+from nespm_cli.reports.caveats import caveats, caveats_md, residual_caveats
 from nespm_cli.reports.markdown import DASH, docs_line, fmt, fmt_imprv, header_line, md_table
 from nespm_cli.reports.results import filters_in_order, smoother_label
 from nespm_cli.reports.stats import MIN_PAIRED_RUNS, NEES_DOF, PRACTICAL_PCT
@@ -122,7 +122,7 @@ def render_sweep_report(
         + " Per swept value.\n\n" + verdict_md(vt, comps, tracks, value_col=label, role="baseline"),
         *([all_runs_section(metrics, base, n_boot, seed, value_label=label)]
           if all_runs == "median" and vt.attrs["any_lost"] else []),
-        "## Caveats\n\n" + caveats_md(caveats(metrics, comps, min_pairs)),
+        "## Caveats\n\n" + caveats_md(caveats(metrics, comps, min_pairs, residual_caveats(manifest))),
         "## Track-averaged VRMSE [m/s] (eqs 50–51, after t = 0)\n\n"
         + _metric_md(table, "vrmse", filters, label) + fig("sweep_vrmse"),
         "## Track-averaged MRMSE [rad] (eqs 51–52, after t = 0)\n\n"
