@@ -41,16 +41,27 @@ MAX_DECIMALS = 10
 
 def decimals(point: float, lo: float, hi: float) -> int:
     """Decimals for an interval and its point: two significant digits of the interval width
-    (at least one decimal, as the papers), more until distinct values print distinctly."""
+    (at least one decimal, as the papers), more until distinct values print distinctly, but only as far
+    as :data:`MAX_DECIMALS` can tell them apart. A width that does not show at :data:`MAX_DECIMALS`
+    (an exact 0 beside a round-off interval of ±1e-15) is no width: the decimals are then those of the
+    values themselves, one for a zero (``0.0 % [0.0, 0.0]``, as :func:`fmt_pct` prints 0), more until a
+    non-zero value shows its first digit."""
     vals = [v for v in (point, lo, hi) if v is not None and np.isfinite(v)]
     width = abs(hi - lo) if np.isfinite(lo) and np.isfinite(hi) else 0.0
     d = max(1, math.ceil(-math.log10(width)) + 1) if width > 0 else 1
-    while d < MAX_DECIMALS:
-        text = {v: fixed(v, d) for v in vals}
-        if len(set(text.values())) == len(set(vals)):
-            break
+    if d > MAX_DECIMALS:  # the width does not show: the decimals of the largest value
+        big = max((abs(v) for v in vals), default=0.0)
+        d = 1
+        while d < MAX_DECIMALS and float(fixed(big, d)) == 0.0 < float(fixed(big, MAX_DECIMALS)):
+            d += 1
+
+    def shown(k: int) -> int:
+        return len({fixed(v, k) for v in vals})
+
+    most = shown(MAX_DECIMALS)  # the distinctions MAX_DECIMALS can show at all
+    while d < MAX_DECIMALS and shown(d) < most:
         d += 1
-    return min(d, MAX_DECIMALS)
+    return d
 
 
 def fixed(x: float, d: int) -> str:
@@ -177,9 +188,14 @@ REPORT_DOCS = Path(__file__).resolve().parents[2] / "docs" / "report.md"
 
 
 def docs_line(out_dir: Path) -> str:
-    """The one line linking a report in ``out_dir`` to docs/report.md (a relative link when the
-    nespm sources are on this machine, else the page's name)."""
+    """The one line linking a report in ``out_dir`` to docs/report.md: a relative link when the report lies inside
+    the nespm sources (it then holds in any clone and on a forge), the page's absolute path on this machine when
+    it lies outside them (a relative path out of ``/tmp`` climbs to ``/`` and breaks once the folder is moved or
+    copied), the page's name when the sources are not on this machine (an installed wheel has no docs/)."""
     if REPORT_DOCS.is_file():
-        rel = Path(os.path.relpath(REPORT_DOCS, Path(out_dir).resolve())).as_posix()
-        return f"Every column, figure and word of this report is defined in [docs/report.md]({rel})."
+        out, root = Path(out_dir).resolve(), REPORT_DOCS.parents[1]
+        target = (Path(os.path.relpath(REPORT_DOCS, out)).as_posix() if out.is_relative_to(root)
+                  else REPORT_DOCS.as_posix())
+        target = f"<{target}>" if " " in target else target
+        return f"Every column, figure and word of this report is defined in [docs/report.md]({target})."
     return "Every column, figure and word of this report is defined in docs/report.md of the nespm sources."
