@@ -10,7 +10,7 @@ import nespm_cli.api as nespm
 from conftest import cli
 from nespm_cli.reports.markdown import fmt
 from nespm_cli.reports.mc_markdown import ORACLE_SECTION
-from nespm_cli.reports.oracle_share import share_md
+from nespm_cli.reports.oracle_share import pct, share_md
 
 pytestmark = pytest.mark.usefixtures("no_env_data_dir")
 N_BOOT = 200
@@ -50,7 +50,7 @@ def test_api_share_is_the_reports(folder):
     assert cells[3:6] == [fmt(r.base_value), fmt(r.filter_value), fmt(r.oracle_value)]
     # the step makes the oracle gain clearly (measured: about 20 % of the fixed EKF's VRMSE), so a share exists
     assert r.oracle_gain_lo > 0 and np.isfinite(r.share) and r.share_lo <= r.share <= r.share_hi
-    assert cells[7].startswith(f"{100 * r.share:.0f} % [")
+    assert cells[7].startswith(f"{pct(r.share)} % [")  # whole percent, one decimal below 1 %
     assert r.pairs_min == 6 and "not trusted" in r.note  # 6 < 10 runs: said, not hidden
     # report_tables carries the same table
     tables = nespm.report_tables(folder, n_boot=N_BOOT)

@@ -136,18 +136,23 @@ def oracle_share(metrics: pd.DataFrame, n_boot: int = 2000, seed: int = 0, key: 
 
 
 def pct(x: float) -> str:
-    """A share as a whole percentage (``-0`` written ``0``)."""
-    text = f"{100 * x:.0f}"
-    return "0" if text == "-0" else text
+    """A share in percent: whole below -1 % and above 1 %, one decimal in between (``0.4``, not ``0``, for a
+    small share; ``-0.0`` written ``0.0``)."""
+    v = 100 * x
+    text = f"{v:.0f}" if abs(v) >= 0.95 else f"{v:.1f}"
+    return text[1:] if text in ("-0", "-0.0") else text
 
 
 def share_md(table: pd.DataFrame, n_boot: int) -> str:
-    """The report's section text of :func:`oracle_share`'s table ("" without a row)."""
+    """The report's section text of :func:`oracle_share`'s table ("" without a row). A note every row of two or
+    more has (e.g. no share: the oracle gains nothing, on each adaptive filter) is said once under the table."""
     if table.empty:
         return ""
     name, unit = METRICS[str(table["metric"].iloc[0])][1:]
     headers = ["filter", "fixed", "oracle", f"fixed {name} [{unit}]", f"filter {name}", f"oracle {name}",
                "oracle's gain [95 % CI]", "share of the oracle's gain [95 % CI]", "runs"]
+    notes = set(table["note"])
+    common = notes.pop() if len(table) > 1 and len(notes) == 1 else ""
     out = []
     for r in table.itertuples():
         gain = DASH if not np.isfinite(r.oracle_gain) else (
@@ -155,13 +160,15 @@ def share_md(table: pd.DataFrame, n_boot: int) -> str:
         share = DASH if not np.isfinite(r.share) else (
             f"{pct(r.share)} % [{pct(r.share_lo)}, {pct(r.share_hi)}]")
         out.append([r.filter, r.base, r.oracle, fmt(r.base_value), fmt(r.filter_value), fmt(r.oracle_value), gain,
-                    share + (f" ({r.note})" if r.note else ""), str(r.pairs_min)])
+                    share + (f" ({r.note})" if r.note and not common else ""), str(r.pairs_min)])
     epochs = "after t = 0" if table.attrs.get("posterior") else "over every epoch (no posterior sums in this folder)"
+    once = f"\n\nEvery row: {common}." if common else ""
     return ("Share = (fixed − filter) / (fixed − oracle) of the track-averaged " + name + " (eq 51, " + epochs
             + ", over the runs none of the three lost): 100 % is what knowing the true Q(t) and R(t) gives, 0 % no "
             f"gain over the fixed filter. Paired percentile bootstrap over runs ({n_boot} resamples, the same for "
             "the three filters); the oracle is the fixed filter told the true noise (outliers are not noise it is "
-            "told: docs/adapting.md).\n\n" + md_table(headers, out))
+            "told: docs/adapting.md).\n\n" + md_table(headers, out) + once)
 
 
-__all__ = ["COLUMNS", "counterpart", "has_oracle", "kept_runs", "oracle_share", "share_md", "share_values", "triples"]
+__all__ = ["COLUMNS", "counterpart", "has_oracle", "kept_runs", "oracle_share", "pct", "share_md", "share_values",
+           "triples"]
