@@ -33,7 +33,8 @@ import pandas as pd
 from nespm_cli.experiments.metrics import nees_band
 from nespm_cli.reports.results import sensor_dims
 
-__all__ = ["BLOCK_NAMES", "CONSISTENT_SHARE", "MIXED_SHARE", "block_consistency", "consistency_md", "consistency_words", "epoch_shares"]
+__all__ = ["BLOCK_NAMES", "CONSISTENT_SHARE", "MIXED_SHARE", "block_consistency", "consistency_md", "consistency_words",
+           "epoch_shares", "share_text"]
 
 #: the least share of epochs inside the 95 % bounds for a block or sensor to count as consistent
 CONSISTENT_SHARE = 0.8
@@ -58,6 +59,21 @@ def epoch_shares(x: np.ndarray, n: np.ndarray, dof: int) -> tuple[float, float, 
         lo[n == k], hi[n == k] = nees_band(dof, int(k))
     above, below = float((x > hi).mean()), float((x < lo).mean())
     return 1.0 - above - below, above, below, int(len(x))
+
+
+def share_text(value: float, threshold: float) -> str:
+    """A share of epochs in whole percent, ``79 %``, unless rounding would put it on the other side of the
+    ``threshold`` its word is judged against (79.7 % printed ``80 %`` beside *not consistent* at 80 %): then
+    one decimal, rounded away from the threshold (``79.7 %``; 79.96 % is ``79.9 %``, never ``80.0 %``), so the
+    number printed agrees with the word; ``—`` for NaN."""
+    if not np.isfinite(value):
+        return "—"
+    v, t = 100 * value, 100 * threshold
+    text = f"{v:.0f}"
+    if (float(text) >= t) != (value >= threshold):
+        step = math.floor if value < threshold else math.ceil
+        text = f"{step(round(v * 10, 6)) / 10:.1f}"
+    return f"{text} %"
 
 
 def _word(inside: float, above: float, below: float, share: float = CONSISTENT_SHARE) -> str:
@@ -130,6 +146,7 @@ def consistency_words(table: pd.DataFrame, shares: bool = True) -> dict[Any, str
     if table.empty:
         return out
     keys = ["filter"] if table["track"].isna().all() else ["track", "filter"]
+    share = table.attrs.get("share", CONSISTENT_SHARE)
     for key, d in table.groupby(keys, sort=False):
         key = key[0] if len(keys) == 1 and isinstance(key, tuple) else key
         bad = d[d["word"] != "consistent"]
@@ -140,7 +157,7 @@ def consistency_words(table: pd.DataFrame, shares: bool = True) -> dict[Any, str
         for word in ("overconfident", "mixed", "conservative"):
             w = bad[bad["word"] == word]
             if len(w):
-                parts.append(f"{word}: " + ", ".join(r.name + (f" {100 * r.inside:.0f} %" if shares else "")
+                parts.append(f"{word}: " + ", ".join(r.name + (f" {share_text(r.inside, share)}" if shares else "")
                                                      for r in w.itertuples()))
         out[key] = "; ".join(parts)
     return out
@@ -154,13 +171,14 @@ def consistency_md(table: pd.DataFrame, label=lambda f: f) -> str:
 
     headers = ["Method", "block or sensor", "statistic", "mean (expected)", "inside", "above", "below",
                "epochs", "consistency"]
-    pct = lambda v: f"{100 * v:.0f} %" if np.isfinite(v) else "—"  # noqa: E731
-    rows = [[label(r.filter), r.name, r.kind, f"{r.mean:.3g} ({r.dof})", pct(r.inside), pct(r.above), pct(r.below),
-             str(r.epochs), r.word] for r in table.itertuples(index=False)]
+    share = table.attrs.get("share", CONSISTENT_SHARE)
+    rows = [[label(r.filter), r.name, r.kind, f"{r.mean:.3g} ({r.dof})", share_text(r.inside, share),
+             share_text(r.above, MIXED_SHARE), share_text(r.below, MIXED_SHARE), str(r.epochs), r.word]
+            for r in table.itertuples(index=False)]
     return (f"Per state block (ANEES, 3 dof) and sensor (ANIS, its measurement size): at each epoch after t = 0 the "
             "average over the runs not lost against its 95 % bounds `chi2.ppf([0.025, 0.975], dof n) / n` (n = the "
             f"runs averaged), every track's epochs pooled. *consistent*: at least "
-            f"{100 * table.attrs.get('share', CONSISTENT_SHARE):.0f} % of "
+            f"{100 * share:g} % of "
             "the epochs inside; else *mixed* (at least "
             f"{100 * MIXED_SHARE:.0f} % of the epochs above and as many below: too small a covariance at some epochs, "
             "too large at others), *overconfident* (more epochs above: covariance too small) or *conservative* "

@@ -226,7 +226,8 @@ def verdict_table(
     those sums (``attrs["posterior"]``). The last row is the consistency row: per block and sensor from
     the share of epochs inside the bounds (:func:`consistency_row` of ``consistency``, a
     :func:`block_consistency.block_consistency` table) or, without it, the mean-NEES row (:func:`anees_row`).
-    ``attrs``: ``reference``, ``any_lost``, ``practical_pct``, ``min_pairs``, ``n_boot``, ``seed``.
+    ``attrs``: ``reference``, ``any_lost``, ``practical_pct``, ``min_pairs``, ``n_boot``, ``seed`` (and
+    ``consistent_share``, the consistency table's least share inside for *consistent*, when it has one).
     """
     check_metrics(metrics)
     ref = default_reference(metrics, reference)
@@ -253,4 +254,6 @@ def verdict_table(
     out.attrs.update(reference=ref, any_lost=any_lost, practical_pct=float(practical_pct),
                      posterior=bool(metrics.attrs.get("posterior", False)),
                      min_pairs=int(min_pairs), n_boot=int(n_boot), seed=int(seed))
+    if consistency is not None and "share" in consistency.attrs:
+        out.attrs["consistent_share"] = float(consistency.attrs["share"])  # the consistency row's rule
     return out

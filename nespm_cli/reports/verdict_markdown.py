@@ -9,6 +9,7 @@ from typing import Any, Sequence
 import numpy as np
 import pandas as pd
 
+from nespm_cli.reports.block_consistency import CONSISTENT_SHARE, share_text
 from nespm_cli.reports.markdown import DASH, fmt, fmt_imprv, md_table
 from nespm_cli.reports.stats import MIN_PAIRED_RUNS, interval_mark, nees_check
 from nespm_cli.reports.verdict import VERDICT_METRICS
@@ -59,14 +60,16 @@ def _lost_cell(r: Any) -> str:
     return ", ".join(parts) or DASH
 
 
-def _consistency_cells(r: Any, with_survivors: bool, with_floor: bool, role: str) -> list[str]:
+def _consistency_cells(r: Any, with_survivors: bool, with_floor: bool, role: str,
+                       share: float = CONSISTENT_SHARE) -> list[str]:
     """The consistency row: best and runner-up with the share of epochs inside the bounds of their worst block
-    or sensor, the rule, the epochs judged, the best filter's words."""
+    or sensor (printed on the side of ``share``, the least share for *consistent*, where it lies:
+    :func:`block_consistency.share_text`), the rule, the epochs judged, the best filter's words."""
     name = "consistency (worst block or sensor: share of epochs inside)"
     if _absent(r.best):
         cells = [name, DASH, DASH, DASH, DASH, DASH, DASH, "undefined (no filter has a covariance)", DASH]
         return cells + ([DASH] * 4 if with_survivors else []) + ([DASH] if with_floor else [])
-    pct = lambda v: f"{100 * v:.0f} %"  # noqa: E731
+    pct = lambda v: share_text(v, share)  # noqa: E731
     other = DASH
     if not _absent(r.other):
         ref = f" ({role})" if r.other_is_reference else ""
@@ -121,8 +124,9 @@ def verdict_md(vt: pd.DataFrame, comps: pd.DataFrame, tracks: int = 1, value_col
     for r in vt.itertuples(index=False):
         lead = [f"{r.value:g}"] if value_col else []
         if r.metric in ("anees", "consistency"):
-            cells = _anees_cells if r.metric == "anees" else _consistency_cells
-            rows.append(lead + cells(r, with_surv, with_floor, role))
+            rows.append(lead + (_anees_cells(r, with_surv, with_floor, role) if r.metric == "anees" else
+                                _consistency_cells(r, with_surv, with_floor, role,
+                                                   vt.attrs.get("consistent_share", CONSISTENT_SHARE))))
             continue
         name, unit = VERDICT_METRICS[r.metric]
         c = comps[comps["metric"] == r.metric]
@@ -169,7 +173,7 @@ def verdict_intro(reference: str, n_boot: int, seed: int, practical_pct: float, 
     note = "" if posterior is None else " " + POSTERIOR_NOTE[bool(posterior)]
     note += (f" Consistency row: each filter's worst state block or sensor, its share of the epochs whose ANEES (ANIS) "
              f"lies inside the 95 % bounds; consistent when every block and sensor has at least "
-             f"{100 * consistency:.0f} %." if consistency else "")
+             f"{100 * consistency:g} %." if consistency else "")
     return (f"{role.capitalize()} `{reference}`. Improvement of the best filter = 100 · (runner-up − best) / "
             f"runner-up over the runs both kept (over every other filter in the pairwise comparisons), paired "
             f"bootstrap 95 % interval ({n_boot} resamples, seed {seed}); "
