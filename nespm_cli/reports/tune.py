@@ -24,6 +24,7 @@ import pandas as pd
 from nespm_cli.data.atomic import write_text_atomic
 from nespm_cli.errors import NespmError
 from nespm_cli.tuning.heldout import DEFAULT_DIR, TUNED_DIR
+from nespm_cli.tuning.objective import beyond_limits
 from nespm_cli.tuning.profile import FLAT, stopped_short
 from nespm_cli.filters.options import TUNED_ON, training_overlap
 from nespm_cli.reports.figures import save_figure, use_agg
@@ -74,7 +75,11 @@ def values_table(record: dict) -> str:
             pr = prof.get(k)
             seen = "—" if pr is None else ("flat (not seen)" if pr["flat"] else f"{100 * pr['change']:.0f} %")
             shape = b.get("shape", b["values"]).get(k, float("nan"))
-            rows.append([f, k, p["kind"], fmt(p["default"]), fmt(shape), fmt(b["values"][k]),
+            written = fmt(b["values"][k])
+            if p["kind"] in ("Q", "R", "P0") and np.isfinite(shape):  # the level pushed it past a limit: said
+                for raw in beyond_limits({k: shape}, {k: shape}, float(b.get("level", 1.0))).values():
+                    written += f" (clipped: {fmt(raw)} at the level)"
+            rows.append([f, k, p["kind"], fmt(p["default"]), fmt(shape), written,
                          f"{fmt(p['low'])}–{fmt(p['high'])}", fmt(imp.get(k, float("nan")), ".2f"), seen])
     return md_table(["filter", "parameter", "acts on", "default", "searched", "tuned (written)", "range", "importance",
                      "profile (score change at x3, /3; linear: ± a third of the range)"], rows)
@@ -239,7 +244,8 @@ def write_tune_report(out_dir: Path, n_boot: int = 2000) -> Path:
               "(the score moves < 2 % at x3 and /3, or ± a third of a linear range) marks a parameter this "
               "objective cannot see: its tuned "
               "value means nothing. *Searched* is the best trial's factor; *tuned* what `tuned.toml` writes "
-              "(with the fitted level: every Q, R and P0 factor times the level's std factor).", "",
+              "(with the fitted level: every Q, R and P0 factor times the level's std factor, kept within the noise-scale "
+              "limits 1e-3 to 1e3 that `--config` accepts: a clipped one says so).", "",
               values_table(record), ""]
     lines += cross_section(record)
     lt = level_table(record)

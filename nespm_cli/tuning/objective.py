@@ -35,8 +35,9 @@ closed form (:func:`fit_level`): ``c`` puts the geometric mean over the training
 track's ANEES (6 dof) at its expectation 6 — every track counts alike, a track a factor too
 overconfident and one the same factor too conservative cancel (the log rule of ``consistency``),
 so a few turn-rich tracks do not set the level for all. The trial's score is then its RMSE, and
-its written values are its factors x ``√c`` (:func:`leveled`). ``off``: the band penalty above on
-the factors as searched.
+its written values are its factors x ``√c`` (:func:`leveled`; kept within the noise-scale limits 1e-3
+to 1e3 that ``--config tuned.toml`` accepts, a clipped factor said in ``tuned.toml`` and the tune
+report). ``off``: the band penalty above on the factors as searched.
 
 A trial that loses a run scores ``LOST + lost fraction`` (above every trial that loses none: lost
 runs are ranked worst, and fewer lost is better); with ``innovation`` a run is lost when the engine
@@ -57,6 +58,7 @@ from nespm_cli.data.corruption import true_biases
 from nespm_cli.experiments.metrics import (STAT_BLOCKS, block_statistics, divergence, epoch_nis, nees_band,
                                           run_metrics)
 from nespm_cli.experiments.spec import Spec
+from nespm_cli.filters.options import SCALE_LIMITS
 from nespm_cli.tuning.innovation import add_sums, innovation_score, innovation_summary, outside, sensor_sums
 
 OBJECTIVES = ("rmse-consistent", "rmse", "consistency", "innovation")
@@ -181,12 +183,24 @@ def fit_level(stats: dict) -> float:
 
 def leveled(values: dict, bases: dict, c: float) -> dict:
     """``values`` ({key: std factor}) with every key of ``bases`` ({key: the factor it has when not
-    searched}) multiplied by ``√c`` (a std factor; ``c`` scales the variances); other keys as given."""
+    searched}) multiplied by ``√c`` (a std factor; ``c`` scales the variances) and kept within
+    :data:`~nespm_cli.filters.options.SCALE_LIMITS`, the factors ``--filter-option`` and so ``--config tuned.toml``
+    accept (a factor the level pushes past a limit is run and written at it: :func:`beyond_limits` names it);
+    other keys as given."""
     s = float(np.sqrt(c))
+    lo, hi = SCALE_LIMITS
     out = {k: float(v) for k, v in values.items()}
     for k, base in bases.items():
-        out[k] = float(out.get(k, base)) * s
+        out[k] = min(max(float(out.get(k, base)) * s, lo), hi)
     return out
+
+
+def beyond_limits(values: dict, bases: dict, c: float) -> dict:
+    """``{key: factor x √c}`` of the keys :func:`leveled` clipped to ``SCALE_LIMITS`` ({} for none)."""
+    s = float(np.sqrt(c))
+    lo, hi = SCALE_LIMITS
+    raw = {k: float(values.get(k, base)) * s for k, base in bases.items()}
+    return {k: v for k, v in raw.items() if not lo <= v <= hi}
 
 
 def score(stats: dict, objective: str, level: str = "off") -> float:
@@ -230,5 +244,5 @@ def summary(stats: dict) -> dict:
     return {k: float(v) for k, v in out.items()}
 
 
-__all__ = ["BAND_PENALTY", "LEVELS", "LOST", "REUSE_RUNS", "OBJECTIVES", "band_distance", "consistency", "fit_level", "leveled",
-           "score", "summary", "trial_spec", "trial_statistics"]
+__all__ = ["BAND_PENALTY", "LEVELS", "LOST", "REUSE_RUNS", "OBJECTIVES", "band_distance", "beyond_limits", "consistency",
+           "fit_level", "leveled", "score", "summary", "trial_spec", "trial_statistics"]

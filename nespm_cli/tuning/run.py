@@ -34,10 +34,11 @@ from typing import Callable
 import numpy as np
 
 from nespm_cli.experiments.spec import Spec, has_truth
-from nespm_cli.filters.options import TUNED_ON, tuned_on_text
+from nespm_cli.filters.options import SCALE_LIMITS, TUNED_ON, tuned_on_text
 from nespm_cli.errors import NespmError
 from nespm_cli.tuning.best import add_checks, add_leveled, best_values, plugin_lines
 from nespm_cli.tuning.flat import add_flat
+from nespm_cli.tuning.objective import beyond_limits
 from nespm_cli.tuning.progress import watch_studies
 from nespm_cli.tuning.refine import auto_budget
 from nespm_cli.tuning.search import refine_filter, tune_filter, worker_run
@@ -60,6 +61,9 @@ def tuned_toml(best: dict, train: Spec, t: TuneSpec) -> str:
         if b.get("level", 1.0) != 1.0:
             lines.append(f"# {f}: the searched factors x {np.sqrt(b['level']):.6g} (the level fitted over the "
                          "tracks: every Q, R and P0 std; docs/tuning.md)")
+            for k, raw in beyond_limits(b["shape"], level_bases(train, f), b["level"]).items():
+                lines.append(f"# {f}.{k}: {raw:.6g} at the level, outside the noise-scale limits {SCALE_LIMITS[0]:g} "
+                             f"to {SCALE_LIMITS[1]:g} that --config accepts: written (and run) at {b['values'][k]!r}")
         lines.append(f"[filters.{f}]")
         lines += [f"{k} = {float(v)!r}" for k, v in b["values"].items()]
         lines += [f'{TUNED_ON} = "{on}"', ""]
