@@ -198,20 +198,52 @@ def segment_index(t_rel: np.ndarray, segment_s: float, S: int) -> np.ndarray:
     return np.minimum((np.asarray(t_rel) / segment_s + 1e-9).astype(np.int64), S - 1)
 
 
-def imu_errors(real: Realization, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Additive IMU errors of every run on the IMU steps ending at ``t[1:]``.
+def empty_small_pages(shape: tuple, count: int) -> list[np.ndarray]:
+    """``count`` uninitialised float arrays of ``shape`` allocated without NumPy's ``madvise(MADV_HUGEPAGE)``
+    (NumPy asks for transparent huge pages for arrays of 4 MB and more; with the kernel's THP ``madvise``
+    and ``defrag=madvise`` a fresh process's first touch of such arrays cost more system time: measured on a
+    shared 2-vCPU VM, about 4 ms per run of ``mc`` for the IMU arrays, and the filter that reads them ran no
+    slower without; benchmarks/README.md). Only where they live changes, never a value; NumPy's setting is
+    restored after."""
+    toggle = getattr(getattr(np, "_core", None), "multiarray", None)
+    toggle = getattr(toggle, "_set_madvise_hugepage", None)  # NumPy's own switch (NUMPY_MADVISE_HUGEPAGE)
+    if toggle is None:
+        return [np.empty(shape) for _ in range(count)]
+    before = toggle(False)
+    try:
+        return [np.empty(shape) for _ in range(count)]
+    finally:
+        toggle(before)
+
+
+def imu_errors(real: Realization, t: np.ndarray, clean: tuple[np.ndarray, np.ndarray] | None = None
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """Additive IMU errors of every run on the IMU steps ending at ``t[1:]``, or with ``clean`` the
+    corrupted IMU itself.
 
     Args:
         t: (M+1,) IMU sample times [s]; step j covers (t[j], t[j+1]].
+        clean: ``(f_b, w_ib_b)``, each (M, 3): the clean specific force [m/s^2] and angular rate
+            [rad/s]; when given, they are added into each run's error rows as the rows are formed
+            (no second pair of (R, M, 3) arrays: half the memory touched per run).
 
     Returns:
         ``(e_f, e_w)``, each (R, M, 3): bias x factor + noise std x factor x N(0, 1) (the
         bias factor per ``dynamic_bias``), to be
-        added to the clean specific force [m/s^2] and angular rate [rad/s].
+        added to the clean specific force [m/s^2] and angular rate [rad/s]. They are cached on
+        ``real`` per ``len(t)`` (the caller must not write into them).
+        With ``clean``: ``(f_b + e_f, w_ib_b + e_w)`` bit for bit (one IEEE addition per element,
+        the same operands), new arrays never cached; the cached errors, if any, are read, not
+        written.
     """
     key = ("imu", len(t))
     if key in real._cache:
-        return real._cache[key]
+        e_f, e_w = real._cache[key]
+        return (e_f, e_w) if clean is None else (clean[0] + e_f, clean[1] + e_w)
+    if clean is not None:
+        f_b, w_b = (np.asarray(c, dtype=float) for c in clean)
+        if f_b.shape != (len(t) - 1, 3) or w_b.shape != (len(t) - 1, 3):
+            raise ValueError(f"imu_errors: clean arrays must be ({len(t) - 1}, 3), got {f_b.shape} and {w_b.shape}")
     M = len(t) - 1
     R = len(real.runs)
     seg = segment_index(t[1:] - t[0], real.config.segment_s, real.acc_factors.shape[1])
@@ -219,21 +251,27 @@ def imu_errors(real: Realization, t: np.ndarray) -> tuple[np.ndarray, np.ndarray
         bias_seg = seg
     else:  # the bias keeps the run's first-segment factor
         bias_seg = np.zeros(1, dtype=np.int64)
-    e_f = np.empty((R, M, 3))
-    e_w = np.empty((R, M, 3))
+    e_f, e_w = empty_small_pages((R, M, 3), 2)
     cfg = real.config
     # per-run noise streams (see draw); each run is formed in place in its own rows (a cache-sized
     # working set): bias x factor + factor x (std x N(0, 1)), the same operations as the
-    # whole-array expression, so the same bits
+    # whole-array expression, so the same bits (a run whose factors are all 1 skips the product by
+    # them: x * 1.0 is x); with ``clean`` the clean row is added last, in the
+    # same rows: fl(e + c) == fl(c + e), the one addition of ``clean + errors``
     for i, r in enumerate(real.runs):
-        for out, kind, std, factors, bias in ((e_f, STREAM_ACC, cfg.acc_noise, real.acc_factors, real.b_a),
-                                              (e_w, STREAM_GYRO, cfg.gyro_noise, real.gyro_factors, real.b_g)):
+        for out, kind, std, factors, bias, c in (
+                (e_f, STREAM_ACC, cfg.acc_noise, real.acc_factors, real.b_a, None if clean is None else f_b),
+                (e_w, STREAM_GYRO, cfg.gyro_noise, real.gyro_factors, real.b_g, None if clean is None else w_b)):
             n = out[i]
             stream(real.seed, real.track, int(r), kind).standard_normal((M, 3), out=n)
             n *= std
-            n *= factors[i, seg][:, None]
+            if (factors[i] != 1.0).any():  # x * 1.0 == x exactly: the constant schedule skips the pass
+                n *= factors[i, seg][:, None]
             n += factors[i, bias_seg][:, None] * bias[i]
-    real._cache[key] = (e_f, e_w)
+            if c is not None:
+                n += c
+    if clean is None:  # the corrupted IMU is the caller's, never cached
+        real._cache[key] = (e_f, e_w)
     return e_f, e_w
 
 

@@ -119,8 +119,8 @@ def realization_inputs(spec: Spec, number: int, runs: np.ndarray, clean: bool = 
         w = np.broadcast_to(truth.w_ib_b, (R,) + truth.w_ib_b.shape)
         nav0 = initial_nav(p_t[0], v_t[0], C_t[0], np.zeros((R, 3)), np.zeros((R, 3)))
     else:
-        ef, ew = imu_errors(real, truth.t)
-        f, w = truth.f_b + ef, truth.w_ib_b + ew
+        # the corrupted IMU formed in the error rows (bit-identical to truth.f_b + e_f: one addition)
+        f, w = imu_errors(real, truth.t, clean=(truth.f_b, truth.w_ib_b))
         nav0 = initial_nav(p_t[0], v_t[0], C_t[0], real.dv0, real.dpsi0, real.dp0)
     return track, truth, real, f, w, nav0, channels
 
