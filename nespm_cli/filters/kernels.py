@@ -106,10 +106,13 @@ def _f64(a: np.ndarray) -> np.ndarray:
 
 
 #: the compiled kernels by name (what :func:`warm_up`, :func:`kernels_cached` and the ready marks in
-#: the cache folder speak of): the free-inertial loop, Φ of the common error (12 or any layout; the
-#: 15 states with F's zeros skipped), Φ_inv of the iekf (12 / 15 states), the sigma/cubature points
-KERNELS = ("strapdown", "transition", "transition-position", "transition-invariant", "transition-invariant-position",
-           "points")
+#: the cache folder speak of): the free-inertial loop, Φ of the common error (the papers' 12 states
+#: unrolled; the 15 states with F's zeros skipped; any other layout, a plugin's, in the generic loop),
+#: Φ_inv of the iekf (12 / 15 states), the sigma/cubature points
+KERNELS = ("strapdown", "transition", "transition-position", "transition-generic", "transition-invariant",
+           "transition-invariant-position", "points")
+#: a layout that only the generic Φ loop runs (what warm_up compiles "transition-generic" on)
+GENERIC_LAYOUT = StateLayout(("pos", "vel", "att"))
 
 
 def run_kernel(name: str, kernel, *args):
@@ -137,7 +140,9 @@ def transition_kernel(invariant: bool, layout: StateLayout) -> str:
     """The name (:data:`KERNELS`) of the kernel :func:`transition` runs for ``invariant`` and ``layout``."""
     if invariant:
         return "transition-invariant-position" if layout.has("pos") else "transition-invariant"
-    return "transition-position" if layout.offsets().tolist() == [0, 3, 6, 9, 12] else "transition"
+    off = layout.offsets().tolist()
+    return ("transition" if off == LAYOUT_12.offsets().tolist() else
+            "transition-position" if off == LAYOUT_15.offsets().tolist() else "transition-generic")
 
 
 def transition(pos, v_n, C_bn, b_a, b_g, f, w, dt, j0: int, j1: int, invariant: bool = False,
@@ -160,6 +165,10 @@ def transition(pos, v_n, C_bn, b_a, b_g, f, w, dt, j0: int, j1: int, invariant: 
         run_kernel(name, tk.transition_span_position, *args)
     elif name == "transition-invariant":
         run_kernel(name, tk.transition_span_invariant, *args, off)
+    elif name == "transition":  # the papers' 12 states: the generic loop unrolled (the same bits, less to compile)
+        from nespm_cli.filters.transition_kernel_12 import transition_span_12
+
+        run_kernel(name, transition_span_12, *args)
     else:
         run_kernel(name, tk.transition_span_common, *args, off)
     return Phi
@@ -211,7 +220,7 @@ def warm_up(names=None) -> float:
         elif name == "points":
             points_through_cycle(pos, v, C, b, b, np.zeros((R, 24, 12)), f, w, dt, 0, M, LAYOUT_12)
         elif name.startswith("transition"):
-            layout = LAYOUT_15 if name.endswith("position") else LAYOUT_12
+            layout = LAYOUT_15 if name.endswith("position") else GENERIC_LAYOUT if name.endswith("generic") else LAYOUT_12
             transition(pos.copy(), v.copy(), C.copy(), b, b, f, w, dt, 0, M, "invariant" in name, layout, pos)
         else:
             raise NespmError(f"warm_up: unknown kernel {name!r}; choose from {', '.join(KERNELS)}")

@@ -10,7 +10,8 @@ point) at a time. Shapes as in :mod:`.kernels`; the error state is any layout of
 keeps its bias rows [0 I]; only the rows that change are formed (``transition_span_common``; the
 same sums, in the same order, as the dense product's top six rows); for the 15 states ``[dp, dv,
 dpsi, b_a, b_g]`` ``transition_span_position`` forms the same Φ bit for bit with F's structural zeros
-skipped. The iekf's right-invariant error has ``transition_span_invariant`` (12 states) and
+skipped (the papers' 12 states: :mod:`.transition_kernel_12`, the same sums unrolled, what ``kernels``
+runs for them). The iekf's right-invariant error has ``transition_span_invariant`` (12 states) and
 ``transition_span_invariant_position`` (15: F_inv's ρ_p row is dense, and it needs each run's origin).
 """
 from __future__ import annotations
@@ -20,10 +21,11 @@ import math
 import numpy as np
 
 from nespm_cli.nav.earth import A, E2, F, GAMMA_E, K_SOMIGLIANA
-from nespm_cli.nav.kernels import GRAV_M, cycle_t, earth_t, exp_t, gravity_t, load_t, matrix_t, mul_t, njit, state_t, store_t
+from nespm_cli.nav.kernels import (GRAV_M, cycle_t, earth_t, exp_t, gravity_t, helper, load_t, matrix_t, mul_t, njit, state_t,
+                                   store_t)
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@helper
 def identity_plus_dt(M, dt, v):
     """``M ← I + M dt`` in place for the velocity and attitude rows ``v .. v+5`` of F (M (n, n))."""
     n = M.shape[1]
@@ -33,7 +35,7 @@ def identity_plus_dt(M, dt, v):
         M[i, i] += 1.0
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@helper
 def system_rows_s(x, f0, f1, f2, M, dt, off):
     """The velocity and attitude rows of ``I + F dt`` into ``M`` (n, n): F of model.system_matrix
     (Groves 14.2.4); the position rows (dp' = dv) are applied by the span loops directly.
@@ -100,7 +102,7 @@ def system_rows_s(x, f0, f1, f2, M, dt, off):
     identity_plus_dt(M, dt, v)
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@helper
 def gravity_gradient_t(lat, h, sl):
     """earth.gravity_down_gradient: ∂g_D/∂D [1/s²] at latitude ``lat`` (``sl = sin lat``), height ``h``."""
     s2 = sl * sl
@@ -108,7 +110,7 @@ def gravity_gradient_t(lat, h, sl):
     return g0 * (2.0 / A * (1.0 + F + GRAV_M - 2.0 * F * s2) - 6.0 * h / A**2)
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@helper
 def invariant_top_s(x, M, dt, S):
     """Rows 0-5 of ``I + F_inv dt`` into ``M`` (12, 12): F_inv of model.invariant_system_matrix
     for the 12-state layout (with position: :func:`invariant_position_blocks_s`).
@@ -154,7 +156,7 @@ def invariant_top_s(x, M, dt, S):
     identity_plus_dt(M, dt, 0)
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@helper
 def mat3_s(A, B, out):
     """``out ← A @ B`` for (3, 3) arrays."""
     for i in range(3):
@@ -162,7 +164,7 @@ def mat3_s(A, B, out):
             out[i, k] = A[i, 0] * B[0, k] + A[i, 1] * B[1, k] + A[i, 2] * B[2, k]
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@helper
 def invariant_position_blocks_s(x, S, q0, q1, q2):
     """The non-zero 3x3 blocks of F_inv (model.invariant_system_matrix with the position block) at
     the group position ``q`` [m] (the solution's NED offset from the run's origin), into ``S``
@@ -225,7 +227,7 @@ def invariant_position_blocks_s(x, S, q0, q1, q2):
     return gamma
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@helper
 def skew_s(a0, a1, a2, out):
     """``[a x]`` into ``out`` (3, 3)."""
     out[0, 0], out[0, 1], out[0, 2] = 0.0, -a2, a1
@@ -233,7 +235,7 @@ def skew_s(a0, a1, a2, out):
     out[2, 0], out[2, 1], out[2, 2] = -a1, a0, 0.0
 
 
-@njit(cache=True)
+@helper
 def set_identity(P):
     """``P ← I`` in place (one run's Φ at the start of a span)."""
     n = P.shape[0]
@@ -242,7 +244,7 @@ def set_identity(P):
             P[i, k] = 1.0 if i == k else 0.0
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@helper
 def rows_step(M, P, top, p, vo, h):
     """One step of Φ's changing rows in place on ``P`` (n, n) from ``M`` = ``I + F dt`` (``top`` scratch)."""
     n, e = P.shape[1], vo + 6  # e: the first bias column
@@ -433,7 +435,7 @@ def transition_span_invariant_position(pos, v, C, b_a, b_g, f, w, dt, j0, j1, Ph
         store_t(x, pos[r], v[r], C[r])
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@helper
 def point_start(pos, v, C, b_a, b_g, X, r, s, off):
     """Point ``s`` of run ``r`` at the start of a span (eqs 35-37): ``(x, b_a (3), b_g (3), dp (3))``,
     point 0 the mean, point s > 0 the mean ⊕ ``X[r, s-1]`` (position ⊕ dp with a position block,

@@ -57,7 +57,8 @@ class KernelCacheWarning(UserWarning):
 ENV_CACHE = "NESPM_CACHE_DIR"
 #: the files (relative to the package) whose text the compiled kernels depend on: their code, what
 #: they inline, the earth constants they freeze. A new kernel module must be listed here.
-KERNEL_SOURCES = ("nav/earth.py", "nav/kernels.py", "filters/transition_kernel.py", "filters/points_kernel.py")
+KERNEL_SOURCES = ("nav/earth.py", "nav/kernels.py", "filters/transition_kernel.py", "filters/transition_kernel_12.py",
+                  "filters/points_kernel.py")
 #: the kernels (filters.kernels names) this process has already used: no cache check on later calls
 READY: set[str] = set()
 _folders: dict[tuple[str, str], Path | None] = {}
@@ -266,11 +267,29 @@ def njit(*args, **kwargs):
             return numba.njit(**{**kwargs, "cache": False})(f)
     return deco(args[0]) if args and callable(args[0]) else deco
 
+
+def helper(f=None, *, python: bool = False):
+    """A function the kernels call (``@helper``, or ``@helper(python=True)``): ``njit(cache=True,
+    error_model="numpy")`` compiled once per process and signature and inlined by LLVM into every kernel
+    that calls it (``forceinline``: the ``alwaysinline`` attribute), not by numba. numba's own inlining
+    (``inline="always"``, what these were) copies and types the helper's IR again at every call site
+    (``exp_t`` twice per ``cycle_t``, ``load_t`` and ``earth_t`` in every kernel), and kernels sharing a
+    helper each paid for it. The machine code is the same: the same operations in the same order (no
+    fast-math), every helper inlined. Without ``python`` no Python wrapper is built (a helper is called
+    from kernels only, and the wrapper was most of its own compile); ``python=True`` keeps it callable
+    from Python (tests). Measured: the default ``mc``'s two kernels 4.3 → 3.4 CPU-s to compile
+    (benchmarks/README.md, the compile section)."""
+    opts = dict(cache=True, error_model="numpy", forceinline=True)
+    if not python:
+        opts.update(no_cpython_wrapper=True, no_cfunc_wrapper=True)
+    return njit(**opts) if f is None else njit(**opts)(f)
+
+
 SERIES2 = 1e-4  # rotations._SERIES2: squared angle below which the exp series is used
 GRAV_M = OMEGA_IE**2 * A**2 * B / MU  # gravity_n's m
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@helper
 def exp_t(p0, p1, p2):
     """``exp([p x])`` as a 9-tuple, row-major (rotations.exp_so3: series below 0.01 rad, Rodrigues above)."""
     th2 = p0 * p0 + p1 * p1 + p2 * p2
@@ -284,7 +303,7 @@ def exp_t(p0, p1, p2):
     return exp_from(p0, p1, p2, th2, a, b)
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@helper
 def exp_from(p0, p1, p2, th2, a, b):
     """exp_t's 9-tuple from the angle ``p``, its square ``th2`` and the coefficients ``a`` (sin θ/θ) and
     ``b`` ((1 − cos θ)/θ²): ``(1 − b θ²) I + a [p×] + b p pᵀ``, in one order (the points kernel's too)."""
@@ -294,7 +313,7 @@ def exp_from(p0, p1, p2, th2, a, b):
             -(p1 * a) + b * (p2 * p0), p0 * a + b * (p2 * p1), b * (p2 * p2) + d)
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@helper
 def mul_t(X, Y):
     """``X @ Y`` of two row-major 9-tuples, summed as products.mat_mul: ``(x0 y0 + x1 y1) + x2 y2``."""
     return ((X[0] * Y[0] + X[1] * Y[3]) + X[2] * Y[6], (X[0] * Y[1] + X[1] * Y[4]) + X[2] * Y[7],
@@ -305,7 +324,7 @@ def mul_t(X, Y):
             (X[6] * Y[2] + X[7] * Y[5]) + X[8] * Y[8])
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@helper
 def earth_t(lat, h, vN, vE):
     """The earth quantities of a state, a 10-tuple ``(sin L, cos L, R_N, R_E, w_ie^n (3), w_en^n (3))``.
 
@@ -321,7 +340,7 @@ def earth_t(lat, h, vN, vE):
             vE / (R_E + h), -vN / (R_N + h), -vE * sl / cl / (R_E + h))
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@helper
 def gravity_t(lat, h, sl):
     """``(g_N, g_D)`` [m/s²] of earth.gravity_n at latitude ``lat`` [rad] (``sl = sin lat``), height ``h`` [m]."""
     s2 = sl * sl
@@ -331,7 +350,7 @@ def gravity_t(lat, h, sl):
     return gN, gD
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@helper
 def cycle_t(x, f0, f1, f2, w0, w1, w2, dt):
     """One navigation cycle, ukf-nespm.md eqs 24-32 (strapdown.na_cycle), on scalars.
 
@@ -372,25 +391,25 @@ def cycle_t(x, f0, f1, f2, w0, w1, w2, dt):
     return (lat1, lon1, h1, n0, n1, n2) + mul_t(C, exp_t(p0, p1, p2)) + e
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@helper
 def load_t(pos, v, C):
     """The 25-tuple of :func:`cycle_t` from arrays ``pos``, ``v`` (3,), ``C`` (3, 3)."""
     return state_t(pos[0], pos[1], pos[2], v[0], v[1], v[2], matrix_t(C))
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@helper
 def matrix_t(C):
     """A (3, 3) array as a row-major 9-tuple."""
     return (C[0, 0], C[0, 1], C[0, 2], C[1, 0], C[1, 1], C[1, 2], C[2, 0], C[2, 1], C[2, 2])
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@helper
 def state_t(lat, lon, h, v0, v1, v2, C):
     """The 25-tuple of :func:`cycle_t` of a state (``C`` a row-major 9-tuple)."""
     return (lat, lon, h, v0, v1, v2) + C + earth_t(lat, h, v0, v1)
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@helper
 def store_t(x, pos, v, C):
     """Write the state of a 25-tuple into ``pos``, ``v`` (3,) and ``C`` (3, 3)."""
     pos[0], pos[1], pos[2] = x[0], x[1], x[2]
