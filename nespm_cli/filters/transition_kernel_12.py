@@ -5,10 +5,10 @@ layout ``[dv, dpsi, b_a, b_g]`` (offsets -1, 0, 3, 6, 9) with its loops written 
 the velocity/attitude block of ``I + F dt`` and the 18 of its bias columns are scalars, and each entry
 of Φ's changing rows is the same sum in the same order, ``0.0 + M[i, 0] Φ[0, k] + ... + M[i, 5] Φ[5, k]
 (+ M[i, k] for a bias column)``, F's structural zeros included as ``0.0 · dt`` terms. The same IEEE
-operations in the same order, so the same bits in every case (also inf and NaN;
-tests/test_compile_kernels.py). Why: the generic loop's runtime bounds cost numba and LLVM about
-1.3 CPU-s more to compile (benchmarks/README.md, the compile section), and every ``mc`` of the default
-filters compiles this kernel on a machine's first run.
+operations in the same order, so the same bits, zeros' signs included, and NaN where the loop gives NaN
+(its payload aside) for an inf or NaN input (tests/test_compile_kernels.py). Why: the generic loop's
+runtime bounds cost numba and LLVM about 1.3 CPU-s more to compile (benchmarks/README.md, the compile
+section), and every ``mc`` of the default filters compiles this kernel on a machine's first run.
 """
 from __future__ import annotations
 
