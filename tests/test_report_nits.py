@@ -231,3 +231,31 @@ def test_tune_writes_a_tuned_toml_mc_reads(tmp_path):
     rc, _, err = nespm("mc", "--config", out / "tuned.toml", "--tracks", "5", "--runs", "1", "--window", "0:20",
                        "--dvl", "synthetic", "--filters", "ekf", "--jobs", "1", "--no-progress", "--out", tmp_path / "mc")
     assert rc == 0, err
+
+
+def test_consistency_legends_print_a_share_on_its_words_side(tmp_path, monkeypatch):
+    """The ANEES figure's legend: 797 of the 999 epochs after t = 0 inside (79.8 %) reads ``79.7 % inside``
+    (the tables' rule at the 80 % threshold: rounded away from it), not ``80 % inside``; 949 of 999 reads
+    ``95 % inside``."""
+    from nespm_cli.reports import consistency as cons
+    from nespm_cli.reports.figures import filter_colors, use_agg
+
+    use_agg()
+    n, labels = 1000, []
+    t = np.arange(n, dtype=float)
+    frames = []
+    for f, k in (("ekf", 798), ("ukf", 950)):
+        x = np.where(np.arange(n) < k, 3.0, 100.0)
+        frames.append(pd.DataFrame({"filter": f, "track": 5, "epoch": np.arange(n), "t": t, "n_runs": 20,
+                                    "nees_vel_mean": x, "nees_att_mean": x}))
+    ep = pd.concat(frames, ignore_index=True)
+    real = cons.save_figure
+
+    def keep(fig, path):
+        for ax in fig.axes:
+            labels.extend(ax.get_legend_handles_labels()[1])
+        return real(fig, path)
+
+    monkeypatch.setattr(cons, "save_figure", keep)
+    cons.anees_drawn(ep, ["ekf", "ukf"], filter_colors(("ekf", "ukf")), "ANEES", tmp_path / "a.png")
+    assert "ekf (79.7 % inside)" in labels and "ukf (95 % inside)" in labels, labels

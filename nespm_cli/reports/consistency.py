@@ -21,6 +21,7 @@ import numpy as np
 import pandas as pd
 
 from nespm_cli.experiments.metrics import nees_band
+from nespm_cli.reports.block_consistency import CONSISTENT_SHARE, share_text
 from nespm_cli.reports.figures import Drawn, drawn, drawn_rows, legend_outside, line_style, save_figure
 
 #: the navigation blocks' ANEES columns and names; :data:`BIAS_BLOCKS` the bias blocks' (from the true biases)
@@ -117,7 +118,7 @@ def anees_drawn(ep: pd.DataFrame, filters: list[str], colors: dict, title: str, 
                 continue
             n = d["n_runs"].to_numpy()
             first = d if first is None else first
-            ax.plot(d["t"], x, color=colors.get(f), label=f"{f} ({100 * inside_fraction(x, n):.0f} % inside)",
+            ax.plot(d["t"], x, color=colors.get(f), label=f"{f} ({share_text(inside_fraction(x, n), CONSISTENT_SHARE)} inside)",
                     **line_style(i))
             vals.append(x)
             parts.append(drawn_rows(f"anees {label}", f, d["t"], x))
@@ -189,7 +190,7 @@ def anis_figure(ep: pd.DataFrame, filters: list[str], colors: dict, dims: dict[s
             if not np.isfinite(x).any():
                 continue
             first = d if first is None else first
-            frac = f", {100 * inside_fraction(x, d[cnt].to_numpy(), dof):.0f} % inside" if dof else ""
+            frac = f", {share_text(inside_fraction(x, d[cnt].to_numpy(), dof), CONSISTENT_SHARE)} inside" if dof else ""
             style = line_style(i) | ({"ls": "none", "marker": "o", "ms": max(7 - 2 * i, 3)} if len(d) < 60 else {})
             ax.plot(d["t"], x, color=colors.get(f), label=f"{f}{frac}", **style)
             vals.append(x)
