@@ -129,13 +129,19 @@ _SPECS: dict[int, _Spec] = {
 }
 
 
+def _speed_course(spec: _Spec, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Horizontal speed ``U`` [m/s] and course ``chi`` [rad] at times ``t`` (K,) [s]: all that the
+    position needs on the fine grid (:func:`_integrate_position`), without the attitude and rates."""
+    return spec.speed.value(t), np.radians(spec.heading0) + _turns(spec.turns).integral(t)
+
+
 def _kinematics(spec: _Spec, t: np.ndarray) -> dict[str, np.ndarray]:
     """Velocity, attitude and body rate at times ``t`` (K,) [s] from the analytic profiles."""
     rate = _turns(spec.turns)
-    U, dU = spec.speed.value(t), spec.speed.d1(t)
+    U, chi = _speed_course(spec, t)
+    dU = spec.speed.d1(t)
     dd, ddd = spec.depth.d1(t), spec.depth.d2(t)
     r, dr = rate.value(t), rate.d1(t)
-    chi = np.radians(spec.heading0) + rate.integral(t)
     v_n = np.stack([U * np.cos(chi), U * np.sin(chi), dd], axis=-1)
 
     gamma = np.arctan2(-dd, U)
@@ -161,9 +167,9 @@ def _integrate_position(number: int, t: np.ndarray, spec: _Spec) -> np.ndarray:
     for both terms), and the altitude is the analytic ``-depth`` rather than integrated.
     Changing it would change every embedded track.
     """
-    k = _kinematics(spec, t)
-    vN, vE = k["v_n"][:, 0], k["v_n"][:, 1]
-    h = -k["depth"]
+    U, chi = _speed_course(spec, t)
+    vN, vE = U * np.cos(chi), U * np.sin(chi)
+    h = -spec.depth.value(t)
     dt = np.diff(t)
     lat0 = LAT0 + np.radians(0.004) * (number - 1)
     lon0 = LON0 - np.radians(0.005) * (number - 1)
