@@ -147,3 +147,34 @@ def test_body_rate_matches_attitude() -> None:
     k = embedded._kinematics(embedded._SPECS[1], np.asarray(tr.t))
     w_fd = body_rate_from_attitude(tr.t, tr.C_bn)
     assert np.abs(k["w_b"][1:-1] - w_fd[1:-1]).max() < 3e-3
+
+
+def test_embedded_tracks_read_back_from_the_user_cache_are_the_same_bits(tmp_path, monkeypatch):
+    """The first process builds a track and keeps its arrays in the per-user cache; the next reads
+    them: the same bits as a build. A truncated cache file and an unwritable folder only mean a build."""
+    from nespm_cli.data import embedded, embedded_cache
+
+    monkeypatch.setenv("NESPM_CACHE_DIR", str(tmp_path / "cache"))
+    built = embedded.build_arrays(5)
+    path = embedded_cache.cache_file(5)
+    assert not path.exists() and embedded_cache.load(5) is None
+    embedded.embedded_track.cache_clear()
+    try:
+        tr = embedded.embedded_track(5)
+        assert path.exists()
+        for k in embedded_cache.ARRAYS:
+            assert getattr(tr, k).tobytes() == built[k].tobytes(), k
+        back = embedded_cache.load(5)
+        assert all(back[k].tobytes() == built[k].tobytes() and back[k].dtype == built[k].dtype for k in built)
+        path.write_bytes(path.read_bytes()[:100])  # truncated: a miss, rebuilt and rewritten
+        assert embedded_cache.load(5) is None
+        embedded.embedded_track.cache_clear()
+        assert embedded.embedded_track(5).pos.tobytes() == built["pos"].tobytes()
+        assert embedded_cache.load(5) is not None
+        blocker = tmp_path / "file"
+        blocker.write_text("not a folder")
+        monkeypatch.setenv("NESPM_CACHE_DIR", str(blocker / "cache"))
+        embedded.embedded_track.cache_clear()
+        assert embedded.embedded_track(5).dvl.tobytes() == built["dvl"].tobytes()
+    finally:
+        embedded.embedded_track.cache_clear()

@@ -17,7 +17,8 @@ The tracks are built from C-infinity analytic profiles (sums of ``tanh`` smooth 
 * DVL ``= C_bn^T v_n + w_nb^b x L_DVL + N(0, DVL_NOISE^2)`` from ``default_rng(1000 + number)``.
 
 Tracks 1 and 2 have many turns, 3 and 4 long straight legs, 5 and 6 a mix. Everything is
-computed in memory, cached, and returned as read-only arrays (same arrays on every call).
+computed in memory (or read back from the per-user cache, :mod:`.embedded_cache`, the same bits), cached,
+and returned as read-only arrays (same arrays on every call).
 """
 from __future__ import annotations
 
@@ -26,6 +27,7 @@ from functools import lru_cache
 
 import numpy as np
 
+from nespm_cli.data import embedded_cache
 from nespm_cli.nav.dvl import dvl_velocity
 from nespm_cli.nav.earth import lat_rate, lon_rate, radii
 from nespm_cli.errors import NespmError
@@ -198,6 +200,18 @@ def embedded_track(number: int) -> Track:
             f"embedded tracks: no track {number} (available: {', '.join(map(str, EMBEDDED_TRACKS))}; "
             "use --data-dir or NESPM_DATA_DIR for recorded tracks)"
         )
+    a = embedded_cache.load(number)
+    if a is None:
+        a = build_arrays(number)
+        embedded_cache.save(number, a)
+    return Track(number=number, t=a["t"], pos=a["pos"], v_n=a["v_n"], euler=a["euler"], dvl=a["dvl"], imu=None,
+                 source="embedded")
+
+
+def build_arrays(number: int) -> dict[str, np.ndarray]:
+    """Track ``number``'s arrays computed from its profiles: ``t`` (400,) [s], ``pos`` (400, 3) [rad,
+    rad, m], ``v_n`` (400, 3) [m/s], ``euler`` (400, 3) [rad], ``dvl`` (400, 3) [m/s, body]
+    (:func:`embedded_track` reads them from the per-user cache when a process before built them)."""
     spec = _SPECS[number]
     t_fine = np.arange((N_EPOCHS - 1) * SUBSTEPS + 1) * (DT / SUBSTEPS)
     pos = _integrate_position(number, t_fine, spec)[::SUBSTEPS]
@@ -208,4 +222,4 @@ def embedded_track(number: int) -> Track:
     dvl = dvl_velocity(C_bn, k["v_n"], k["w_b"], L_DVL) + rng.normal(0.0, DVL_NOISE, size=(N_EPOCHS, 3))
     euler = k["euler"].copy()
     euler[:, 2] = wrap_angle(euler[:, 2])
-    return Track(number=number, t=t, pos=pos, v_n=k["v_n"], euler=euler, dvl=dvl, imu=None, source="embedded")
+    return {"t": t, "pos": pos, "v_n": k["v_n"], "euler": euler, "dvl": dvl}

@@ -40,6 +40,7 @@ from typing import Iterator
 import numpy as np
 
 from nespm_cli.nav.earth import A, B, E2, F, GAMMA_E, K_SOMIGLIANA, MU, OMEGA_IE
+from nespm_cli.nav.user_cache import cache_base
 
 try:  # numba is a dependency; without it the filters run the NumPy reference (filters.kernels)
     import numba
@@ -54,7 +55,6 @@ class KernelCacheWarning(UserWarning):
     """numba found no writable place to cache the compiled kernels (printed as one warning line)."""
 
 
-ENV_CACHE = "NESPM_CACHE_DIR"
 #: the files (relative to the package) whose text the compiled kernels depend on: their code, what
 #: they inline, the earth constants they freeze. A new kernel module must be listed here.
 KERNEL_SOURCES = ("nav/earth.py", "nav/kernels.py", "filters/transition_kernel.py", "filters/transition_kernel_12.py",
@@ -62,21 +62,6 @@ KERNEL_SOURCES = ("nav/earth.py", "nav/kernels.py", "filters/transition_kernel.p
 #: the kernels (filters.kernels names) this process has already used: no cache check on later calls
 READY: set[str] = set()
 _folders: dict[tuple[str, str], Path | None] = {}
-
-
-def cache_base() -> Path:
-    """Where the per-user kernel cache lives: ``$NESPM_CACHE_DIR``, else ``$NUMBA_CACHE_DIR``, else the
-    platform's per-user cache folder (``$XDG_CACHE_HOME/nespm`` or ``~/.cache/nespm``; macOS
-    ``~/Library/Caches/nespm``; Windows ``%LOCALAPPDATA%\\nespm\\Cache``)."""
-    for var in (ENV_CACHE, "NUMBA_CACHE_DIR"):
-        if os.environ.get(var):
-            return Path(os.environ[var]).expanduser()
-    if sys.platform == "win32":
-        return Path(os.environ.get("LOCALAPPDATA") or "~/AppData/Local").expanduser() / "nespm" / "Cache"
-    if sys.platform == "darwin":
-        return Path("~/Library/Caches/nespm").expanduser()
-    xdg = os.environ.get("XDG_CACHE_HOME", "")
-    return (Path(xdg) if os.path.isabs(xdg) else Path("~/.cache").expanduser()) / "nespm"
 
 
 @functools.lru_cache(maxsize=None)
