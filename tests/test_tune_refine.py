@@ -173,3 +173,41 @@ def test_pattern_search_moves_on_a_sufficient_decrease_only():
         assert (res["values"]["a"] > 1.0) == moves, res
         if not moves:
             assert res["evaluations"] == 2 * len(params) * (LEVELS + 2)
+
+
+def ridge_case(seed: int):
+    """A score with a ridge across the axes (three log factors that only their differences pin within
+    the budget, like make tune-main's accelerometer noise, R and P0 of attitude), seven weakly seen
+    factors and a lever arm; its minimum is 1 at a random point."""
+    rng = np.random.default_rng(seed)
+    params = [Param("f", f"p{i}", 0.1, 10.0) for i in range(10)] + [Param("f", "lev", -4.6, 1.4, log=False)]
+    opt = np.exp(rng.uniform(-1.0, 1.0, 10))
+
+    def score(x):
+        u = [math.log(x[f"p{i}"] / opt[i]) for i in range(10)]
+        return (1 + 0.3 * (u[0] - u[4]) ** 2 + 0.3 * (u[0] - u[7]) ** 2 + 0.002 * (u[0] + u[4] + u[7]) ** 2
+                + sum(0.02 * u[i] ** 2 for i in (1, 2, 3, 5, 6, 8, 9)) + 0.5 * (x["lev"] + 1.6) ** 2)
+
+    return params, score, {**{p.key: 1.0 for p in params[:10]}, "lev": -1.0}
+
+
+def test_the_model_follows_a_ridge_that_polls_along_the_axes_do_not():
+    """Within the default budget, the refinement (BOBYQA's model, then the polls) ends on average nearer
+    the minimum than the polls alone (measured over 5 seeds: mean gap 0.0040 against 0.0060; 0.0127 for
+    the polls without pattern moves), says it finished, finds the lever arm to its finer linear step
+    (1/96 of the range, 0.0625 m), and is a pure function of the scores (the same calls twice)."""
+    from nespm_cli.tuning.refine import auto_budget, refine
+
+    gaps_model, gaps_polls = [], []
+    for seed in range(5):
+        params, score, x0 = ridge_case(seed)
+        budget = auto_budget(params)
+        res = refine(score, x0, score(x0), params, budget)
+        assert res["finished"] and res["evaluations"] <= budget and res["model"] > 0
+        assert abs(res["values"]["lev"] + 1.6) <= 6.0 / 96
+        gaps_model.append(res["score"] - 1)
+        gaps_polls.append(pattern_search(score, x0, score(x0), params, budget)["score"] - 1)
+        calls = []
+        again = refine(lambda x: calls.append(dict(x)) or score(x), x0, score(x0), params, budget)
+        assert again == res and len(calls) == res["evaluations"]
+    assert np.mean(gaps_model) < np.mean(gaps_polls), (gaps_model, gaps_polls)

@@ -10,7 +10,7 @@ from typing import Callable
 from nespm_cli.experiments.spec import Spec
 from nespm_cli.tuning.evaluate import Evaluator
 from nespm_cli.tuning.objective import REUSE_RUNS, score, summary, trial_statistics
-from nespm_cli.tuning.refine import auto_budget, pattern_search
+from nespm_cli.tuning.refine import auto_budget, refine
 from nespm_cli.tuning.space import Param
 from nespm_cli.tuning.spec import TuneSpec
 from nespm_cli.tuning.study import (PHASE_ATTR, STATS_ATTR, config_digest, fail_stale, make_sampler, open_study, quiet,
@@ -78,7 +78,7 @@ def refine_filter(t: TuneSpec, train: Spec, space: dict, out: str, index: int, s
                   candidates: dict) -> dict:
     """Refine filter ``train.filters[index]``'s search ``search``: score ``candidates`` (``{filter: its
     searched values}``: the other filters' bests on the keys they share), start from the best of those
-    and its own best ``start`` (``{"values", "score"}``), and run the pattern search within
+    and its own best ``start`` (``{"values", "score"}``), and run :func:`nespm_cli.tuning.refine.refine` within
     ``t.refine_trials`` evaluations (None: :func:`nespm_cli.tuning.refine.auto_budget`; the candidates'
     included). Returns ``{"filter", "search", "start",
     "evaluations", "finished", "score", "values"}``."""
@@ -103,7 +103,7 @@ def refine_filter(t: TuneSpec, train: Spec, space: dict, out: str, index: int, s
         fy = ev(y, "refine")
         if fy < f0:
             x0, f0, origin = y, fy, f"{g}'s values"
-    res = pattern_search(lambda v: ev(v, "refine"), x0, f0, params, budget - used)
+    res = refine(lambda v: ev(v, "refine"), x0, f0, params, budget - used)
     return {"filter": name, "search": search, "start": origin, "evaluations": used + res["evaluations"],
             "finished": res["finished"], "score": res["score"], "values": res["values"]}
 
