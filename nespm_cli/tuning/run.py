@@ -178,7 +178,7 @@ def run_tune(t: TuneSpec, out: str | Path, jobs: int = 1, report: Callable[[str,
         global_search(t, train, space, out, jobs, backend, scheduler, report)
         if report is not None and t.refine_trials != 0:
             most = {f: auto_budget(space[f]) if t.refine_trials is None else t.refine_trials for f in train.filters}
-            print(f"tune: refining each filter's best (pattern search, up to {max(most.values())} trials)",
+            print(f"tune: refining each filter's best (a model, then polls; up to {max(most.values())} trials)",
                   file=sys.stderr, flush=True)
         refined = refinements(t, train, space, out, store, jobs, backend, scheduler)
         bases = {f: level_bases(train, f) for f in train.filters} if t.level == "tracks" else None
