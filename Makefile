@@ -15,7 +15,7 @@ setup: $(VENV)/.installed
 # pip prints one line per package it collects and installs (no --quiet): the first install takes
 # minutes (numpy, scipy, pandas, pyarrow, matplotlib, numba, scikit-learn, dask, rosbags).
 $(VENV)/.installed: pyproject.toml
-	@echo "setup: creating $(VENV) and installing nespm with its dependencies (numpy, scipy, pandas, pyarrow, matplotlib, numba, scikit-learn, dask, rosbags, pytest): a few minutes the first time"
+	@echo "setup: creating $(VENV) and installing nespm with its dependencies (numpy, scipy, pandas, pyarrow, matplotlib, numba, scikit-learn, optuna, Py-BOBYQA, dask, rosbags, pytest): a few minutes the first time"
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
 	$(BIN)/pip install --progress-bar on -e '.[test,dask,onnx]'
