@@ -11,12 +11,11 @@ cannot be read (truncated, foreign), only means the track is built as before.
 from __future__ import annotations
 
 import functools
-import hashlib
 from pathlib import Path
 
 import numpy as np
 
-from nespm_cli.nav.user_cache import cache_base
+from nespm_cli.nav.user_cache import cache_base, sources_digest
 
 #: the modules (relative to the package) whose text the embedded tracks' arrays depend on
 SOURCES = ("data/embedded.py", "nav/dvl.py", "nav/earth.py", "nav/rotations.py", "nav/strapdown.py", "nav/products.py")
@@ -26,12 +25,7 @@ ARRAYS = ("t", "pos", "v_n", "euler", "dvl")
 @functools.lru_cache(maxsize=None)
 def source_key() -> str:
     """16 hex digits of SHA-256 over :data:`SOURCES`' text and NumPy's version."""
-    root = Path(__file__).resolve().parent.parent
-    h = hashlib.sha256(f"numpy {np.__version__}".encode())
-    for rel in SOURCES:
-        h.update(rel.encode() + b"\0")
-        h.update((root / rel).read_bytes())
-    return h.hexdigest()[:16]
+    return sources_digest(f"numpy {np.__version__}", SOURCES)
 
 
 def cache_file(number: int) -> Path:

@@ -40,7 +40,7 @@ from typing import Iterator
 import numpy as np
 
 from nespm_cli.nav.earth import A, B, E2, F, GAMMA_E, K_SOMIGLIANA, MU, OMEGA_IE
-from nespm_cli.nav.user_cache import cache_base
+from nespm_cli.nav.user_cache import cache_base, sources_digest
 
 try:  # numba is a dependency; without it the filters run the NumPy reference (filters.kernels)
     import numba
@@ -68,12 +68,8 @@ _folders: dict[tuple[str, str], Path | None] = {}
 def source_key() -> str:
     """16 hex digits of SHA-256 over :data:`KERNEL_SOURCES` (their text, not their path or mtime), the
     Python minor version and numba's version: the name of the cache subfolder and numba's source stamp."""
-    root = Path(__file__).resolve().parent.parent
-    h = hashlib.sha256(f"py{sys.version_info[0]}.{sys.version_info[1]} numba {getattr(numba, '__version__', '')}".encode())
-    for rel in KERNEL_SOURCES:
-        h.update(rel.encode() + b"\0")
-        h.update((root / rel).read_bytes())
-    return h.hexdigest()[:16]
+    seed = f"py{sys.version_info[0]}.{sys.version_info[1]} numba {getattr(numba, '__version__', '')}"
+    return sources_digest(seed, KERNEL_SOURCES)
 
 
 def cache_folder() -> Path | None:

@@ -6,6 +6,7 @@ kernels (``nespm tracks``) does not import numba.
 """
 from __future__ import annotations
 
+import hashlib
 import os
 import sys
 from pathlib import Path
@@ -28,4 +29,16 @@ def cache_base() -> Path:
     return (Path(xdg) if os.path.isabs(xdg) else Path("~/.cache").expanduser()) / "nespm"
 
 
-__all__ = ["ENV_CACHE", "cache_base"]
+def sources_digest(seed: str, sources: tuple[str, ...]) -> str:
+    """16 hex digits of SHA-256 over ``seed`` (the versions the cached thing also depends on) and the
+    text (not the path or mtime) of each of ``sources`` (paths relative to the package): the name of a
+    cache subfolder, which any edit to one of them changes."""
+    root = Path(__file__).resolve().parent.parent
+    h = hashlib.sha256(seed.encode())
+    for rel in sources:
+        h.update(rel.encode() + b"\0")
+        h.update((root / rel).read_bytes())
+    return h.hexdigest()[:16]
+
+
+__all__ = ["ENV_CACHE", "cache_base", "sources_digest"]
