@@ -141,3 +141,17 @@ def test_rts_smoother_is_consistent_and_below_the_filter(all_epochs):
     assert float(((x > lo) & (x < hi)).mean()) >= 0.90
     assert sm["vel_err_mean"].mean() < 0.9 * ekf["vel_err_mean"].mean()
     assert sm["nis_dvl_mean"].isna().all()  # it applies no update
+
+
+def test_nees_band_is_scipy_stats_chi2_bit_for_bit():
+    """The band's quantiles come from scipy.special (no scipy.stats import): the same bits as
+    ``chi2.ppf`` over the dof, run counts and probabilities the reports and tune use."""
+    from scipy.stats import chi2
+
+    for dof in (1, 2, 3, 6, 9, 15):
+        for runs in (1, 2, 5, 16, 30, 100, 1000, 5000):
+            for p in (0.5, 0.9, 0.95, 0.99):
+                a = (1.0 - p) / 2.0
+                k = dof * runs
+                want = (float(chi2.ppf(a, k) / runs), float(chi2.ppf(1.0 - a, k) / runs))
+                assert nees_band.__wrapped__(dof, runs, p) == want

@@ -30,7 +30,7 @@ TUNE = [  # (name, type, default, flag, help)
     ("test_tracks_", str, "", "--test-tracks", "Held-out tracks, run with the default and the tuned settings on --seed's realizations (e.g. --test-tracks 5 6)."),
     ("test_runs", int, 100, "--test-runs", "Held-out runs per test track."),
     ("allow_overlap", bool, False, "--allow-overlap", "Allow test tracks among the tuning tracks (the report flags it)."),
-    ("no_profile", bool, False, "--no-profile", "Skip the score profile of each tuned parameter (2 trials per parameter after the search; the report's profile column then reads —)."),
+    ("no_profile", bool, False, "--no-profile", "Skip the score profile and the importance (fANOVA) of each tuned parameter (2 trials per parameter after the search; the report's profile and importance columns then read —, and no importance.png)."),
     ("jobs", int, 1, "--jobs", "Worker processes (a process per filter and search when there are at least as many: the values of --jobs 1, bit for bit); with --backend dask the local cluster's workers."),
     ("backend", str, "loky", "--backend", "Where the searches run: loky (local processes) or dask (a task per filter and search on a Dask cluster, the studies in OUT/study.db or --storage; docs/cluster.md)."),
     ("scheduler", Optional[str], None, "--scheduler", "Dask scheduler address (tcp://host:8786) or scheduler file; default $NESPM_DASK_SCHEDULER, else a local cluster of --jobs workers."),

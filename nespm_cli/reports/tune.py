@@ -152,7 +152,7 @@ def cost_lines(record: dict, trials: pd.DataFrame) -> list[str]:
 
 def figures(record: dict, trials: pd.DataFrame, fig_dir: Path) -> list[str]:
     """convergence.png (best score so far against trial; with ``--repeats`` the other searches dotted) and
-    importance.png; their file names."""
+    importance.png (none where no importance was computed: ``--no-profile``); their file names."""
     use_agg()
     import matplotlib.pyplot as plt
 
@@ -174,6 +174,8 @@ def figures(record: dict, trials: pd.DataFrame, fig_dir: Path) -> list[str]:
     ax.legend()
     save_figure(fig, fig_dir / "convergence.png")
     plt.close(fig)
+    if not any(b.get("importance") for b in record["best"].values()):  # --no-profile: no importance computed
+        return ["convergence.png"]
     keys = [p["key"] for f in record["space"] for p in record["space"][f]]
     keys = list(dict.fromkeys(keys))
     fig, ax = plt.subplots(figsize=(7, 0.35 * len(keys) + 1.5))

@@ -54,7 +54,7 @@ def best_values(store, filters: tuple, trials: int, space: dict | None = None, b
 
 def add_checks(best: dict, store, out: Path, train: Spec, space: dict, t: TuneSpec, refined: dict | None = None,
                search: int = 0) -> None:
-    """Add each filter's ``importance`` and (``t.profile``) ``profile`` and, with two filters or more,
+    """Add (``t.profile``) each filter's ``importance`` and ``profile`` and, with two filters or more,
     ``cross`` (its score with the others' searched values) to ``best``, and its convergence verdict
     (``convergence``, :func:`nespm_cli.tuning.refine.verdict`; ``refined``: ``{filter: the
     refinement's record}``, None where none ran). The checks' points are scored once and kept in the
@@ -65,7 +65,8 @@ def add_checks(best: dict, store, out: Path, train: Spec, space: dict, t: TuneSp
 
     for f, b in best.items():
         study = optuna.load_study(study_name=study_name(f, search), storage=store)
-        b["importance"] = importances(study)
+        if t.profile:  # fANOVA: about 1.5 CPU-s (scikit-learn and scipy.stats imported), no run
+            b["importance"] = importances(study)
         ev = Evaluator(train, f, space[f], study, t.objective, t.level)
 
         def check_point(values: dict, ev=ev) -> float:

@@ -84,14 +84,14 @@ def run_tasks(fn: Callable, args: list[tuple], jobs: int, backend: str, schedule
 
 
 def global_search(t: TuneSpec, train: Spec, space: dict, out: Path, jobs: int, backend: str, scheduler: str | None,
-                  report: Callable[[str, int, float], None] | None) -> None:
-    """Every filter's global search, for every search (``--repeats``): in this process (one job), one
-    task per filter and search (each study one writer: the values of one job, bit for bit), or, with
-    fewer of those than local workers, the workers sharing each study."""
+                  report: Callable[[str, int, float], None] | None, store=None) -> None:
+    """Every filter's global search, for every search (``--repeats``): in this process (one job, on
+    ``store`` where given), one task per filter and search (each study one writer: the values of one
+    job, bit for bit), or, with fewer of those than local workers, the workers sharing each study."""
     tasks = [(i, k) for k in range(t.repeats) for i in range(len(train.filters))]
     if backend == "loky" and jobs <= 1:
         for i, k in tasks:
-            tune_filter(t, train, i, space[train.filters[i]], out, 0, report, k)
+            tune_filter(t, train, i, space[train.filters[i]], out, 0, report, k, store)
         return
     where = str(out.resolve())
     watch = None if report is None else watch_studies(storage(out, t.storage), train.filters, t.trials, report)
@@ -175,7 +175,7 @@ def run_tune(t: TuneSpec, out: str | Path, jobs: int = 1, report: Callable[[str,
                 study = open_study(store, study_name(f, k), config_digest(train, f, space[f], t, k), out)
                 fail_stale(store, study)
                 enqueue_default(study, space[f])
-        global_search(t, train, space, out, jobs, backend, scheduler, report)
+        global_search(t, train, space, out, jobs, backend, scheduler, report, store)
         if report is not None and t.refine_trials != 0:
             most = {f: auto_budget(space[f]) if t.refine_trials is None else t.refine_trials for f in train.filters}
             print(f"tune: refining each filter's best (a model, then polls; up to {max(most.values())} trials)",
