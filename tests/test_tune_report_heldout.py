@@ -15,8 +15,8 @@ from nespm_cli.cli import main
 from nespm_cli.reports.block_consistency import block_consistency
 from nespm_cli.reports.markdown import fmt
 from nespm_cli.reports.stats import improvement
-from nespm_cli.reports.tune_heldout import heldout_rows, model_lines, model_note
-from nespm_cli.reports.tune_searches import consistency_scores, convergence_of, convergence_text, filter_values
+from nespm_cli.reports.tune.heldout import heldout_rows, model_lines, model_note
+from nespm_cli.reports.tune.searches import consistency_scores, convergence_of, convergence_text, filter_values
 from nespm_cli.reports.verdict import consistency_summary
 from nespm_cli.tuning.refine import verdict
 from nespm_cli.tuning.spec import training_seed
@@ -179,7 +179,7 @@ def test_model_lines_name_the_lever_arm():
 def test_objective_error_and_older_folders(tuned, tmp_path):
     """The objective's error is the horizontal one with position in the state; a held-out folder written
     before the posterior sums is reported over every epoch, and the report says so."""
-    from nespm_cli.reports.tune_searches import accuracy_key
+    from nespm_cli.reports.tune.searches import accuracy_key
 
     assert accuracy_key({"spec": {"filter_config": {"state": "15"}}}) == "hpe"
     assert accuracy_key({"spec": {"filter_config": {"state": "12"}}}) == "vrmse" == accuracy_key({})

@@ -21,7 +21,7 @@ from nespm_cli.experiments.mc import run_mc
 from nespm_cli.experiments.spec import Spec
 from nespm_cli.reports.markdown import fmt, pct
 from nespm_cli.reports.stats import improvement
-from nespm_cli.reports.tune_searches import compare_searches, consistency_scores, filter_values, search_errors
+from nespm_cli.reports.tune.searches import compare_searches, consistency_scores, filter_values, search_errors
 from nespm_cli.tuning.heldout import heldout_specs, tuned_dir
 
 CLI = ["tune", "--tracks", "5", "--runs", "3", "--filters", "ekf,ukf", "--dvl", "synthetic", "--window", "0:60",
@@ -131,7 +131,7 @@ def test_unresolved_searches_and_a_foreign_folder(tuned, tmp_path):
     other = dataclasses.replace(heldout_specs(STUDY, json.loads((out / "tune.json").read_text()))[1], seed=5)
     run_mc(other, out / tuned_dir(2), Execution(jobs=1, progress=False))
     with pytest.raises(NespmError, match="heldout-tuned-search2: not the realizations of"):
-        from nespm_cli.reports.tune import write_tune_report
+        from nespm_cli.reports.tune.report import write_tune_report
         write_tune_report(out)
 
 

@@ -17,7 +17,7 @@ from nespm_cli.reports.all_runs import ALL_RUNS
 from nespm_cli.reports.mc import write_mc_report
 from nespm_cli.reports.stats import PRACTICAL_PCT, check_practical_pct
 from nespm_cli.reports.sweep import write_sweep_report
-from nespm_cli.reports.tune import is_tune_folder, write_tune_report
+from nespm_cli.reports.tune.report import is_tune_folder, write_tune_report
 
 __all__ = ["PRACTICAL_PCT", "experiment_of", "write_report"]
 
@@ -85,7 +85,7 @@ def write_report(out_dir: Path, reference: str | None = None, n_boot: int = 2000
 
     check_n_boot(n_boot)
     out_dir = Path(out_dir)
-    if is_tune_folder(out_dir):  # nespm tune (reports/tune.py)
+    if is_tune_folder(out_dir):  # nespm tune (reports/tune/report.py)
         return write_tune_report(out_dir, n_boot=n_boot)
     if out_dir.is_dir():
         from nespm_cli.reports.results import check_figures_dir

@@ -48,7 +48,7 @@ from nespm_cli.reports.stats import (
 from nespm_cli.reports.tables import filter_table, horizontal_table
 from nespm_cli.reports.verdict import consistency_summary, verdict_table
 from nespm_cli.reports.verdict_markdown import pairwise_md, verdict_intro, verdict_md
-from nespm_cli.reports.tune import training_caveats
+from nespm_cli.reports.tune.report import training_caveats
 
 __all__ = ["beside_md", "folder_label", "render_report"]
 

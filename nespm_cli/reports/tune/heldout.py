@@ -1,4 +1,4 @@
-"""The held-out part of the ``nespm tune`` report (:mod:`nespm_cli.reports.tune`): default against tuned settings
+"""The held-out part of the ``nespm tune`` report (:mod:`nespm_cli.reports.tune.report`): default against tuned settings
 on the held-out mc folders (``OUT/heldout-default``, ``OUT/heldout-tuned``) by the mc report's rules.
 
 Per filter the objective's error (the horizontal RMS error with position in the state, else the VRMSE; the
@@ -6,7 +6,7 @@ VRMSE beside) over the epochs after t = 0 (eq 50 per track, eq 51 over tracks; p
 of the improvement), the ANEES after t = 0 (``nees_post``) against its band, the consistency in the mc report's
 one wording (:func:`verdict.consistency_summary`), a line per tuned filter left inconsistent on where a model
 parameter (a lever arm) may explain it, the tuned filters against each other (the fair comparison), and with
-``--repeats K`` the searches compared (:mod:`nespm_cli.reports.tune_searches`).
+``--repeats K`` the searches compared (:mod:`nespm_cli.reports.tune.searches`).
 """
 from __future__ import annotations
 
@@ -22,7 +22,7 @@ from nespm_cli.reports.markdown import fmt, fmt_imprv, md_table
 from nespm_cli.reports.results import load_results
 from nespm_cli.reports.stats import (ci_marks, improvement, nees_check, paired_averages, paired_bootstrap,
                                      paired_improvement, paired_run_counts, percentile_ci, posterior_view)
-from nespm_cli.reports.tune_searches import (ACCURACY, accuracy_key, consistency_scores, filter_values,
+from nespm_cli.reports.tune.searches import (ACCURACY, accuracy_key, consistency_scores, filter_values,
                                              searches_section)
 from nespm_cli.reports.verdict import consistency_summary
 from nespm_cli.tuning.heldout import DEFAULT_DIR, TUNED_DIR

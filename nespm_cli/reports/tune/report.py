@@ -1,12 +1,12 @@
 """The report of a ``nespm tune`` folder: ``OUT/report.md`` and ``OUT/figures/`` (docs/tuning.md).
 
 Sections: what was tuned on (and whether the held-out tracks overlap it); per filter the default
-and tuned training score and whether its search converged (:mod:`nespm_cli.reports.tune_searches`);
+and tuned training score and whether its search converged (:mod:`nespm_cli.reports.tune.searches`);
 the tuned values beside the defaults with their range, importance and profile (a flat profile: the
 objective cannot see the parameter); on the held-out runs (naming their time window), per filter the
 default against the tuned settings by the mc report's rules (the epochs after t = 0), the consistency in
 its one wording, where a model parameter may explain an inconsistency, the tuned filters against each
-other and with ``--repeats K`` the searches (:mod:`nespm_cli.reports.tune_heldout`); figures: convergence (best
+other and with ``--repeats K`` the searches (:mod:`nespm_cli.reports.tune.heldout`); figures: convergence (best
 score so far against trial) and parameter importance. The setup counts each filter's training trials per
 phase (search, refinement, checks) and the level's and held-out runs, so the cost beyond the search shows.
 Without a ground truth (``tune.json``'s ``ground_truth`` false: ``--objective innovation`` on a track spec
@@ -30,8 +30,8 @@ from nespm_cli.filters.options import TUNED_ON, training_overlap
 from nespm_cli.reports.figures import save_figure, use_agg
 from nespm_cli.reports.innovation import heldout_innovation_section
 from nespm_cli.reports.markdown import fmt, md_table
-from nespm_cli.reports.tune_heldout import heldout_section, window_text
-from nespm_cli.reports.tune_searches import convergence_of, convergence_text
+from nespm_cli.reports.tune.heldout import heldout_section, window_text
+from nespm_cli.reports.tune.searches import convergence_of, convergence_text
 
 
 def is_tune_folder(out_dir: Path) -> bool:
