@@ -7,6 +7,7 @@ import hashlib
 import json
 import warnings
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 import pandas as pd
@@ -117,10 +118,34 @@ def storage(out: Path, url: str | None = None):
         return con
 
     try:
-        return optuna.storages.RDBStorage(f"sqlite:///{path}", engine_kwargs={"creator": connect})
+        return retried(lambda: optuna.storages.RDBStorage(f"sqlite:///{path}", engine_kwargs={"creator": connect}),
+                       path)
     except sqlalchemy.exc.SQLAlchemyError as exc:
         raise NespmError(f"{path}: not a readable study database ({str(exc.orig if hasattr(exc, 'orig') else exc)}); "
                          "delete it to start afresh or use another --out") from None
+
+
+RETRIES = 5  # attempts at opening a study while other workers write it (SQLite's transient errors)
+
+
+def retried(fn: Callable, path, attempts: int = RETRIES, wait: float = 0.5):
+    """``fn()``, tried again after an SQLite operational error (``disk I/O error``, ``database is locked``:
+    another worker writing the file as this one opens it), waiting 0.5, 1, 2, ... s; after ``attempts``
+    one line naming ``path`` that says to run the command again (the stored trials are kept), not to delete
+    it. Seen once: a 2-worker tune with 5 searches stopped after 12 minutes with "disk I/O error" as a
+    worker opened the study; the same command resumed it."""
+    import time
+
+    import sqlalchemy.exc
+
+    for k in range(attempts):
+        try:
+            return fn()
+        except sqlalchemy.exc.OperationalError as exc:
+            if k == attempts - 1:
+                raise NespmError(f"{path}: could not be opened now ({getattr(exc, 'orig', exc)}, {attempts} "
+                                 "attempts); run the same command again to resume (the trials stored are kept)") from None
+            time.sleep(wait * 2 ** k)
 
 
 def open_study(store, name: str, digest: str, out: Path):
@@ -129,7 +154,8 @@ def open_study(store, name: str, digest: str, out: Path):
     import sqlalchemy.exc
 
     try:
-        study = optuna.create_study(storage=store, study_name=name, direction="minimize", load_if_exists=True)
+        study = retried(lambda: optuna.create_study(storage=store, study_name=name, direction="minimize",
+                                                    load_if_exists=True), out / STUDY_FILE)
     except sqlalchemy.exc.SQLAlchemyError as exc:
         raise NespmError(f"{out / STUDY_FILE}: not a readable study database ({getattr(exc, 'orig', exc)}); delete "
                          "it to start afresh or use another --out") from None
@@ -208,6 +234,6 @@ def trials_table(store, filters: tuple, repeats: int = 1) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-__all__ = ["CONFIG_ATTR", "PHASES", "PHASE_ATTR", "STATS_ATTR", "STUDY_FILE", "check_study_file", "config_digest",
-           "enqueue_default", "fail_stale", "make_sampler", "open_study", "quiet", "search_seed", "storage",
+__all__ = ["CONFIG_ATTR", "PHASES", "RETRIES", "PHASE_ATTR", "STATS_ATTR", "STUDY_FILE", "check_study_file", "config_digest",
+           "enqueue_default", "fail_stale", "make_sampler", "open_study", "quiet", "retried", "search_seed", "storage",
            "study_name", "trial_phase", "trial_seed", "trials_table"]
