@@ -55,3 +55,28 @@ def test_storage_opens_through_the_retry(tmp_path, monkeypatch):
     store = study_mod.storage(tmp_path)
     assert fails["n"] == 2 and (tmp_path / study_mod.STUDY_FILE).stat().st_size > 0
     assert store.get_all_studies() == []
+
+
+def test_the_file_check_would_misread_a_live_study_so_storage_does_not_run_it(tmp_path):
+    """check_study_file reads the file as immutable: with a write-ahead log not yet checkpointed (another
+    worker writing) it reads as damaged. So only run_tune calls it, before anything opens the file, and
+    storage() opening a live study works."""
+    import sqlite3
+
+    path = tmp_path / study_mod.STUDY_FILE
+    a = sqlite3.connect(path, isolation_level=None)  # a worker in a read transaction
+    a.execute("PRAGMA journal_mode=WAL")
+    a.execute("create table busy(x)")
+    for i in range(100):
+        a.execute("insert into busy values (?)", (i,))
+    a.execute("begin")
+    a.execute("select count(*) from busy").fetchone()
+    b = sqlite3.connect(path, isolation_level=None, timeout=0.1)  # another writing and checkpointing
+    b.execute("insert into busy values (1)")
+    assert b.execute("PRAGMA wal_checkpoint(TRUNCATE)").fetchone()[0] == 1  # busy: a partial checkpoint
+    with pytest.raises(NespmError, match="damaged"):
+        study_mod.check_study_file(path)
+    a.execute("commit")
+    assert study_mod.storage(tmp_path).get_all_studies() == []  # opened through SQLite's locks: fine
+    a.close()
+    b.close()

@@ -96,8 +96,9 @@ def check_study_file(path: Path) -> None:
 def storage(out: Path, url: str | None = None):
     """The Optuna storage of a tuning: the RDB storage at ``url`` (a database every worker reaches), else the
     SQLite file ``out/study.db`` (shared by the local workers). Write-ahead log with
-    ``synchronous=NORMAL``: a commit survives a killed process (not a power cut) without an fsync. A file
-    that is not a study database, or a database that cannot be opened, is one line naming it."""
+    ``synchronous=NORMAL``: a commit survives a killed process (not a power cut) without an fsync. A
+    database that cannot be opened is one line naming it (a file that is not a study database is found
+    first by :func:`check_study_file`, which :func:`nespm_cli.tuning.run.run_tune` calls)."""
     import sqlite3
 
     import optuna
@@ -108,7 +109,9 @@ def storage(out: Path, url: str | None = None):
             return optuna.storages.RDBStorage(url)
         except (sqlalchemy.exc.SQLAlchemyError, ImportError, ValueError) as exc:
             raise NespmError(f"--storage {url}: cannot be opened ({str(exc).splitlines()[0]})") from None
-    check_study_file(out / STUDY_FILE)
+    # The file itself is checked once, by run_tune before anything opens it (check_study_file): read as an
+    # immutable file it must not change under the check, and here other workers may be writing it (a
+    # write-ahead log not yet checkpointed reads as "malformed" then).
     path = str((out / STUDY_FILE).resolve())
 
     def connect():
