@@ -97,24 +97,3 @@ def test_sigma_point_level_is_refitted(tmp_path, monkeypatch):
     monkeypatch.setattr(tune, "LEVEL_TOLERANCE", 1e-12)
     refit = geo_error("refit")
     assert once > 1e-8 and refit < 1e-9, (once, refit)
-
-
-def test_the_refinement_holds_the_level_direction_where_the_level_sets_it():
-    """With every level factor searched, the refinement leaves out the one with the most room to its
-    range's ends (the EKF's score is flat along all of them scaled together: the homogeneity above);
-    a level factor not searched, or none, leaves the space as it is; a linear parameter is never held."""
-    from nespm_cli.tuning.refine import level_free
-    from nespm_cli.tuning.space import Param
-
-    spec = validate(Spec(**SMALL))
-    bases = level_bases(spec, "ekf")
-    params = [Param("ekf", k, 0.1, 10.0, kind="Q") for k in bases] + \
-        [Param("ekf", "lever_arm_x_dvl", -3.0, 3.0, log=False, default=0.0, kind="model")]
-    x0 = {k: 3.0 for k in bases} | {"r_scale_dvl": 1.2, "p0_att_scale": 0.9, "lever_arm_x_dvl": 0.0}
-    free = level_free(params, bases, x0)
-    # room (log to the nearer end): p0_att_scale at 0.9 has 2.197, r_scale_dvl at 1.2 2.120, the rest at 3 1.204
-    assert [p.key for p in params if p not in free] == ["p0_att_scale"]
-    assert len(free) == len(params) - 1 and free[-1].key == "lever_arm_x_dvl"
-    part = [p for p in params if p.key != "gyro_noise_scale"]
-    assert level_free(part, bases, x0) == part  # a level factor not searched: the direction is not flat
-    assert level_free(params, {}, x0) == params

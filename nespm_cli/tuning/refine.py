@@ -213,31 +213,6 @@ def refine(evaluate: Callable[[dict], float], x0: dict, f0: float, params: list[
     return {**res, "evaluations": n + used + res["evaluations"], "model": n}
 
 
-def level_free(params: list[Param], bases: dict, x0: dict) -> list[Param]:
-    """``params`` less the one the fitted level sets (``--level tracks``): where every Q, R and P0 factor
-    the level scales (``bases``, tuning.spec.level_bases) is searched on a log range, one factor on all of
-    them scaled together leaves an EKF's errors unchanged (objective.py: the recursion is homogeneous),
-    so the score has an exactly flat direction, and the level, not the search, sets the position along it.
-    The refinement then holds one of them at ``x0``'s value: the one with the most room to its range's
-    ends (in log), the first of ties; the others' ratios to it are searched as before. A sigma-point
-    filter's score moves along that direction only through its spread (negligibly at the papers' alpha).
-    ``params`` as given where a level factor is not searched (the direction is then not flat) or none is.
-
-    Why: make tune-main's EKF searched alone (10 runs, 5 searches) spent every refinement budget moving
-    along that direction (the accelerometer factor 0.8-4.6 before the level) and ended 3.6 % apart."""
-    keyed = {p.key: p for p in params}
-    scaled = [keyed[k] for k in bases if k in keyed and keyed[k].log]
-    if not bases or len(scaled) != len(bases):
-        return list(params)
-
-    def room(p: Param) -> float:
-        v = min(max(float(x0[p.key]), p.low), p.high)
-        return min(math.log(v / p.low), math.log(p.high / v))
-
-    held = max(scaled, key=room)  # max keeps the first of ties
-    return [p for p in params if p.key != held.key]
-
-
 def verdict(best_score: float, profile: dict | None, cross: dict | None, refine: dict | None,
             tolerance: float = TOLERANCE) -> dict:
     """The convergence verdict of one filter's search: ``{"status", "short_by", "by", "refine_trials",
@@ -266,5 +241,5 @@ def verdict(best_score: float, profile: dict | None, cross: dict | None, refine:
 
 
 __all__ = ["AUTO_PER_PARAM", "FIRST_FACTOR", "FIRST_SHARE", "LEVELS", "LINEAR_LEVELS", "MOVE", "TOLERANCE", "auto_budget",
-           "CHECK_PASSES", "coordinate", "first_step", "last_level", "level_free", "model_search", "moved", "pattern_move",
+           "CHECK_PASSES", "coordinate", "first_step", "last_level", "model_search", "moved", "pattern_move",
            "pattern_search", "poll", "refine", "verdict"]

@@ -10,9 +10,9 @@ from typing import Callable
 from nespm_cli.experiments.spec import Spec
 from nespm_cli.tuning.evaluate import Evaluator
 from nespm_cli.tuning.objective import REUSE_RUNS, score, summary, trial_statistics
-from nespm_cli.tuning.refine import auto_budget, level_free, refine
+from nespm_cli.tuning.refine import auto_budget, refine
 from nespm_cli.tuning.space import Param
-from nespm_cli.tuning.spec import TuneSpec, level_bases
+from nespm_cli.tuning.spec import TuneSpec
 from nespm_cli.tuning.study import (PHASE_ATTR, STATS_ATTR, config_digest, fail_stale, make_sampler, open_study, quiet,
                                     search_seed, storage, study_name, trial_phase, trial_seed)
 
@@ -104,8 +104,7 @@ def refine_filter(t: TuneSpec, train: Spec, space: dict, out: str, index: int, s
         fy = ev(y, "refine")
         if fy < f0:
             x0, f0, origin = y, fy, f"{g}'s values"
-    free = level_free(params, level_bases(train, name), x0) if t.level == "tracks" else params
-    res = refine(lambda v: ev(v, "refine"), x0, f0, free, budget - used)
+    res = refine(lambda v: ev(v, "refine"), x0, f0, params, budget - used)
     return {"filter": name, "search": search, "start": origin, "evaluations": used + res["evaluations"],
             "finished": res["finished"], "score": res["score"], "values": res["values"]}
 
