@@ -62,6 +62,21 @@ def test_verdict_words():
     assert verdict(1.0, None, None, None)["status"] == "not checked"
 
 
+def test_the_closing_line_gives_a_gap_only_above_the_tolerance():
+    """``nespm tune``'s line per filter: a budget that ran out with every check below the tolerance is
+    "stopped short (the refinement budget ... ran out)", never "stopped short by 0.0 %"; a check above
+    it gives its gain and the step."""
+    from nespm_cli.reports.tune.searches import convergence_word
+
+    spent = verdict(1.0, {"k": {"score_low": 1.0, "score_high": 1.0 - TOLERANCE / 10}}, {},
+                    {"evaluations": 171, "finished": False, "start": "own"})
+    assert convergence_word(spent) == "stopped short (the refinement budget (171 trials) ran out)"
+    short = verdict(1.0, {"k": {"score_low": 1.0, "score_high": 0.969}}, {}, {"evaluations": 9, "finished": True})
+    assert convergence_word(short) == "stopped short by 3.1 % (profile k x3)"
+    assert convergence_word(verdict(1.0, {}, {}, {"evaluations": 9, "finished": True})) == "converged"
+    assert convergence_word(verdict(1.0, None, None, None)) == "convergence not checked"
+
+
 def test_refinement_finishes_a_short_search_and_the_report_says_so(tmp_path):
     """Two global trials leave the EKF short of its optimum: the profile at that best beats it (stopped
     short, said); with the refinement the best improves on every global trial, the profile's steps at

@@ -45,6 +45,7 @@ def tune(
     **kw,
 ) -> None:
     """Tune every filter's noise (Q, R, P0, alpha) with the same budget on training runs; write tuned.toml."""
+    from nespm_cli.reports.tune.searches import convergence_word
     from nespm_cli.tuning.run import run_tune
     from nespm_cli.tuning.spec import TuneSpec
     from nespm_cli.tuning.progress import echo_progress
@@ -75,8 +76,7 @@ def tune(
     for f, b in record["best"].items():
         d = b["default_score"]
         c = b.get("convergence") or {}
-        said = {"converged": "converged", "stopped short": f"stopped short by {100 * c.get('short_by', 0):.1f} % "
-                f"({c.get('by', '')})", "not checked": "convergence not checked"}.get(c.get("status"), "")
+        said = convergence_word(c)
         typer.echo((f"{f}: score {d:.6g} (default) -> {b['score']:.6g} (trial {b['trial']})" if d is not None
                     else f"{f}: best score {b['score']:.6g} (trial {b['trial']})") + (f"; {said}" if said else ""))
     if t.test_tracks:

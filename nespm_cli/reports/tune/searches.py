@@ -89,6 +89,20 @@ def convergence_of(entry: dict) -> dict:
     return verdict(float(entry["score"]), entry.get("profile"), entry.get("cross"), None)
 
 
+def convergence_word(c: dict) -> str:
+    """The verdict in a few words (``nespm tune``'s closing line per filter): ``converged``, ``stopped
+    short by 3.1 % (profile r_scale_dvl /3)``, ``stopped short (the refinement budget (171 trials) ran
+    out)`` when no check found a gain above the tolerance, ``convergence not checked``, or ``""``."""
+    status = c.get("status")
+    if status == "converged":
+        return "converged"
+    if status == "stopped short":
+        gap = float(c.get("short_by", 0.0))
+        short = f"stopped short by {fmt_pct(100 * gap)}" if gap > float(c.get("tolerance", 0.0)) else "stopped short"
+        return f"{short} ({c['by']})" if c.get("by") else short
+    return "convergence not checked" if status == "not checked" else ""
+
+
 def convergence_text(c: dict) -> str:
     """``converged``, ``stopped short by 3.1 % (profile r_scale_dvl /3)`` or ``not checked``, with the
     tolerance and where the refinement started."""
@@ -237,5 +251,5 @@ def searches_section(out_dir: Path, record: dict, n_boot: int) -> list[str]:
     return lines
 
 
-__all__ = ["ACCURACY", "accuracy_key", "compare_searches", "consistency_scores", "convergence_of", "convergence_text",
+__all__ = ["ACCURACY", "accuracy_key", "compare_searches", "consistency_scores", "convergence_of", "convergence_text", "convergence_word",
            "filter_values", "load_searches", "search_errors", "searches_section"]
