@@ -140,9 +140,8 @@ def transition_kernel(invariant: bool, layout: StateLayout) -> str:
     """The name (:data:`KERNELS`) of the kernel :func:`transition` runs for ``invariant`` and ``layout``."""
     if invariant:
         return "transition-invariant-position" if layout.has("pos") else "transition-invariant"
-    off = layout.offsets().tolist()
-    return ("transition" if off == LAYOUT_12.offsets().tolist() else
-            "transition-position" if off == LAYOUT_15.offsets().tolist() else "transition-generic")
+    return ("transition" if layout.blocks == LAYOUT_12.blocks else
+            "transition-position" if layout.blocks == LAYOUT_15.blocks else "transition-generic")
 
 
 def transition(pos, v_n, C_bn, b_a, b_g, f, w, dt, j0: int, j1: int, invariant: bool = False,

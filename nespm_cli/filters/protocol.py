@@ -198,8 +198,14 @@ class ErrorStateFilter(Filter):
         ``k`` through :func:`nespm_cli.filters.adaptive.adaptive_q` (anukf.md eqs 43-48),
         evaluated at the current attitude (call it before moving the solution).
         """
-        if self._noise_std is None:
-            return process_noise(self.cfg, self.dt_imu, span)
+        if self._noise_std is None:  # a function of the span alone: formed once per span length (a copy each call)
+            held = self.__dict__.get("_q_of_span")
+            if held is None or held[0] is not self.cfg or held[1] != self.dt_imu or len(held[2]) > 64:
+                held = self._q_of_span = (self.cfg, self.dt_imu, {})
+            Q = held[2].get(span)
+            if Q is None:
+                Q = held[2][span] = process_noise(self.cfg, self.dt_imu, span)
+            return Q.copy()
         std_a, std_g = self._noise_std
         return adaptive_q(std_a[:, k], std_g[:, k], self.nav.C_bn, self.cfg, self.dt_imu, span, self.layout)
 

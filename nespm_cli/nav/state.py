@@ -75,7 +75,7 @@ class StateLayout:
     @property
     def n(self) -> int:
         """Number of error states."""
-        return sum(BLOCKS[b][0] for b in self.blocks)
+        return _index(self.blocks)[1]
 
     @property
     def name(self) -> str:
@@ -90,25 +90,40 @@ class StateLayout:
 
     def slice(self, block: str) -> slice:
         """The index range of ``block`` (a NespmError if the layout lacks it)."""
-        i = 0
-        for b in self.blocks:
-            if b == block:
-                return slice(i, i + BLOCKS[b][0])
-            i += BLOCKS[b][0]
-        raise NespmError(f"the state layout {self.name} has no {block} block")
+        s = _index(self.blocks)[0].get(block)
+        if s is None:
+            raise NespmError(f"the state layout {self.name} has no {block} block")
+        return s
 
     def offset(self, block: str) -> int:
         """First index of ``block``, or -1 without it (what the compiled loops take)."""
         return self.slice(block).start if self.has(block) else -1
 
     def offsets(self) -> np.ndarray:
-        """``[pos, vel, att, ba, bg]`` first indices (int64, -1 for an absent block)."""
-        return np.array([self.offset(b) for b in BLOCK_ORDER], dtype=np.int64)
+        """``[pos, vel, att, ba, bg]`` first indices (int64, -1 for an absent block; a new array)."""
+        return _index(self.blocks)[2].copy()
 
     @property
     def labels(self) -> tuple[str, ...]:
         """One label per state (``dpN``, ..., ``bgZ``)."""
         return tuple(lab for b in self.blocks for lab in BLOCKS[b][2])
+
+
+_INDEX: dict = {}
+
+
+def _index(blocks: tuple) -> tuple[dict, int, np.ndarray]:
+    """``({block: slice}, n, offsets)`` of the blocks ``blocks`` (in :data:`BLOCK_ORDER`), computed once per
+    layout: the filters ask for them at every epoch."""
+    got = _INDEX.get(blocks)
+    if got is None:
+        slices, i = {}, 0
+        for b in blocks:
+            slices[b] = slice(i, i + BLOCKS[b][0])
+            i += BLOCKS[b][0]
+        offsets = np.array([slices[b].start if b in slices else -1 for b in BLOCK_ORDER], dtype=np.int64)
+        got = _INDEX[blocks] = (slices, i, offsets)
+    return got
 
 
 LAYOUT_12 = StateLayout(LAYOUTS["12"])  # the papers' [dv, dpsi, b_a, b_g]
@@ -119,7 +134,19 @@ def parse_layout(text: str | StateLayout) -> StateLayout:
     """``"12"``, ``"15"`` or a comma list of blocks (``"pos,vel,att,ba,bg"``) -> StateLayout."""
     if isinstance(text, StateLayout):
         return text
-    t = str(text).strip().lower()
+    got = _PARSED.get(text) if isinstance(text, str) else None
+    if got is None:
+        got = _parsed(str(text))
+        if isinstance(text, str):
+            _PARSED[text] = got
+    return got
+
+
+_PARSED: dict = {}  # the layouts parsed so far (a StateLayout is immutable): FilterConfig.layout at every epoch
+
+
+def _parsed(text: str) -> StateLayout:
+    t = text.strip().lower()
     blocks = LAYOUTS.get(t) or tuple(b.strip() for b in t.split(",") if b.strip())
     return StateLayout(tuple(blocks))
 
