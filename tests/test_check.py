@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 
 from conftest import exact_imu_table, assert_one_error_line, nespm
-from nespm_cli.checks import imu_gt
 from nespm_cli.checks.verdict import check_track
 from nespm_cli.data.corrections import Corrections, apply_corrections, axes_matrix, axes_text, read_corrections
 from nespm_cli.data.embedded import embedded_track
+from nespm_cli.nav.rotations import signed_permutations
 from nespm_cli.data.tracks import load_track, write_akit
 
 # tolerances of the planted-defect test (embedded track 5: 400 s, turns of up to ~5 deg/s)
@@ -113,7 +113,7 @@ def test_corrections_undo_the_planted_flip_and_offset(exact_track):
 
 
 def test_every_signed_permutation_round_trips():
-    perms = imu_gt.signed_permutations()
+    perms = signed_permutations()
     assert len(perms) == 48 and len({axes_text(A) for A in perms}) == 48
     for A in perms:
         np.testing.assert_array_equal(axes_matrix(axes_text(A)), A)

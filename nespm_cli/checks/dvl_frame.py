@@ -23,11 +23,10 @@ import numpy as np
 from scipy.interpolate import CubicSpline
 
 from nespm_cli.checks.dvl_gt import gt_at
-from nespm_cli.checks.imu_gt import signed_permutations
 from nespm_cli.data.conventions import ENU_OF_NED, own_noise  # noqa: F401  (own_noise: moved to the data layer)
 from nespm_cli.data.corrections import axes_text
 from nespm_cli.data.track import Track
-from nespm_cli.nav.rotations import skew
+from nespm_cli.nav.rotations import signed_permutations, skew
 
 FRAME_OFFSETS = np.round(np.arange(-2.0, 2.0 + 1e-9, 0.1), 10)  # [s] offsets searched per candidate
 LEVER_PRIOR_STD = 5.0  # [m] weak prior keeping the lever arm finite on a track without turns (as dvl_gt's)

@@ -24,14 +24,12 @@ middle of that interval (its stamp minus half a step), so an exact IMU has zero 
 """
 from __future__ import annotations
 
-import itertools
-
 import numpy as np
 from scipy.signal import butter, sosfiltfilt
 
 from nespm_cli.data.corrections import axes_text
 from nespm_cli.nav.earth import w_en_n, w_ie_n
-from nespm_cli.nav.rotations import exp_so3, log_so3
+from nespm_cli.nav.rotations import exp_so3, log_so3, signed_permutations
 from nespm_cli.nav.synthesis import from_recorded, synthesize
 
 CUTOFF_HZ = 0.3  # [Hz] common bandwidth: below the GT's 0.5 Hz Nyquist, where its splines are faithful
@@ -50,18 +48,6 @@ UNRESOLVED_RATIO = 2.0  # a flagged window whose recorded gyro RMS at 0.5-2 Hz (
 UNRESOLVED_FLOOR = np.radians(0.3)  # [rad/s] 0.3 deg/s
 STD_RATIO = 10.0  # ...or whose residual std is this many times the median window's (and above the floors);
 # turns raise the residual std several-fold (the 1 Hz GT's splines miss part of them), so this is set well above it
-
-
-def signed_permutations() -> np.ndarray:
-    """All 48 signed 3x3 permutation matrices (48, 3, 3), the identity first."""
-    out = []
-    for perm in itertools.permutations(range(3)):
-        for signs in itertools.product((1.0, -1.0), repeat=3):
-            A = np.zeros((3, 3))
-            A[np.arange(3), perm] = signs
-            out.append(A)
-    out.sort(key=lambda A: not np.array_equal(A, np.eye(3)))
-    return np.array(out)
 
 
 def bandlimit(x: np.ndarray, dt: float, cutoff_hz: float = CUTOFF_HZ) -> np.ndarray:

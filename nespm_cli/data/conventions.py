@@ -38,7 +38,7 @@ from nespm_cli.data.corrections import axes_text
 from nespm_cli.data.plausibility import DataWarning, printable
 from nespm_cli.errors import NespmError
 from nespm_cli.nav.dvl import body_rate_from_attitude
-from nespm_cli.nav.rotations import euler_to_dcm, skew, wrap_angle
+from nespm_cli.nav.rotations import euler_to_dcm, signed_permutations, skew, wrap_angle
 
 GRAVITY = 9.80665  # [m/s^2] the gravity of the specific-force test (the local value differs by < 0.3 %)
 MIN_EPOCHS = 20  # epochs (finite DVL rows, moving epochs) a test needs; fewer: not judged
@@ -73,20 +73,6 @@ def own_noise(dvl: np.ndarray) -> np.ndarray:
     if len(d2) < 3:
         return np.full(3, np.nan)
     return 1.4826 * np.median(np.abs(d2 - np.median(d2, axis=0)), axis=0) / np.sqrt(6.0)
-
-
-def signed_permutations() -> np.ndarray:
-    """All 48 signed 3x3 permutation matrices (48, 3, 3), the identity first."""
-    import itertools
-
-    out = []
-    for perm in itertools.permutations(range(3)):
-        for signs in itertools.product((1.0, -1.0), repeat=3):
-            A = np.zeros((3, 3))
-            A[np.arange(3), perm] = signs
-            out.append(A)
-    out.sort(key=lambda A: not np.array_equal(A, np.eye(3)))
-    return np.array(out)
 
 
 def lever_residual(t: np.ndarray, euler: np.ndarray, v_n: np.ndarray, dvl: np.ndarray) -> np.ndarray:

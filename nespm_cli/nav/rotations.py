@@ -203,3 +203,17 @@ def so3_left_jacobian_inverse(phi: np.ndarray) -> np.ndarray:
         d[big] = 1.0 / th2[big] - (1.0 + np.cos(th)) / (2.0 * th * np.sin(th))
     S = skew(phi)
     return np.eye(3) - 0.5 * S + d[..., None, None] * (S @ S)
+
+
+def signed_permutations() -> np.ndarray:
+    """All 48 signed 3x3 permutation matrices (48, 3, 3), the identity first."""
+    import itertools
+
+    out = []
+    for perm in itertools.permutations(range(3)):
+        for signs in itertools.product((1.0, -1.0), repeat=3):
+            A = np.zeros((3, 3))
+            A[np.arange(3), perm] = signs
+            out.append(A)
+    out.sort(key=lambda A: not np.array_equal(A, np.eye(3)))
+    return np.array(out)
