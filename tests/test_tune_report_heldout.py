@@ -193,3 +193,39 @@ def test_objective_error_and_older_folders(tuned, tmp_path):
     assert "every epoch including t = 0 (a folder written before the posterior sums" in text
     cells = [c.strip() for c in row_of(text, "| ekf | ", "## Held out").split("|")[1:-1]]
     assert cells[2] == fmt(rms(out / "heldout-tuned", "ekf", 0))
+
+
+def test_a_tie_in_training_is_not_resolved_by_the_search(tuned, tmp_path):
+    """One search per filter: where the two tuned filters' training scores lie within the searches'
+    resolution (the tolerance, or what a search stopped short by), the comparison row says "not resolved by
+    the search" with both figures; where they lie further apart, it does not."""
+    from nespm_cli.reports.tune.searches import resolution, search_tie, training_score
+
+    shutil.copytree(tuned, tmp_path / "t")
+    tuned = tmp_path / "t"
+    rec = json.loads((tuned / "tune.json").read_text())
+    for b in rec["best"].values():
+        b["flat"] = {"reset": []}
+        b["convergence"] = {"status": "converged", "short_by": 0.0, "by": "", "tolerance": 0.005}
+    rec["best"]["ekf"]["score"], rec["best"]["ukf"]["score"] = 0.1, 0.1003  # 0.3 % apart
+    assert training_score(rec["best"]["ukf"]) == 0.1003 and resolution(rec["best"]["ekf"]) == 0.005
+    assert search_tie(rec, "ekf", "ukf") == ("not resolved by the search: training scores 0.3 % apart, within "
+                                             "the searches' 0.5 % resolution")
+    (tuned / "tune.json").write_text(json.dumps(rec))
+    assert main(["report", str(tuned)]) == 0
+    text = (tuned / "report.md").read_text()
+    worse = max(filter_values(pd.read_parquet(tuned / "heldout-tuned" / "metrics.parquet"), "vrmse").items(),
+                key=lambda kv: kv[1])[0]
+    assert row_of(text, f"| {worse} | ", "### The tuned filters compared").endswith(
+        "**not resolved by the search: training scores 0.3 % apart, within the searches' 0.5 % resolution** |")
+    # 0.8 % apart: ranked by the searches, unless one of them stopped short by more than that
+    rec["best"]["ukf"]["score"] = 0.1008
+    assert search_tie(rec, "ekf", "ukf") == ""
+    rec["best"]["ekf"]["convergence"] = {"status": "stopped short", "short_by": 0.012, "by": "profile k x3",
+                                         "tolerance": 0.005}
+    assert search_tie(rec, "ekf", "ukf").endswith("0.8 % apart, within the searches' 1.2 % resolution")
+    rec["best"]["ekf"]["convergence"]["short_by"] = 0.0
+    (tuned / "tune.json").write_text(json.dumps(rec))
+    assert main(["report", str(tuned)]) == 0
+    assert "not resolved by the search" not in row_of((tuned / "report.md").read_text(), f"| {worse} | ",
+                                                       "### The tuned filters compared")

@@ -22,7 +22,7 @@ from nespm_cli.reports.markdown import fmt, fmt_imprv, md_table
 from nespm_cli.reports.results import load_results
 from nespm_cli.reports.stats import (ci_marks, improvement, nees_check, paired_averages, paired_bootstrap,
                                      paired_improvement, paired_run_counts, percentile_ci, posterior_view)
-from nespm_cli.reports.tune.searches import (ACCURACY, accuracy_key, consistency_scores, filter_values,
+from nespm_cli.reports.tune.searches import (ACCURACY, accuracy_key, consistency_scores, filter_values, search_tie,
                                              searches_section)
 from nespm_cli.reports.verdict import consistency_summary
 from nespm_cli.tuning.heldout import DEFAULT_DIR, TUNED_DIR
@@ -97,9 +97,11 @@ def heldout_words(metrics: pd.DataFrame, epochs: pd.DataFrame | None, manifest: 
     return consistency_summary(table, metrics)
 
 
-def fair_rows(tuned: pd.DataFrame, key: str, n_boot: int) -> list[list[str]]:
+def fair_rows(tuned: pd.DataFrame, key: str, n_boot: int, record: dict | None = None) -> list[list[str]]:
     """The tuned filters against the most accurate tuned one on error ``key`` (:func:`filter_values`:
-    t = 0 out, over the runs no filter lost; improvements paired over the runs each pair kept)."""
+    t = 0 out, over the runs no filter lost; improvements paired over the runs each pair kept). ``record``
+    (``tune.json``, one search per filter): each comparison the searches cannot rank says so
+    (:func:`~nespm_cli.reports.tune.searches.search_tie`)."""
     values = filter_values(tuned, key)
     m = posterior_view(tuned)
     best = min(values, key=values.get)
@@ -111,7 +113,9 @@ def fair_rows(tuned: pd.DataFrame, key: str, n_boot: int) -> list[list[str]]:
         point = paired_improvement(m, f, best, keys=[key])[key]
         lo, hi = percentile_ci(paired_bootstrap(m, f, best, n_boot=n_boot, keys=[key])[key])
         counts = paired_run_counts(m, f, best)
-        rows.append([f, fmt(values[f]), fmt_imprv(point, lo, hi, ci_marks(lo, hi, min(counts.values()))[2])])
+        tie = search_tie(record, f, best) if record is not None else ""
+        rows.append([f, fmt(values[f]), fmt_imprv(point, lo, hi, ci_marks(lo, hi, min(counts.values()))[2])
+                     + (f"; **{tie}**" if tie else "")])
     return rows
 
 
@@ -246,7 +250,12 @@ def heldout_section(out_dir: Path, record: dict, n_boot: int) -> list[str]:
               "rule (the runs no filter lost; improvements paired by run). " +
               ("The intervals cover the runs only: the searches below say how much a search's luck moves it."
                if many else "One search per filter: the intervals cover the runs, not the search's luck "
-               "(`nespm tune --repeats K` runs K searches and compares over both)."), "",
-              md_table(["filter (tuned)", name, "improvement of the best over it"], fair_rows(tuned, key, n_boot)),
+               "(`nespm tune --repeats K` runs K searches and compares over both). Where two filters' training "
+               "scores lie within the searches' resolution (the refinement's tolerance, or what a search stopped "
+               "short by), the training runs do not rank them and the row says **not resolved by the search**: a held-out "
+               "difference within a search's own spread can be where each search stopped (docs/tuning.md, "
+               "\"Stability\"); `--repeats K` measures that spread."), "",
+              md_table(["filter (tuned)", name, "improvement of the best over it"],
+                       fair_rows(tuned, key, n_boot, None if many else record)),
               ""]
     return lines + searches_section(out_dir, record, n_boot)

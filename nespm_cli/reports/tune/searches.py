@@ -37,7 +37,7 @@ from nespm_cli.reports.stats import (ci_marks, improvement, lost_by_any, over_tr
                                      resample_counts, track_rng, track_value)
 from nespm_cli.tuning.heldout import tuned_dir
 from nespm_cli.tuning.objective import consistency
-from nespm_cli.tuning.refine import verdict
+from nespm_cli.tuning.refine import TOLERANCE, verdict
 
 #: metric key (reports.stats.RMS_METRICS) -> (name, unit) of the held-out error
 ACCURACY = {"vrmse": ("VRMSE", "m/s"), "hpe": ("RMS horizontal error", "m")}
@@ -87,6 +87,42 @@ def convergence_of(entry: dict) -> dict:
     if entry.get("convergence"):
         return entry["convergence"]
     return verdict(float(entry["score"]), entry.get("profile"), entry.get("cross"), None)
+
+
+def resolution(entry: dict) -> float:
+    """How close to its optimum one filter's search is known to be (relative, on the training score): the
+    verdict's tolerance (a converged search: no check step better by more), or the gain it stopped short by
+    where that is larger (:func:`convergence_of`)."""
+    c = convergence_of(entry)
+    return max(float(c.get("tolerance", TOLERANCE) or TOLERANCE), float(c.get("short_by", 0.0) or 0.0))
+
+
+def training_score(entry: dict) -> float:
+    """The training score of the setting a filter's search wrote (``tuned.toml``): the kept shape's where the
+    flat rule reset a parameter (``entry["flat"]["score"]``), else the best trial's."""
+    flat = entry.get("flat") or {}
+    return float(flat["score"]) if flat.get("reset") and flat.get("score") is not None else float(entry["score"])
+
+
+def search_tie(record: dict, f: str, g: str) -> str:
+    """With one search per filter, whether the searches can rank tuned filters ``f`` and ``g`` at all: ``""``
+    where their training scores (:func:`training_score`, the same objective on the same runs) differ by more
+    than either search's :func:`resolution`, else the words "not resolved by the search" with both figures.
+    Why: a converged search only says that no step of its stated sizes beats its end by more than the
+    tolerance, so two filters whose training scores lie within it are equally good to the searches, and
+    which of them ends ahead held out is where each search stopped: measured on make tune-main's setup, 5
+    search seeds, the EKF and UKF-NESPM 0.0-0.13 % apart in training and the held-out order flipping with
+    the seed by up to 0.62 % (docs/tuning.md)."""
+    best = record.get("best") or {}
+    if f not in best or g not in best:
+        return ""
+    a, b = training_score(best[f]), training_score(best[g])
+    gap = abs(a - b) / max(min(abs(a), abs(b)), 1e-300)
+    res = max(resolution(best[f]), resolution(best[g]))
+    if not gap <= res:
+        return ""
+    return (f"not resolved by the search: training scores {fmt_pct(100 * gap)} apart, within the searches' "
+            f"{fmt_pct(100 * res)} resolution")
 
 
 def convergence_word(c: dict) -> str:
@@ -251,5 +287,6 @@ def searches_section(out_dir: Path, record: dict, n_boot: int) -> list[str]:
     return lines
 
 
-__all__ = ["ACCURACY", "accuracy_key", "compare_searches", "consistency_scores", "convergence_of", "convergence_text", "convergence_word",
+__all__ = ["ACCURACY", "accuracy_key", "compare_searches", "consistency_scores", "convergence_of", "convergence_text", "convergence_word", "resolution", "search_tie",
+           "training_score",
            "filter_values", "load_searches", "search_errors", "searches_section"]
