@@ -11,8 +11,8 @@ from conftest import exact_imu_table, assert_one_error_line, nespm
 from nespm_cli.checks.verdict import check_track
 from nespm_cli.data.corrections import Corrections, apply_corrections, axes_matrix, axes_text, read_corrections
 from nespm_cli.data.embedded import embedded_track
-from nespm_cli.nav.rotations import signed_permutations
 from nespm_cli.data.tracks import load_track, write_akit
+from nespm_cli.nav.rotations import signed_permutations
 
 # tolerances of the planted-defect test (embedded track 5: 400 s, turns of up to ~5 deg/s)
 OFFSET_TOL = 0.02  # [s] the time offset is found to within this (grid 0.01 s, 1-sigma ~0.005 s here)

@@ -14,6 +14,7 @@ Every block is a correction: ``nav ⊕ x = truth`` (:func:`plus`); :func:`error`
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import lru_cache
 
 import numpy as np
 
@@ -109,21 +110,15 @@ class StateLayout:
         return tuple(lab for b in self.blocks for lab in BLOCKS[b][2])
 
 
-_INDEX: dict = {}
-
-
+@lru_cache(maxsize=None)
 def _index(blocks: tuple) -> tuple[dict, int, np.ndarray]:
     """``({block: slice}, n, offsets)`` of the blocks ``blocks`` (in :data:`BLOCK_ORDER`), computed once per
-    layout: the filters ask for them at every epoch."""
-    got = _INDEX.get(blocks)
-    if got is None:
-        slices, i = {}, 0
-        for b in blocks:
-            slices[b] = slice(i, i + BLOCKS[b][0])
-            i += BLOCKS[b][0]
-        offsets = np.array([slices[b].start if b in slices else -1 for b in BLOCK_ORDER], dtype=np.int64)
-        got = _INDEX[blocks] = (slices, i, offsets)
-    return got
+    layout: the filters ask for them at every epoch (callers copy ``offsets``, never write it)."""
+    slices, i = {}, 0
+    for b in blocks:
+        slices[b] = slice(i, i + BLOCKS[b][0])
+        i += BLOCKS[b][0]
+    return slices, i, np.array([slices[b].start if b in slices else -1 for b in BLOCK_ORDER], dtype=np.int64)
 
 
 LAYOUT_12 = StateLayout(LAYOUTS["12"])  # the papers' [dv, dpsi, b_a, b_g]
@@ -132,19 +127,10 @@ LAYOUT_15 = StateLayout(LAYOUTS["15"])  # [dp, dv, dpsi, b_a, b_g]
 
 def parse_layout(text: str | StateLayout) -> StateLayout:
     """``"12"``, ``"15"`` or a comma list of blocks (``"pos,vel,att,ba,bg"``) -> StateLayout."""
-    if isinstance(text, StateLayout):
-        return text
-    got = _PARSED.get(text) if isinstance(text, str) else None
-    if got is None:
-        got = _parsed(str(text))
-        if isinstance(text, str):
-            _PARSED[text] = got
-    return got
+    return text if isinstance(text, StateLayout) else _parsed(str(text))
 
 
-_PARSED: dict = {}  # the layouts parsed so far (a StateLayout is immutable): FilterConfig.layout at every epoch
-
-
+@lru_cache(maxsize=None)  # a StateLayout is immutable, and FilterConfig.layout asks at every epoch
 def _parsed(text: str) -> StateLayout:
     t = text.strip().lower()
     blocks = LAYOUTS.get(t) or tuple(b.strip() for b in t.split(",") if b.strip())

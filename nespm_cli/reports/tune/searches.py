@@ -133,10 +133,15 @@ def convergence_word(c: dict) -> str:
     if status == "converged":
         return "converged"
     if status == "stopped short":
-        gap = float(c.get("short_by", 0.0))
-        short = f"stopped short by {fmt_pct(100 * gap)}" if gap > float(c.get("tolerance", 0.0)) else "stopped short"
-        return f"{short} ({c['by']})" if c.get("by") else short
+        return f"{stopped_short(c)} ({c['by']})" if c.get("by") else stopped_short(c)
     return "convergence not checked" if status == "not checked" else ""
+
+
+def stopped_short(c: dict) -> str:
+    """``stopped short by 3.1 %`` where the verdict's gap exceeds its tolerance, else ``stopped short`` (the
+    refinement budget ran out with every check below it)."""
+    gap = float(c.get("short_by", 0.0))
+    return f"stopped short by {fmt_pct(100 * gap)}" if gap > float(c.get("tolerance", 0.0)) else "stopped short"
 
 
 def convergence_text(c: dict) -> str:
@@ -149,10 +154,8 @@ def convergence_text(c: dict) -> str:
     if c.get("status") == "converged":
         return f"converged ({tol}{refined})"
     if c.get("status") == "stopped short":
-        gap = float(c.get("short_by", 0.0))
         by = f"{c['by']}; " if c.get("by") else ""
-        short = f"stopped short by {fmt_pct(100 * gap)}" if gap > float(c.get("tolerance", 0.0)) else "stopped short"
-        return f"{short} ({by}{tol}{refined})"
+        return f"{stopped_short(c)} ({by}{tol}{refined})"
     return "not checked (no profile, cross-check or refinement: --no-profile)"
 
 
@@ -287,6 +290,6 @@ def searches_section(out_dir: Path, record: dict, n_boot: int) -> list[str]:
     return lines
 
 
-__all__ = ["ACCURACY", "accuracy_key", "compare_searches", "consistency_scores", "convergence_of", "convergence_text", "convergence_word", "resolution", "search_tie",
-           "training_score",
-           "filter_values", "load_searches", "search_errors", "searches_section"]
+__all__ = ["ACCURACY", "accuracy_key", "compare_searches", "consistency_scores", "convergence_of", "convergence_text",
+           "convergence_word", "filter_values", "load_searches", "resolution", "search_errors", "search_tie",
+           "searches_section", "stopped_short", "training_score"]
