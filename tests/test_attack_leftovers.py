@@ -104,7 +104,7 @@ def test_tune_into_an_mc_folder_is_refused(mc_folder):
     assert listing(mc_folder) == before
 
 
-@pytest.mark.parametrize("held", ["tune.json", "study.db"])
+@pytest.mark.parametrize("held", ["tune.json", "study.journal", "study.db"])
 @pytest.mark.parametrize("command", [["mc"], ["sweep", "--param", "acc-noise", "--values", "0.01"]])
 def test_mc_or_sweep_into_a_tune_folder_is_refused(tmp_path, held, command):
     out = tmp_path / "tune"
@@ -136,9 +136,9 @@ def test_a_depth_file_that_is_a_symlink_loop_is_named(tmp_path):
 
 def test_the_interrupt_line_speaks_of_the_commands_unit():
     line = interrupted(["tune", "--filters", "ekf", "--out", "res/t"])
-    assert "trials" in line and "res/t/study.db" in line and "continue the study" in line and "chunk " not in line
+    assert "trials" in line and "res/t/study.journal" in line and "continue the study" in line and "chunk " not in line
     assert "--storage database" in interrupted(["tune", "--storage", "sqlite:///x.db"])
-    assert "results/tune/study.db" in interrupted(["tune"])
+    assert "results/tune/study.journal" in interrupted(["tune"])
     assert interrupted(["mc", "--out", "x"]) == INTERRUPTED and "chunks" in INTERRUPTED
 
 

@@ -135,26 +135,35 @@ def test_repeats_are_independent_searches_on_the_same_data(tmp_path):
         assert (tmp_path / "t" / d / "metrics.parquet").exists(), d
 
 
+@pytest.mark.parametrize("name", ["study.journal", "study.db"])
 @pytest.mark.parametrize("content", [b"", b"\x00\x01garbage" * 64, b"just some text\n", "truncated"])
-def test_a_study_file_that_is_not_a_database_is_one_line(tmp_path, capsys, content):
+def test_a_study_file_that_is_not_a_study_is_one_line(tmp_path, capsys, content, name):
+    """The journal (what tune writes) and the SQLite study.db (a tuning from before it, still continued):
+    empty, random bytes, text, or a real one cut short, each one line naming the file, nothing written."""
     out = tmp_path / "t"
     out.mkdir()
-    if content == "truncated":  # a real SQLite file (rollback journal: all of it in the file) cut to a third
+    if content == "truncated" and name == "study.db":  # a real SQLite file (rollback journal: all in the file) cut to a third
         import sqlite3
 
-        con = sqlite3.connect(out / "study.db")
+        con = sqlite3.connect(out / name)
         con.execute("CREATE TABLE t (i INTEGER PRIMARY KEY, x TEXT)")
         con.executemany("INSERT INTO t (x) VALUES (?)", [("x" * 200,) for _ in range(2000)])
         con.commit()
         con.close()
-        data = (out / "study.db").read_bytes()
-        (out / "study.db").write_bytes(data[: len(data) // 3])
+        data = (out / name).read_bytes()
+        (out / name).write_bytes(data[: len(data) // 3])
+    elif content == "truncated":  # a real journal, cut in its middle
+        assert main(CLI + ["--refine-trials", "0", "--trials", "2", "--out", str(tmp_path / "whole")]) == 0
+        data = (tmp_path / "whole" / name).read_bytes()
+        assert data.count(b"\n") > 10
+        (out / name).write_bytes(data[: len(data) // 2 + 7])
+        capsys.readouterr()
     else:
-        (out / "study.db").write_bytes(content)
+        (out / name).write_bytes(content)
     before = sorted(p.name for p in out.iterdir())
     rc = main(CLI + ["--refine-trials", "0", "--out", str(out)])
     err = capsys.readouterr().err.strip()
-    assert rc == 2 and len(err.splitlines()) == 1 and "study.db" in err and "Traceback" not in err, err
+    assert rc == 2 and len(err.splitlines()) == 1 and name in err and "Traceback" not in err, err
     assert sorted(p.name for p in out.iterdir()) == before
 
 

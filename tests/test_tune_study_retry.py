@@ -7,6 +7,7 @@ import sqlalchemy.exc
 
 from nespm_cli.errors import NespmError
 from nespm_cli.tuning import study as study_mod
+from nespm_cli.tuning.study_file import SQLITE_FILE, check_study_file
 
 
 def flaky(failures: int):
@@ -39,7 +40,8 @@ def test_a_persistent_error_says_to_resume_not_to_delete(monkeypatch):
 
 
 def test_storage_opens_through_the_retry(tmp_path, monkeypatch):
-    """storage() on a fresh folder after two transient failures of the RDB storage: opened, tables made."""
+    """The SQLite storage (a study.db of a tuning from before the journal) after two transient failures of
+    the RDB storage: opened, tables made."""
     import optuna
 
     real = optuna.storages.RDBStorage
@@ -52,8 +54,8 @@ def test_storage_opens_through_the_retry(tmp_path, monkeypatch):
         return real(*a, **k)
     monkeypatch.setattr(optuna.storages, "RDBStorage", rdb)
     monkeypatch.setattr("time.sleep", lambda s: None)
-    store = study_mod.storage(tmp_path)
-    assert fails["n"] == 2 and (tmp_path / study_mod.STUDY_FILE).stat().st_size > 0
+    store = study_mod.sqlite_storage(tmp_path / SQLITE_FILE)
+    assert fails["n"] == 2 and (tmp_path / SQLITE_FILE).stat().st_size > 0
     assert store.get_all_studies() == []
 
 
@@ -63,7 +65,9 @@ def test_the_file_check_would_misread_a_live_study_so_storage_does_not_run_it(tm
     storage() opening a live study works."""
     import sqlite3
 
-    path = tmp_path / study_mod.STUDY_FILE
+    import optuna
+
+    path = tmp_path / SQLITE_FILE
     a = sqlite3.connect(path, isolation_level=None)  # a worker in a read transaction
     a.execute("PRAGMA journal_mode=WAL")
     a.execute("create table busy(x)")
@@ -75,8 +79,9 @@ def test_the_file_check_would_misread_a_live_study_so_storage_does_not_run_it(tm
     b.execute("insert into busy values (1)")
     assert b.execute("PRAGMA wal_checkpoint(TRUNCATE)").fetchone()[0] == 1  # busy: a partial checkpoint
     with pytest.raises(NespmError, match="damaged"):
-        study_mod.check_study_file(path)
+        check_study_file(path)
     a.execute("commit")
-    assert study_mod.storage(tmp_path).get_all_studies() == []  # opened through SQLite's locks: fine
+    store = study_mod.storage(tmp_path)  # the folder's study.db (its only study file), through SQLite's locks
+    assert isinstance(store, optuna.storages.RDBStorage) and store.get_all_studies() == []
     a.close()
     b.close()

@@ -5,7 +5,7 @@ import typer
 
 INTERRUPTED = "nespm: interrupted; finished chunks are kept, re-run the same command to resume"
 #: the interrupt line of ``nespm tune``: its unit is a trial of a study, not a chunk
-TUNE_INTERRUPTED = ("nespm: interrupted; the finished trials are kept in {out}/study.db (a trial cut short is "
+TUNE_INTERRUPTED = ("nespm: interrupted; the finished trials are kept in {study} (a trial cut short is "
                     "dropped; the held-out runs' finished chunks in {out}/heldout-*), re-run the same command to "
                     "continue the study")
 
@@ -23,8 +23,12 @@ def interrupted(argv: list[str]) -> str:
         elif w.startswith("--out="):
             out = w[len("--out="):]
     if any(w == "--storage" or w.startswith("--storage=") for w in argv):
-        return TUNE_INTERRUPTED.replace("{out}/study.db", "the --storage database").format(out=out)
-    return TUNE_INTERRUPTED.format(out=out)
+        return TUNE_INTERRUPTED.format(study="the --storage database", out=out)
+    from pathlib import Path
+
+    from nespm_cli.tuning.study_file import study_path
+
+    return TUNE_INTERRUPTED.format(study=study_path(Path(out)).as_posix(), out=out)
 
 MAX_MESSAGE = 400  # characters of an error line
 

@@ -25,14 +25,14 @@ TUNE = [  # (name, type, default, flag, help)
     ("search_seed", Optional[int], None, "--search-seed", "Seed of the samplers (the search's luck), apart from --seed (the data's); default: the training seed derived from --seed."),
     ("repeats", int, 1, "--repeats", "Independent searches per filter on the same training runs (search k's seed from --search-seed); the report gives each search's held-out score and whether the ranking survives the search's spread."),
     ("flat", str, "default", "--flat", "What a parameter the objective cannot see (flat profile: < 2 % at x3 and /3) becomes: default (back to its default where the training score stays within 2 %; docs/tuning.md 'Flat parameters') or searched (the best trial's value)."),
-    ("storage", Optional[str], None, "--storage", "An Optuna RDB storage URL every worker reaches (e.g. postgresql://user@host/db) instead of OUT/study.db (docs/cluster.md)."),
+    ("storage", Optional[str], None, "--storage", "An Optuna RDB storage URL every worker reaches (e.g. postgresql://user@host/db) instead of the journal file OUT/study.journal (docs/cluster.md)."),
     ("tune_range", Optional[List[str]], None, "--tune-range", "NAME.KEY=LOW:HIGH narrows or widens a parameter's range (NAME * for every filter), NAME.KEY=off drops it; a range on a sensor's lever arm turns its search on ('*.lever_arm_x_dvl=-3:3': each filter calibrates the DVL's fore-aft offset, linear); repeatable; a [tune] table in a --config file."),
     ("test_tracks_", str, "", "--test-tracks", "Held-out tracks, run with the default and the tuned settings on --seed's realizations (e.g. --test-tracks 5 6)."),
     ("test_runs", int, 100, "--test-runs", "Held-out runs per test track."),
     ("allow_overlap", bool, False, "--allow-overlap", "Allow test tracks among the tuning tracks (the report flags it)."),
     ("no_profile", bool, False, "--no-profile", "Skip the score profile and the importance (fANOVA) of each tuned parameter (2 trials per parameter after the search; the report's profile and importance columns then read —, and no importance.png)."),
     ("jobs", int, 1, "--jobs", "Worker processes (a process per filter and search when there are at least as many: the values of --jobs 1, bit for bit); with --backend dask the local cluster's workers."),
-    ("backend", str, "loky", "--backend", "Where the searches run: loky (local processes) or dask (a task per filter and search on a Dask cluster, the studies in OUT/study.db or --storage; docs/cluster.md)."),
+    ("backend", str, "loky", "--backend", "Where the searches run: loky (local processes) or dask (a task per filter and search on a Dask cluster, the studies in OUT/study.journal or --storage; docs/cluster.md)."),
     ("scheduler", Optional[str], None, "--scheduler", "Dask scheduler address (tcp://host:8786) or scheduler file; default $NESPM_DASK_SCHEDULER, else a local cluster of --jobs workers."),
     ("no_progress", bool, False, "--no-progress", "No line per 10 trials."),
     ("config", Optional[str], None, "--config", "TOML file of options; [filters.NAME] and [tune] tables (docs/tuning.md)."),
@@ -41,7 +41,7 @@ TUNE = [  # (name, type, default, flag, help)
 
 @with_options(TUNE, COMMON, [KERNELS])
 def tune(
-    out: str = typer.Option("results/tune", "--out", help="Output folder (study.db, trials.parquet, tuned.toml, tune.json; resumable)."),
+    out: str = typer.Option("results/tune", "--out", help="Output folder (study.journal, trials.parquet, tuned.toml, tune.json; resumable)."),
     **kw,
 ) -> None:
     """Tune every filter's noise (Q, R, P0, alpha) with the same budget on training runs; write tuned.toml."""

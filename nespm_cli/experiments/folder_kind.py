@@ -9,7 +9,7 @@ from pathlib import Path
 from nespm_cli.errors import NespmError
 
 #: what ``nespm tune`` writes into its folder (docs/tuning.md); a folder holding one is a tune study
-TUNE_NAMES = ("tune.json", "tuned.toml", "trials.parquet", "study.db")
+TUNE_NAMES = ("tune.json", "tuned.toml", "trials.parquet", "study.journal", "study.db")
 #: what ``mc``, ``sweep`` and ``gp-ukf`` write first (:class:`nespm_cli.experiments.store.ResultsFolder`)
 RESULTS_NAMES = ("manifest.json", "metrics.parquet", "chunks")
 TUNE = "a nespm tune study"

@@ -4,7 +4,8 @@ realizations, the result written as a config ``mc``, ``sweep`` and ``compare`` t
 
 The folder ``OUT`` holds:
 
-* ``study.db``: the Optuna studies (SQLite), one per filter (study name = the filter), each
+* ``study.journal``: the Optuna studies (Optuna's journal file; ``study.db``, SQLite, in a tuning written
+  before it: tuning.study_file), one per filter (study name = the filter), each
   carrying the digest of its configuration (the training study, the objective, the sampler, the
   space): a killed tuning resumes where it stopped, ``--jobs`` workers share the studies, and a
   rerun with other options is refused in one line. ``--trials`` is not part of the identity: a
@@ -18,7 +19,7 @@ The folder ``OUT`` holds:
   spec without ``[gt]``: only ``--objective innovation`` runs there, docs/tuning.md).
 
 Reproducibility: trial k of a filter is suggested by a sampler seeded from the training seed,
-the filter and the number of trials completed before it, from the history in ``study.db`` alone,
+the filter and the number of trials completed before it, from the history in the study file alone,
 so one worker gives bit-identical values run after run, and a run killed mid-trial (its trial is
 marked failed on restart and ignored) continues to the values of an uninterrupted one. The
 first trial of every filter is its default setting (the score to beat). Every trial of every
@@ -43,7 +44,8 @@ from nespm_cli.tuning.progress import watch_studies
 from nespm_cli.tuning.refine import auto_budget
 from nespm_cli.tuning.search import refine_filter, tune_filter, worker_run
 from nespm_cli.tuning.spec import TuneSpec, check, level_bases
-from nespm_cli.tuning.study import (STUDY_FILE, check_study_file, config_digest, enqueue_default, fail_stale, open_study, quiet, search_seed, storage,
+from nespm_cli.tuning.study_file import check_study_file, study_path
+from nespm_cli.tuning.study import (config_digest, enqueue_default, fail_stale, open_study, quiet, search_seed, storage,
                                     study_name, trials_table)
 
 
@@ -165,7 +167,7 @@ def run_tune(t: TuneSpec, out: str | Path, jobs: int = 1, report: Callable[[str,
         raise NespmError(f"--jobs must be at least 1, got {jobs}")
     out = Path(out)
     if t.storage is None:
-        check_study_file(out / STUDY_FILE)  # before the lock: a bad file leaves nothing behind
+        check_study_file(study_path(out))  # before the lock: a bad file leaves nothing behind
     lock = FolderLock(out)
     try:
         quiet()

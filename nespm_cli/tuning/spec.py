@@ -34,7 +34,7 @@ class TuneSpec:
     independent searches per filter on the same training runs (search k's seed:
     :func:`nespm_cli.tuning.study.search_seed`), ``refine_trials`` the local refinement's budget per
     filter and search (0: none; None: :func:`nespm_cli.tuning.refine.auto_budget` of its space), ``storage`` an Optuna RDB storage URL every worker
-    reaches (None: the SQLite file ``OUT/study.db``); ``flat`` what becomes of a parameter the objective
+    reaches (None: the study file of ``OUT``, tuning.study_file); ``flat`` what becomes of a parameter the objective
     cannot see (:data:`nespm_cli.tuning.flat.FLAT_RULES`)."""
 
     spec: Spec
@@ -51,7 +51,7 @@ class TuneSpec:
     search_seed: int | None = None  # the samplers' seed; None: the training seed
     repeats: int = 1  # independent searches per filter (--repeats)
     refine_trials: int | None = None  # the local refinement's budget per filter and search (0: off; None: auto)
-    storage: str | None = None  # an RDB storage URL (None: OUT/study.db)
+    storage: str | None = None  # an RDB storage URL (None: OUT/study.journal)
     flat: str = "default"  # tuning.flat.FLAT_RULES: a parameter the objective cannot see goes back to its default
 
 

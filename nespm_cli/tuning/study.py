@@ -1,4 +1,4 @@
-"""The Optuna studies of ``nespm tune``: their storage (``OUT/study.db``), identity (a digest of the
+"""The Optuna studies of ``nespm tune``: their storage (``OUT/study.journal``, tuning.study_file), identity (a digest of the
 configuration), the stale trials of a killed process, the default trial, the seeded samplers and the
 table of every trial (docs/tuning.md)."""
 from __future__ import annotations
@@ -16,8 +16,8 @@ from nespm_cli.errors import NespmError
 from nespm_cli.experiments.spec import Spec
 from nespm_cli.tuning.space import Param
 from nespm_cli.tuning.spec import TuneSpec
+from nespm_cli.tuning.study_file import SQLITE_FILE, study_path
 
-STUDY_FILE = "study.db"
 CONFIG_ATTR = "nespm_config"  # the study's user attribute holding its configuration digest
 STATS_ATTR = "stats"  # a trial's user attribute: its statistics ({name: float}, objective.summary)
 PHASE_ATTR = "phase"  # a trial's user attribute: which phase ran it
@@ -60,75 +60,72 @@ def config_digest(train: Spec, name: str, params: list[Param], t: TuneSpec, sear
     return hashlib.sha256(json.dumps(d, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 
-SQLITE_MAGIC = b"SQLite format 3\x00"
-
-
-def check_study_file(path: Path) -> None:
-    """One line (NespmError) when ``path`` exists but cannot be a study database: empty (0 bytes: not taken
-    as an empty study), not an SQLite file, or a damaged one (SQLite's quick check, read without writing)."""
-    try:
-        if not path.exists():
-            return
-        with open(path, "rb") as fh:
-            head = fh.read(len(SQLITE_MAGIC))
-    except OSError as exc:
-        raise NespmError(f"{path}: cannot be read ({exc.strerror or exc})") from None
-    if not head:
-        raise NespmError(f"{path}: empty (0 bytes), not a study database; delete it to start afresh or use "
-                         "another --out")
-    if head != SQLITE_MAGIC:
-        raise NespmError(f"{path}: not an SQLite study database (corrupt or another file); delete it to start "
-                         "afresh or use another --out")
-    import sqlite3
-
-    try:  # read as an immutable file: no lock, no journal or WAL file written beside it
-        con = sqlite3.connect(f"file:{path.resolve()}?immutable=1", uri=True)
-        try:
-            got = con.execute("PRAGMA quick_check").fetchone()[0]
-        finally:
-            con.close()
-    except sqlite3.Error as exc:
-        got = str(exc)
-    if got != "ok":
-        raise NespmError(f"{path}: a damaged study database ({got}); delete it to start afresh or use another --out")
-
-
 def storage(out: Path, url: str | None = None):
     """The Optuna storage of a tuning: the RDB storage at ``url`` (a database every worker reaches), else the
-    SQLite file ``out/study.db`` (shared by the local workers). Write-ahead log with
-    ``synchronous=NORMAL``: a commit survives a killed process (not a power cut) without an fsync. A
-    database that cannot be opened is one line naming it (a file that is not a study database is found
-    first by :func:`check_study_file`, which :func:`nespm_cli.tuning.run.run_tune` calls)."""
+    study file of ``out`` (:func:`nespm_cli.tuning.study_file.study_path`, shared by the local workers and by a
+    cluster's workers that mount ``out``): Optuna's journal file ``study.journal`` (each operation appended
+    under its lock file and fsync'd: a finished trial survives a killed process and a power cut), or the
+    SQLite ``study.db`` of a tuning written before it. A database that cannot be opened is one line naming
+    it (a file that is not a study file is found first by
+    :func:`nespm_cli.tuning.study_file.check_study_file`, which :func:`nespm_cli.tuning.run.run_tune` calls)."""
+    import optuna
+
+    if url is not None:
+        import sqlalchemy.exc
+
+        try:
+            return optuna.storages.RDBStorage(url)
+        except (sqlalchemy.exc.SQLAlchemyError, ImportError, ValueError) as exc:
+            raise NespmError(f"--storage {url}: cannot be opened ({str(exc).splitlines()[0]})") from None
+    path = study_path(out)
+    if path.name == SQLITE_FILE:
+        return sqlite_storage(path)
+    from optuna.storages.journal import JournalFileBackend, JournalStorage
+
+    try:
+        return JournalStorage(JournalFileBackend(str(path.resolve())))
+    except (OSError, ValueError) as exc:  # unreadable, or damaged after run_tune's check
+        raise NespmError(f"{path}: not a readable study journal ({exc}); delete it to start afresh or use another "
+                         "--out") from None
+
+
+def sqlite_storage(path: Path):
+    """Optuna's RDB storage on the SQLite file ``path`` (a tuning's ``study.db`` from before the journal):
+    write-ahead log with ``synchronous=NORMAL`` (a commit survives a killed process, not a power cut),
+    opened through :func:`retried`. The file itself is checked once, by run_tune before anything opens
+    it: read as an immutable file it must not change under the check, and here other workers may be
+    writing it (a write-ahead log not yet checkpointed reads as "malformed" then)."""
     import sqlite3
 
     import optuna
     import sqlalchemy.exc
 
-    if url is not None:
-        try:
-            return optuna.storages.RDBStorage(url)
-        except (sqlalchemy.exc.SQLAlchemyError, ImportError, ValueError) as exc:
-            raise NespmError(f"--storage {url}: cannot be opened ({str(exc).splitlines()[0]})") from None
-    # The file itself is checked once, by run_tune before anything opens it (check_study_file): read as an
-    # immutable file it must not change under the check, and here other workers may be writing it (a
-    # write-ahead log not yet checkpointed reads as "malformed" then).
-    path = str((out / STUDY_FILE).resolve())
+    where = str(Path(path).resolve())
 
     def connect():
-        con = sqlite3.connect(path, timeout=120, check_same_thread=False)
+        con = sqlite3.connect(where, timeout=120, check_same_thread=False)
         con.execute("PRAGMA journal_mode=WAL")
         con.execute("PRAGMA synchronous=NORMAL")
         return con
 
     try:
-        return retried(lambda: optuna.storages.RDBStorage(f"sqlite:///{path}", engine_kwargs={"creator": connect}),
-                       path)
+        return retried(lambda: optuna.storages.RDBStorage(f"sqlite:///{where}", engine_kwargs={"creator": connect}),
+                       where)
     except sqlalchemy.exc.SQLAlchemyError as exc:
-        raise NespmError(f"{path}: not a readable study database ({str(exc.orig if hasattr(exc, 'orig') else exc)}); "
+        raise NespmError(f"{where}: not a readable study database ({str(exc.orig if hasattr(exc, 'orig') else exc)}); "
                          "delete it to start afresh or use another --out") from None
 
 
 RETRIES = 5  # attempts at opening a study while other workers write it (SQLite's transient errors)
+
+
+def database_errors() -> tuple:
+    """The exceptions of an RDB storage (SQLAlchemy's) where SQLAlchemy is loaded (an RDB storage is open),
+    else none: the journal storage does not load it."""
+    import sys
+
+    mod = sys.modules.get("sqlalchemy.exc")
+    return (mod.SQLAlchemyError,) if mod is not None else ()
 
 
 def retried(fn: Callable, path, attempts: int = RETRIES, wait: float = 0.5):
@@ -137,14 +134,15 @@ def retried(fn: Callable, path, attempts: int = RETRIES, wait: float = 0.5):
     one line naming ``path`` that says to run the command again (the stored trials are kept), not to delete
     it. Seen once: a 2-worker tune with 5 searches stopped after 12 minutes with "disk I/O error" as a
     worker opened the study; the same command resumed it."""
+    import sys
     import time
 
-    import sqlalchemy.exc
-
+    mod = sys.modules.get("sqlalchemy.exc")
+    transient = (mod.OperationalError,) if mod is not None else ()
     for k in range(attempts):
         try:
             return fn()
-        except sqlalchemy.exc.OperationalError as exc:
+        except transient as exc:
             if k == attempts - 1:
                 raise NespmError(f"{path}: could not be opened now ({getattr(exc, 'orig', exc)}, {attempts} "
                                  "attempts); run the same command again to resume (the trials stored are kept)") from None
@@ -154,21 +152,21 @@ def retried(fn: Callable, path, attempts: int = RETRIES, wait: float = 0.5):
 def open_study(store, name: str, digest: str, out: Path):
     """Filter ``name``'s study, created with ``digest`` or checked against it (one line if it differs)."""
     import optuna
-    import sqlalchemy.exc
 
+    where = study_path(out)
     try:
         study = retried(lambda: optuna.create_study(storage=store, study_name=name, direction="minimize",
-                                                    load_if_exists=True), out / STUDY_FILE)
-    except sqlalchemy.exc.SQLAlchemyError as exc:
-        raise NespmError(f"{out / STUDY_FILE}: not a readable study database ({getattr(exc, 'orig', exc)}); delete "
+                                                    load_if_exists=True), where)
+    except database_errors() as exc:
+        raise NespmError(f"{where}: not a readable study database ({getattr(exc, 'orig', exc)}); delete "
                          "it to start afresh or use another --out") from None
     have = study.user_attrs.get(CONFIG_ATTR)
     if have is None:
         if study.trials:
-            raise NespmError(f"{out / STUDY_FILE}: study {name} was not written by nespm tune; use another --out")
+            raise NespmError(f"{where}: study {name} was not written by nespm tune; use another --out")
         study.set_user_attr(CONFIG_ATTR, digest)
     elif have != digest:
-        raise NespmError(f"{out / STUDY_FILE}: study {name} comes from another configuration (tracks, runs, seed, "
+        raise NespmError(f"{where}: study {name} comes from another configuration (tracks, runs, seed, "
                          "sensors, objective, sampler or space differ); use another --out or the same options")
     return study
 
@@ -237,6 +235,6 @@ def trials_table(store, filters: tuple, repeats: int = 1) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-__all__ = ["CONFIG_ATTR", "PHASES", "RETRIES", "PHASE_ATTR", "STATS_ATTR", "STUDY_FILE", "check_study_file", "config_digest",
+__all__ = ["CONFIG_ATTR", "PHASES", "RETRIES", "PHASE_ATTR", "STATS_ATTR", "config_digest", "database_errors",
            "enqueue_default", "fail_stale", "make_sampler", "open_study", "quiet", "retried", "search_seed", "storage",
-           "study_name", "trial_phase", "trial_seed", "trials_table"]
+           "sqlite_storage", "study_name", "trial_phase", "trial_seed", "trials_table"]
