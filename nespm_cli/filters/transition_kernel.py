@@ -20,6 +20,7 @@ import math
 
 import numpy as np
 
+from nespm_cli.filters.transition_entries import va_entries_t
 from nespm_cli.nav.earth import A, E2, F, GAMMA_E, K_SOMIGLIANA
 from nespm_cli.nav.kernels import (GRAV_M, cycle_t, earth_t, exp_t, gravity_t, helper, load_t, matrix_t, mul_t, njit, state_t,
                                    store_t)
@@ -331,29 +332,9 @@ def transition_span_position(pos, v, C, b_a, b_g, f, w, dt, j0, j1, Phi):
         for j in range(j0, j1):
             f0, f1, f2 = f[r, j, 0] - ba0, f[r, j, 1] - ba1, f[r, j, 2] - ba2
             h = dt[j]
-            lat, ht = x[0], x[2]
-            J01 = 1.0 / (x[18] + ht)
-            J10 = -1.0 / (x[17] + ht)
-            J21 = -math.tan(lat) / (x[18] + ht)
-            u0, u1, u2 = 2.0 * x[19] + x[22], 2.0 * x[20] + x[23], 2.0 * x[21] + x[24]
-            a01, a02, a12 = u2, -u1, u0
-            v0, v1, v2 = x[3], x[4], x[5]
-            m00 = -v2 * J10 * h + 1.0
-            m01 = (a01 + v1 * J21) * h
-            m02 = a02 * h
-            m10 = (-a01 + 0.0) * h
-            m11 = (v2 * J01 + -v0 * J21) * h + 1.0
-            m12 = a12 * h
-            m20 = (-a02 + v0 * J10) * h
-            m21 = (-a12 + -v1 * J01) * h
-            fn0 = x[6] * f0 + x[7] * f1 + x[8] * f2
-            fn1 = x[9] * f0 + x[10] * f1 + x[11] * f2
-            fn2 = x[12] * f0 + x[13] * f1 + x[14] * f2
-            n04, n05, n13, n15, n23, n24 = fn2 * h, -fn1 * h, -fn2 * h, fn0 * h, fn1 * h, -fn0 * h
-            q31, q40, q51 = -J01 * h, -J10 * h, -J21 * h
-            w0, w1, w2 = x[19] + x[22], x[20] + x[23], x[21] + x[24]
-            t34, t35, t43, t45, t53, t54 = w2 * h, -w1 * h, -w2 * h, w0 * h, w1 * h, -w0 * h
-            g = gravity_gradient_t(lat, ht, x[15]) * h
+            (m00, m01, m02, m10, m11, m12, m20, m21, n04, n05, n13, n15, n23, n24, q31, q40, q51,
+             t34, t35, t43, t45, t53, t54) = va_entries_t(x, f0, f1, f2, h)
+            g = gravity_gradient_t(x[0], x[2], x[15]) * h
             for i in range(3):
                 for k in range(3):
                     S[i, k] = -x[6 + 3 * i + k] * h
