@@ -136,6 +136,7 @@ def test_resume_after_a_kill_continues_to_the_same_values(tmp_path):
     (["--tune-range", "ukf.alpha=0.1:1"], "ukf is not in --filters"),
     (["--test-tracks", "5"], "also tuning tracks"),
     (["--objective", "best"], "--objective: choose"),
+    (["--pick", "worst"], "--pick: choose"),
 ])
 def test_bad_tune_input_in_one_line(tmp_path, capsys, extra, words):
     rc = main(CLI + extra + ["--out", str(tmp_path / "t")])

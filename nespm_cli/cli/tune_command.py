@@ -24,6 +24,7 @@ TUNE = [  # (name, type, default, flag, help)
     ("refine_trials", Optional[int], None, "--refine-trials", "Budget per filter of the local refinement after the global search (from the best of the filter's own and the other filters' values: a quadratic model's trust-region search (BOBYQA), then polls until no step improves the score by more than 0.5 %); default 17 per searched parameter and one; 0: none. The report says per filter converged or stopped short by X %."),
     ("search_seed", Optional[int], None, "--search-seed", "Seed of the samplers (the search's luck), apart from --seed (the data's); default: the training seed derived from --seed."),
     ("repeats", int, 1, "--repeats", "Independent searches per filter on the same training runs (search k's seed from --search-seed); the report gives each search's held-out score and whether the ranking survives the search's spread."),
+    ("pick", str, "best", "--pick", "With --repeats: which search's values tuned.toml (and the held-out 'tuned' runs) hold per filter: best (the lowest training score: the searches' luck taken out of the result) or first (search 0). Every search's values stay in tune.json; docs/tuning.md."),
     ("flat", str, "default", "--flat", "What a parameter the objective cannot see (flat profile: < 2 % at x3 and /3) becomes: default (back to its default where the training score stays within 2 %; docs/tuning.md 'Flat parameters') or searched (the best trial's value)."),
     ("storage", Optional[str], None, "--storage", "An Optuna RDB storage URL every worker reaches (e.g. postgresql://user@host/db) instead of the journal file OUT/study.journal (docs/cluster.md)."),
     ("tune_range", Optional[List[str]], None, "--tune-range", "NAME.KEY=LOW:HIGH narrows or widens a parameter's range (NAME * for every filter), NAME.KEY=off drops it; a range on a sensor's lever arm turns its search on ('*.lever_arm_x_dvl=-3:3': each filter calibrates the DVL's fore-aft offset, linear); repeatable; a [tune] table in a --config file."),
@@ -64,7 +65,7 @@ def tune(
                 test_tracks=parse_tracks(test) if test else (), test_runs=kw.pop("test_runs"),
                 allow_overlap=kw.pop("allow_overlap"), profile=not kw.pop("no_profile"),
                 refine_trials=kw.pop("refine_trials"), search_seed=kw.pop("search_seed"), repeats=kw.pop("repeats"),
-                storage=kw.pop("storage"), flat=kw.pop("flat").lower())
+                storage=kw.pop("storage"), flat=kw.pop("flat").lower(), pick=kw.pop("pick").lower())
     jobs, quiet = kw.pop("jobs"), kw.pop("no_progress")
     backend, scheduler = kw.pop("backend").lower(), kw.pop("scheduler")
     spec = build_spec(tracks=parse_tracks(kw.pop("tracks_")), runs=kw.pop("runs"),

@@ -49,8 +49,9 @@ from nespm_cli.tuning.study import (config_digest, enqueue_default, fail_stale, 
                                     study_name, trials_table)
 
 
-def tuned_toml(best: dict, train: Spec, t: TuneSpec) -> str:
-    """``tuned.toml``: a ``[filters.NAME]`` table per filter with its tuned values (exact round trip)."""
+def tuned_toml(best: dict, train: Spec, t: TuneSpec, picked: dict | None = None) -> str:
+    """``tuned.toml``: a ``[filters.NAME]`` table per filter with its tuned values (exact round trip); with
+    ``--repeats``, ``picked`` ({filter: search}) says in a comment which search's they are."""
     lines = ["# nespm tune: the best settings of every filter, each searched with the same budget",
              f"# ({t.trials} trials, objective {t.objective}) on tracks {' '.join(map(str, train.tracks))}, "
              f"runs 0-{train.runs - 1} of the training seed {train.seed} (tune.json).",
@@ -60,6 +61,9 @@ def tuned_toml(best: dict, train: Spec, t: TuneSpec) -> str:
         lines += [f'state = "{train.filter_config.state}"', ""]
     on = tuned_on_text(train.seed, train.tracks, 0, train.runs)
     for f, b in best.items():
+        if t.repeats > 1 and picked is not None:
+            why = "the lowest training score" if t.pick == "best" else "--pick first"
+            lines.append(f"# {f}: search {picked[f]} of {t.repeats} ({why}: {b['score']:.6g}; every search in tune.json)")
         if b.get("level", 1.0) != 1.0:
             lines.append(f"# {f}: the searched factors x {np.sqrt(b['level']):.6g} (the level fitted over the "
                          "tracks: every Q, R and P0 std; docs/tuning.md)")
@@ -140,6 +144,19 @@ def previous_record(out: Path) -> dict:
         return {}
 
 
+def previous_searches(old: dict, repeats: int) -> list[dict]:
+    """``[{filter: its record}]`` per search 0 .. ``repeats``-1 of an earlier ``tune.json`` (``old``, {} if none):
+    the full record (its level fit, reused when the shape is the same) where ``tuned.toml`` held that search's
+    values (``best``), else the search's summary in ``searches``."""
+    picked = old.get("picked") or {}
+    out = []
+    for k in range(repeats):
+        d = {f: v[k] for f, v in old.get("searches", {}).items() if len(v) > k}
+        d.update({f: b for f, b in old.get("best", {}).items() if int(picked.get(f, 0)) == k})
+        out.append(d)
+    return out
+
+
 def searches_record(t: TuneSpec, train: Spec, searches: list[dict]) -> dict:
     """``{filter: [{"search", "search_seed", "score", "values", "shape", "convergence"}]}`` over the searches."""
     return {f: [{"search": k, "search_seed": search_seed(t, train, k), "score": b[f]["score"], "values": b[f]["values"],
@@ -147,11 +164,21 @@ def searches_record(t: TuneSpec, train: Spec, searches: list[dict]) -> dict:
             for f in train.filters}
 
 
+def pick_searches(searches: list[dict], pick: str) -> dict:
+    """``{filter: search}``: the search whose values ``tuned.toml`` holds for each filter: with ``pick`` ``best``
+    the one with the lowest training score (its best trial's score, the objective the searches minimized; the
+    first of equal ones), with ``first`` search 0."""
+    if pick == "first":
+        return {f: 0 for f in searches[0]}
+    return {f: min(range(len(searches)), key=lambda k: (float(searches[k][f]["score"]), k)) for f in searches[0]}
+
+
 def run_tune(t: TuneSpec, out: str | Path, jobs: int = 1, report: Callable[[str, int, float], None] | None = None,
              argv=None, backend: str = "loky", scheduler: str | None = None) -> dict:
     """Tune every filter of ``t.spec`` into ``out`` (resuming what is there): the global search, the local
     refinement, the level, the checks and the verdict, for every search (``--repeats``); write
-    ``trials.parquet``, ``tuned.toml`` (the first search's values) and ``tune.json``; return the
+    ``trials.parquet``, ``tuned.toml`` (per filter the values of the search :func:`pick_searches` picks) and
+    ``tune.json``; return the
     ``tune.json`` record. ``backend`` ``loky`` (``jobs`` local processes) or ``dask`` (``scheduler``, else a
     local cluster of ``jobs`` workers; docs/cluster.md)."""
     import sys
@@ -188,21 +215,20 @@ def run_tune(t: TuneSpec, out: str | Path, jobs: int = 1, report: Callable[[str,
             what = " and ".join(w for w, on in (("fitting each filter's level", t.level == "tracks"),
                                                 ("checking its best settings", t.profile)) if on)
             print(f"tune: {what} on the training runs", file=sys.stderr, flush=True)
-        old = previous_record(out)
-        old_searches = [old.get("best", {})] + [{f: v[k] for f, v in old.get("searches", {}).items() if len(v) > k}
-                                                for k in range(1, t.repeats)]
+        old_searches = previous_searches(previous_record(out), t.repeats)
         searches = []
         for k in range(t.repeats):
             best = best_values(store, train.filters, t.trials, space, bases, k)
-            add_leveled(best, old_searches[k] if k < len(old_searches) else {}, train, t)
+            add_leveled(best, old_searches[k], train, t)
             add_checks(best, store, out, train, space, t, refined[k], k)
             before = {f: dict(b) for f, b in best.items()}
             if add_flat(best, store, train, space, t, k) and t.level == "tracks":
                 add_leveled(best, before, train, t)  # a reset shape: its level fitted again
             searches.append(best)
         write_parquet_atomic(trials_table(store, train.filters, t.repeats), out / "trials.parquet")
-        best = searches[0]
-        write_text_atomic(out / "tuned.toml", tuned_toml(best, train, t))
+        picked = pick_searches(searches, t.pick)
+        best = {f: searches[k][f] for f, k in picked.items()}
+        write_text_atomic(out / "tuned.toml", tuned_toml(best, train, t, picked))
         record = {"command": list(argv) if argv is not None else None, "objective": t.objective, "level": t.level,
                   "sampler": t.sampler, "trials": t.trials, "jobs": jobs, "backend": backend,
                   "refine_trials": t.refine_trials, "flat": t.flat, "search_seed": search_seed(t, train, 0), "repeats": t.repeats,
@@ -214,6 +240,7 @@ def run_tune(t: TuneSpec, out: str | Path, jobs: int = 1, report: Callable[[str,
                   "best": best, "spec": train.as_dict()}
         if t.repeats > 1:
             record["searches"] = searches_record(t, train, searches)
+            record["pick"], record["picked"] = t.pick, picked
         if not has_truth(train):  # a track spec without [gt]: --objective innovation, innovations only
             record["ground_truth"] = False
         write_json_atomic(record, out / "tune.json")
@@ -222,5 +249,5 @@ def run_tune(t: TuneSpec, out: str | Path, jobs: int = 1, report: Callable[[str,
         lock.release()
 
 
-__all__ = ["global_search", "previous_record", "refinements", "run_tasks", "run_tune", "searches_record",
+__all__ = ["global_search", "pick_searches", "previous_record", "previous_searches", "refinements", "run_tasks", "run_tune", "searches_record",
            "tuned_toml"]

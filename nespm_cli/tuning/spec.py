@@ -17,6 +17,8 @@ from nespm_cli.tuning.objective import LEVELS, OBJECTIVES
 from nespm_cli.tuning.space import Param, apply_ranges, default_space, optional_space
 
 SAMPLERS = ("tpe", "cmaes")
+#: --pick: tuned.toml holds, per filter, the search with the lowest training score, or the first search
+PICKS = ("best", "first")
 TUNE_STREAM = 0x74756E65  # "tune": the training seed's stream
 
 
@@ -35,7 +37,8 @@ class TuneSpec:
     :func:`nespm_cli.tuning.study.search_seed`), ``refine_trials`` the local refinement's budget per
     filter and search (0: none; None: :func:`nespm_cli.tuning.refine.auto_budget` of its space), ``storage`` an Optuna RDB storage URL every worker
     reaches (None: the study file of ``OUT``, tuning.study_file); ``flat`` what becomes of a parameter the objective
-    cannot see (:data:`nespm_cli.tuning.flat.FLAT_RULES`)."""
+    cannot see (:data:`nespm_cli.tuning.flat.FLAT_RULES`); ``pick`` which search's values ``tuned.toml``
+    holds per filter with ``repeats`` > 1 (:data:`PICKS`: the lowest training score, or the first search)."""
 
     spec: Spec
     trials: int = 50
@@ -53,6 +56,7 @@ class TuneSpec:
     refine_trials: int | None = None  # the local refinement's budget per filter and search (0: off; None: auto)
     storage: str | None = None  # an RDB storage URL (None: OUT/study.journal)
     flat: str = "default"  # tuning.flat.FLAT_RULES: a parameter the objective cannot see goes back to its default
+    pick: str = "best"  # PICKS: which search's values tuned.toml holds per filter (--repeats)
 
 
 def training_seed(seed: int) -> int:
@@ -87,6 +91,8 @@ def check(t: TuneSpec) -> tuple[TuneSpec, Spec, dict[str, list[Param]]]:
                          f"sqlite:////shared/study.db), got {t.storage!r}")
     if t.level_runs < 1:
         raise NespmError(f"--level-runs must be at least 1, got {t.level_runs}")
+    if t.pick not in PICKS:
+        raise NespmError(f"--pick: choose {' or '.join(PICKS)}, got {t.pick!r}")
     if t.flat not in FLAT_RULES:
         raise NespmError(f"--flat: choose {' or '.join(FLAT_RULES)}, got {t.flat!r}")
     if t.sampler not in SAMPLERS:

@@ -165,12 +165,12 @@ def load_searches(out_dir: Path, record: dict) -> list[tuple[int, pd.DataFrame, 
     search 0's (:func:`nespm_cli.reports.cases.realization_difference`: they would not pair by run)."""
     out = []
     for k in range(int(record.get("repeats", 1) or 1)):
-        folder = Path(out_dir) / tuned_dir(k)
+        folder = Path(out_dir) / tuned_dir(k, record)
         if (folder / "metrics.parquet").is_file():
             out.append((k, *load_results(folder)))
             diff = realization_difference(out[0][3], out[-1][3])
             if diff is not None:
-                raise NespmError(f"{folder}: not the realizations of {Path(out_dir) / tuned_dir(out[0][0])} "
+                raise NespmError(f"{folder}: not the realizations of {Path(out_dir) / tuned_dir(out[0][0], record)} "
                                  f"(they differ in {diff}): the searches compare run by run only on the same runs")
     return out
 
@@ -226,6 +226,18 @@ def signed(x: float) -> str:
     return ("+" if x > 0 else "") + fmt_pct(x)
 
 
+def pick_sentence(record: dict) -> str:
+    """Which search's values ``tuned.toml`` (and the tables above) hold per filter (``record["picked"]``), in
+    words; "" for a record from before ``--pick``."""
+    picked = record.get("picked")
+    if not picked:
+        return ""
+    why = ("the lowest training score (--pick best)" if record.get("pick", "best") == "best"
+           else "the first search (--pick first)")
+    return (f"`tuned.toml` and the tables above hold, per filter, the search with {why}: "
+            + ", ".join(f"{f} search {k}" for f, k in picked.items()) + ".")
+
+
 def searches_section(out_dir: Path, record: dict, n_boot: int) -> list[str]:
     """The report's lines on ``--repeats K`` (K > 1 with ``record["searches"]``): per filter and search
     the search seed, training score, convergence and held-out error; per filter their spread; each tuned
@@ -251,9 +263,9 @@ def searches_section(out_dir: Path, record: dict, n_boot: int) -> list[str]:
     lines = ["### The searches (`--repeats`)", "",
              f"{record['repeats']} independent searches per filter on the same training runs (search k's sampler "
              "seed below); each search's tuned values run on the same held-out runs "
-             f"({', '.join(tuned_dir(k) for k, *_ in held)}). "
+             f"({', '.join(tuned_dir(k, record) for k, *_ in held)}). "
              f"Held-out {name} [{unit}] by the rule above (t = 0 out, eq 50 per track over the runs no search of any "
-             "filter lost, eq 51 over tracks).", "",
+             "filter lost, eq 51 over tracks). " + pick_sentence(record), "",
              md_table(["filter", "search", "search seed", "training score", "convergence", f"held-out {name}"]
                       + (["held-out consistency score"] if cons else []), rows), ""]
     if len(held) < int(record["repeats"]):
@@ -292,4 +304,4 @@ def searches_section(out_dir: Path, record: dict, n_boot: int) -> list[str]:
 
 __all__ = ["ACCURACY", "accuracy_key", "compare_searches", "consistency_scores", "convergence_of", "convergence_text",
            "convergence_word", "filter_values", "load_searches", "resolution", "search_errors", "search_tie",
-           "searches_section", "stopped_short", "training_score"]
+           "pick_sentence", "searches_section", "stopped_short", "training_score"]
