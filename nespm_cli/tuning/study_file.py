@@ -50,7 +50,8 @@ def check_journal(path: Path) -> None:
     except OSError as exc:
         raise NespmError(f"{path}: cannot be read ({exc.strerror or exc})") from None
     if not data.endswith(b"\n"):
-        raise NespmError(f"{path}: damaged (its last line is cut short);{FRESH}")
+        raise NespmError(f"{path}: damaged (its last line is cut short, a write cut off or a truncated copy); remove "
+                         "that line to keep the trials before it, or delete the file to start afresh or use another --out")
     for number, line in enumerate(data.splitlines(), start=1):
         try:
             op = json.loads(line)
