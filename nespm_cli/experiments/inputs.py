@@ -16,11 +16,12 @@ from pathlib import Path
 
 from nespm_cli.data.corrections import Corrections, apply_corrections
 from nespm_cli.data.embedded import embedded_track
+from nespm_cli.data.synthesis_cache import synthesized
 from nespm_cli.data.track import Track
 from nespm_cli.data.tracks import load_track, track_files
 from nespm_cli.errors import NespmError
 from nespm_cli.experiments.store import file_hashes
-from nespm_cli.nav.synthesis import DEFAULT_IMU_RATE, ImuTruth, from_recorded, synthesize
+from nespm_cli.nav.synthesis import DEFAULT_IMU_RATE, ImuTruth, from_recorded
 
 #: ``{absolute path: sha256}`` of every file this process has read through :func:`prepared`
 READ_HASHES: dict[str, str] = {}
@@ -81,7 +82,7 @@ def prepared_version(number: int, data_dir: str | None, imu: str, corrections: C
                          "where its initial state ([init]) is given and no ground truth after it; start the window "
                          "at or before it") from None
     if imu == "synthetic":
-        return track, synthesize(track, substeps_for(track, imu_rate))
+        return track, synthesized(track, substeps_for(track, imu_rate))  # from the per-user cache where kept
     return track, from_recorded(track)
 
 
