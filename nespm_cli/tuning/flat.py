@@ -93,4 +93,11 @@ def add_flat(best: dict, store, train, space: dict, t, search: int = 0) -> bool:
     return changed
 
 
-__all__ = ["add_flat", "apply_flat_rule", "flat_keys", "reset_flat"]
+def training_score(entry: dict) -> float:
+    """The training score of the setting a filter's search wrote (``tuned.toml``): the kept shape's where the
+    flat rule reset a parameter (``entry["flat"]["score"]``), else the best trial's."""
+    flat = entry.get("flat") or {}
+    return float(flat["score"]) if flat.get("reset") and flat.get("score") is not None else float(entry["score"])
+
+
+__all__ = ["add_flat", "apply_flat_rule", "flat_keys", "reset_flat", "training_score"]

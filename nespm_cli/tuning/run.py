@@ -38,7 +38,7 @@ from nespm_cli.experiments.spec import Spec, has_truth
 from nespm_cli.filters.options import SCALE_LIMITS, TUNED_ON, tuned_on_text
 from nespm_cli.errors import NespmError
 from nespm_cli.tuning.best import add_checks, add_leveled, best_values, plugin_lines
-from nespm_cli.tuning.flat import add_flat
+from nespm_cli.tuning.flat import add_flat, training_score
 from nespm_cli.tuning.objective import beyond_limits
 from nespm_cli.tuning.progress import watch_studies
 from nespm_cli.tuning.refine import auto_budget
@@ -63,7 +63,8 @@ def tuned_toml(best: dict, train: Spec, t: TuneSpec, picked: dict | None = None)
     for f, b in best.items():
         if t.repeats > 1 and picked is not None:
             why = "the lowest training score" if t.pick == "best" else "--pick first"
-            lines.append(f"# {f}: search {picked[f]} of {t.repeats} ({why}: {b['score']:.6g}; every search in tune.json)")
+            lines.append(f"# {f}: search {picked[f]} of {t.repeats} ({why}: {training_score(b):.6g}; every search in "
+                         "tune.json)")
         if b.get("level", 1.0) != 1.0:
             lines.append(f"# {f}: the searched factors x {np.sqrt(b['level']):.6g} (the level fitted over the "
                          "tracks: every Q, R and P0 std; docs/tuning.md)")
@@ -166,11 +167,11 @@ def searches_record(t: TuneSpec, train: Spec, searches: list[dict]) -> dict:
 
 def pick_searches(searches: list[dict], pick: str) -> dict:
     """``{filter: search}``: the search whose values ``tuned.toml`` holds for each filter: with ``pick`` ``best``
-    the one with the lowest training score (its best trial's score, the objective the searches minimized; the
-    first of equal ones), with ``first`` search 0."""
+    the one with the lowest training score of the setting it writes (:func:`nespm_cli.tuning.flat.training_score`:
+    the objective the searches minimized, on the same runs; the first of equal ones), with ``first`` search 0."""
     if pick == "first":
         return {f: 0 for f in searches[0]}
-    return {f: min(range(len(searches)), key=lambda k: (float(searches[k][f]["score"]), k)) for f in searches[0]}
+    return {f: min(range(len(searches)), key=lambda k: (training_score(searches[k][f]), k)) for f in searches[0]}
 
 
 def run_tune(t: TuneSpec, out: str | Path, jobs: int = 1, report: Callable[[str, int, float], None] | None = None,
@@ -178,8 +179,7 @@ def run_tune(t: TuneSpec, out: str | Path, jobs: int = 1, report: Callable[[str,
     """Tune every filter of ``t.spec`` into ``out`` (resuming what is there): the global search, the local
     refinement, the level, the checks and the verdict, for every search (``--repeats``); write
     ``trials.parquet``, ``tuned.toml`` (per filter the values of the search :func:`pick_searches` picks) and
-    ``tune.json``; return the
-    ``tune.json`` record. ``backend`` ``loky`` (``jobs`` local processes) or ``dask`` (``scheduler``, else a
+    ``tune.json``; return the ``tune.json`` record. ``backend`` ``loky`` (``jobs`` local processes) or ``dask`` (``scheduler``, else a
     local cluster of ``jobs`` workers; docs/cluster.md)."""
     import sys
 
@@ -249,5 +249,5 @@ def run_tune(t: TuneSpec, out: str | Path, jobs: int = 1, report: Callable[[str,
         lock.release()
 
 
-__all__ = ["global_search", "pick_searches", "previous_record", "previous_searches", "refinements", "run_tasks", "run_tune", "searches_record",
-           "tuned_toml"]
+__all__ = ["global_search", "pick_searches", "previous_record", "previous_searches", "refinements", "run_tasks",
+           "run_tune", "searches_record", "tuned_toml"]

@@ -10,8 +10,8 @@ The default space of a filter with a covariance (docs/tuning.md):
 * its P0: ``p0_<block>_scale`` for every block of the layout;
 
 each a factor on a std over [0.1, 10] (the bias random walks over [0.001, 10]: :data:`BIAS_RW_RANGE`),
-searched on a log scale (a factor 2 too large and a factor 2 too small are equally far from 1); the sigma-point spread ``alpha`` over [1e-3, 1] (log) where
-the filter has one (``tunable``); a plugin's own options where the class declares a range in
+searched on a log scale (a factor 2 too large and a factor 2 too small are equally far from 1); the
+sigma-point spread ``alpha`` over [1e-3, 1] (log) where the filter has one (``tunable``); a plugin's own options where the class declares a range in
 ``tune_ranges = {"key": (low, high)}`` (or ``(low, high, "linear")``; log by default).
 
 ``--tune-range NAME.KEY=LOW:HIGH`` (``NAME`` may be ``*``: every filter that has ``KEY``) or a

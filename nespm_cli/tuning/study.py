@@ -1,5 +1,5 @@
-"""The Optuna studies of ``nespm tune``: their storage (``OUT/study.journal``, tuning.study_file), identity (a digest of the
-configuration), the stale trials of a killed process, the default trial, the seeded samplers and the
+"""The Optuna studies of ``nespm tune``: their storage (``OUT/study.journal``, tuning.study_file), identity
+(a digest of the configuration), the stale trials of a killed process, the default trial, the seeded samplers and the
 table of every trial (docs/tuning.md)."""
 from __future__ import annotations
 
@@ -119,13 +119,13 @@ def sqlite_storage(path: Path):
 RETRIES = 5  # attempts at opening a study while other workers write it (SQLite's transient errors)
 
 
-def database_errors() -> tuple:
-    """The exceptions of an RDB storage (SQLAlchemy's) where SQLAlchemy is loaded (an RDB storage is open),
-    else none: the journal storage does not load it."""
+def database_errors(name: str = "SQLAlchemyError") -> tuple:
+    """``(sqlalchemy.exc.<name>,)`` where SQLAlchemy is loaded (an RDB storage is open), else ``()``: the
+    journal storage does not load it, and ``except ()`` catches nothing."""
     import sys
 
     mod = sys.modules.get("sqlalchemy.exc")
-    return (mod.SQLAlchemyError,) if mod is not None else ()
+    return (getattr(mod, name),) if mod is not None else ()
 
 
 def retried(fn: Callable, path, attempts: int = RETRIES, wait: float = 0.5):
@@ -134,11 +134,9 @@ def retried(fn: Callable, path, attempts: int = RETRIES, wait: float = 0.5):
     one line naming ``path`` that says to run the command again (the stored trials are kept), not to delete
     it. Seen once: a 2-worker tune with 5 searches stopped after 12 minutes with "disk I/O error" as a
     worker opened the study; the same command resumed it."""
-    import sys
     import time
 
-    mod = sys.modules.get("sqlalchemy.exc")
-    transient = (mod.OperationalError,) if mod is not None else ()
+    transient = database_errors("OperationalError")
     for k in range(attempts):
         try:
             return fn()

@@ -35,6 +35,7 @@ from nespm_cli.reports.markdown import fmt, fmt_imprv, fmt_pct, md_table
 from nespm_cli.reports.results import load_results, sensor_dims
 from nespm_cli.reports.stats import (ci_marks, improvement, lost_by_any, over_tracks, percentile_ci, posterior_view,
                                      resample_counts, track_rng, track_value)
+from nespm_cli.tuning.flat import training_score  # noqa: F401  (re-exported: the report's rule)
 from nespm_cli.tuning.heldout import tuned_dir
 from nespm_cli.tuning.objective import consistency
 from nespm_cli.tuning.refine import TOLERANCE, verdict
@@ -95,13 +96,6 @@ def resolution(entry: dict) -> float:
     where that is larger (:func:`convergence_of`)."""
     c = convergence_of(entry)
     return max(float(c.get("tolerance", TOLERANCE) or TOLERANCE), float(c.get("short_by", 0.0) or 0.0))
-
-
-def training_score(entry: dict) -> float:
-    """The training score of the setting a filter's search wrote (``tuned.toml``): the kept shape's where the
-    flat rule reset a parameter (``entry["flat"]["score"]``), else the best trial's."""
-    flat = entry.get("flat") or {}
-    return float(flat["score"]) if flat.get("reset") and flat.get("score") is not None else float(entry["score"])
 
 
 def search_tie(record: dict, f: str, g: str) -> str:
