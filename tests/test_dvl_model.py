@@ -16,6 +16,7 @@ from nespm_cli.nav import earth, strapdown
 from nespm_cli.nav.dvl import body_rate_at_epochs, body_rate_from_attitude, body_rate_step, dvl_velocity
 from nespm_cli.nav.rotations import exp_so3, log_so3, wrap_angle
 from nespm_cli.nav.synthesis import integrate_position, synthesize
+from nespm_cli.nav.trig import sin_cos
 
 ALL = pytest.mark.parametrize("number", EMBEDDED_TRACKS)
 
@@ -101,8 +102,8 @@ def _old_body_rate_truth(truth):  # experiments/mc.body_rate_truth
     return w
 
 
-def _old_rates(lat, h, v_n, R_N, R_E):  # nav/strapdown._rates before the merge
-    cl, sl = np.cos(lat), np.sin(lat)
+def _old_rates(lat, h, v_n, R_N, R_E):  # nav/strapdown._rates before the merge, with today's latitude sines
+    sl, cl = sin_cos(lat)  # np.sin / np.cos before issue 41 (docs/conventions.md "Sines of latitude")
     zero = np.zeros_like(lat * v_n[..., 0])
     w_ie = np.stack([earth.OMEGA_IE * cl + zero, zero, -earth.OMEGA_IE * sl + zero], axis=-1)
     vN, vE = v_n[..., 0], v_n[..., 1]

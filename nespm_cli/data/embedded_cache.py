@@ -18,7 +18,7 @@ import numpy as np
 from nespm_cli.nav.user_cache import cache_base, sources_digest
 
 #: the modules (relative to the package) whose text the embedded tracks' arrays depend on
-SOURCES = ("data/embedded.py", "nav/dvl.py", "nav/earth.py", "nav/rotations.py", "nav/strapdown.py", "nav/products.py")
+SOURCES = ("data/embedded.py", "nav/dvl.py", "nav/earth.py", "nav/trig.py", "nav/rotations.py", "nav/strapdown.py", "nav/products.py")
 ARRAYS = ("t", "pos", "v_n", "euler", "dvl")
 
 

@@ -26,7 +26,7 @@ from nespm_cli.nav.synthesis import ImuTruth, synthesize
 from nespm_cli.nav.user_cache import cache_base, sources_digest
 
 #: the modules (relative to the package) whose text the synthesized arrays depend on
-SOURCES = ("nav/synthesis.py", "nav/earth.py", "nav/rotations.py", "nav/strapdown.py", "nav/products.py")
+SOURCES = ("nav/synthesis.py", "nav/earth.py", "nav/trig.py", "nav/rotations.py", "nav/strapdown.py", "nav/products.py")
 ARRAYS = ("t", "dt", "pos", "v_n", "C_bn", "f_b", "w_ib_b", "epoch_index")
 MAX_BYTES = 256 * 2**20  # per folder: about 35 tracks of 400 s at 100 Hz (7.4 MB each)
 

@@ -6,9 +6,11 @@ machine: a run's 2n+1 points are the columns of one state table (structure of ar
 loops over the points that LLVM vectorises (the row stride is a compile-time constant, so the rows
 provably do not overlap). The operations of each point are those of ``nav.kernels.cycle_t``, in the
 same order (no contraction into fused multiply-adds, no reassociation): the same bits as the scalar
-kernel and the NumPy reference ``strapdown.na_cycle`` (tests/test_points_kernel.py). Only the sines
-and cosines (latitude, the rare rotation above 0.01 rad) run in scalar loops between the vector ones.
-Measured: ~2.4x the scalar kernel per point-cycle (benchmarks/README.md).
+kernel and the NumPy reference ``strapdown.na_cycle`` (tests/test_points_kernel.py). The latitude's
+sine and cosine are :func:`nespm_cli.nav.trig.sin_cos`, arithmetic that vectorises with the rest; only
+the rare rotation above 0.01 rad (Rodrigues' sine and cosine) runs in a scalar loop between the vector
+ones. Measured: ~2.4x the scalar kernel per point-cycle with the C library's latitude sines in a scalar
+loop, 0.71x of that since (benchmarks/README.md).
 """
 from __future__ import annotations
 
@@ -18,7 +20,7 @@ import numpy as np
 
 from nespm_cli.filters.transition_kernel import point_start
 from nespm_cli.nav.earth import A, E2, F, GAMMA_E, K_SOMIGLIANA, OMEGA_IE
-from nespm_cli.nav.kernels import GRAV_M, SERIES2, exp_from, helper, mul_t, njit
+from nespm_cli.nav.kernels import GRAV_M, SERIES2, exp_from, helper, mul_t, njit, sin_cos_t
 
 try:  # numba is a dependency; this module is imported only where it is installed (filters.kernels)
     from numba.core import types
@@ -81,10 +83,9 @@ def rodrigues_fix(T, S):
 def cycles_soa(T, S, F0, F1, F2, W0, W1, W2, dt):
     """One navigation cycle (nav.kernels.cycle_t: the same operations in the same order) of the S points
     whose states are the columns of ``T`` (46, S): rows 0-24 the 25-tuple of cycle_t, 25-30 the points'
-    ``b_a``, ``b_g``, 31-45 scratch (row 37: sin 2·lat, formed with the new latitude's sine and cosine
-    for the next step). The loops without calls run over all :data:`L` lanes (a constant trip count,
-    vectorised by LLVM: the points in SIMD lanes; the lanes past the S points hold copies of point 0),
-    the sines and cosines over the S points in scalar loops between them."""
+    ``b_a``, ``b_g``, 31-43 scratch. The loops without calls run over all :data:`L` lanes (a constant trip
+    count, vectorised by LLVM: the points in SIMD lanes; the lanes past the S points hold copies of
+    point 0), Rodrigues' sines and cosines over the S points in a scalar loop between them."""
     half = 0.5 * dt
     for s in range(L):  # eq 25 and the series coefficients of exp(w_nb* dt/2)
         u0, u1, u2 = T[R19 + s] + T[R22 + s], T[R20 + s] + T[R23 + s], T[R21 + s] + T[R24 + s]
@@ -101,13 +102,13 @@ def cycles_soa(T, S, F0, F1, F2, W0, W1, W2, dt):
         lat, h = T[R0 + s], T[R2 + s]
         v0, v1, v2 = T[R3 + s], T[R4 + s], T[R5 + s]
         C = (T[R6 + s], T[R7 + s], T[R8 + s], T[R9 + s], T[R10 + s], T[R11 + s], T[R12 + s], T[R13 + s], T[R14 + s])
-        sl, R_N = T[R15 + s], T[R17 + s]
+        sl, cl, R_N = T[R15 + s], T[R16 + s], T[R17 + s]
         ie0, ie1, ie2, en0, en1, en2 = T[R19 + s], T[R20 + s], T[R21 + s], T[R22 + s], T[R23 + s], T[R24 + s]
         s00, s01, s02, s10, s11, s12, s20, s21, s22 = mul_t(C, exp_from(T[R31 + s], T[R32 + s], T[R33 + s], T[R34 + s],
                                                                          T[R35 + s], T[R36 + s]))
         s2 = sl * sl
         g0 = GAMMA_E * (1.0 + K_SOMIGLIANA * s2) / math.sqrt(1.0 - E2 * s2)
-        gN = -8.08e-9 * h * T[R37 + s]
+        gN = -8.08e-9 * h * (2.0 * sl * cl)
         gD = g0 * (1.0 - 2.0 / A * (1.0 + F + GRAV_M - 2.0 * F * s2) * h + 3.0 * h * h / A**2)
         f0, f1, f2 = F0 - T[R25 + s], F1 - T[R26 + s], F2 - T[R27 + s]
         a0, a1, a2 = en0 + 2.0 * ie0, en1 + 2.0 * ie1, en2 + 2.0 * ie2
@@ -118,13 +119,9 @@ def cycles_soa(T, S, F0, F1, F2, W0, W1, W2, dt):
         h1 = h + (-n2 + -v2) * half
         T[R38 + s] = lat + (v0 / (R_N + h) + n0 / (R_N + h1)) * half
         T[R39 + s], T[R40 + s], T[R41 + s], T[R42 + s] = h1, n0, n1, n2
-    for s in range(S):
-        T[R44 + s] = math.sin(T[R38 + s])
-        T[R45 + s] = math.cos(T[R38 + s])
-        T[R37 + s] = math.sin(2.0 * T[R38 + s])  # gravity_t's sin(2 lat) of the next step
     for s in range(L):  # earth_t at the new state, eq 32 and the series coefficients of exp(w_nb dt)
         lat1, h1, n0, n1 = T[R38 + s], T[R39 + s], T[R40 + s], T[R41 + s]
-        sl, cl = T[R44 + s], T[R45 + s]
+        sl, cl = sin_cos_t(lat1)
         den = 1.0 - E2 * (sl * sl)
         R_N = A * (1.0 - E2) / (den * math.sqrt(den))
         R_E = A / math.sqrt(den)
@@ -173,8 +170,6 @@ def points_span_soa(pos, v, C, b_a, b_g, X, f, w, dt, j0, j1, pos_o, v_o, C_o, d
                 for i in range(31):
                     T[i * L + s] = T[i * L]
                 T[R46 + s], T[R47 + s], T[R48 + s] = 0.0, 0.0, 0.0
-                T[R44 + s], T[R45 + s] = T[R15], T[R16]
-            T[R37 + s] = math.sin(2.0 * T[s])  # gravity_t's sin(2 lat) of the first step
         for j in range(j0, j1):
             if position:  # eqs 28-30 in deviation form: the velocity difference from point 0 before the step
                 for s in range(L):

@@ -121,7 +121,7 @@ def invariant_top_s(x, M, dt, S):
     """
     lat, h = x[0], x[2]
     R_N, R_E = x[17], x[18]
-    gN, gD = gravity_t(lat, h, x[15])
+    gN, gD = gravity_t(h, x[15], x[16])
     V, W, J, T = S[0], S[1], S[2], S[3]
     skew_s(x[3], x[4], x[5], V)
     skew_s(x[19], x[20], x[21], W)
@@ -180,7 +180,7 @@ def invariant_position_blocks_s(x, S, q0, q1, q2):
     """
     lat, h = x[0], x[2]
     R_N, R_E = x[17], x[18]
-    gN, gD = gravity_t(lat, h, x[15])
+    gN, gD = gravity_t(h, x[15], x[16])
     gamma = gravity_gradient_t(lat, h, x[15])
     V, W, J, T, C, Q = S[10], S[11], S[12], S[13], S[14], S[15]
     skew_s(x[3], x[4], x[5], V)
@@ -382,7 +382,7 @@ def transition_span_invariant_position(pos, v, C, b_a, b_g, f, w, dt, j0, j1, Ph
         lat0, lon0, h0 = origin[r, 0], origin[r, 1], origin[r, 2]
         e0 = earth_t(lat0, h0, 0.0, 0.0)
         kN = e0[2] + h0
-        kE = (e0[3] + h0) * math.cos(lat0)
+        kE = (e0[3] + h0) * e0[1]
         ba0, ba1, ba2, bg0, bg1, bg2 = b_a[r, 0], b_a[r, 1], b_a[r, 2], b_g[r, 0], b_g[r, 1], b_g[r, 2]
         for j in range(j0, j1):
             f0, f1, f2 = f[r, j, 0] - ba0, f[r, j, 1] - ba1, f[r, j, 2] - ba2

@@ -2,12 +2,15 @@
 
 Positions are ``pos = [lat, lon, h]`` (..., 3) with latitude and longitude in rad and
 ``h`` the ellipsoidal height in m, positive up (below the sea surface it is negative).
-Every function is batched over leading axes. Formulas follow Groves, *Principles of
+Every function is batched over leading axes. Sines and cosines of latitude are :func:`.trig.sin_cos`'s
+(the compiled kernels' own, bit for bit). Formulas follow Groves, *Principles of
 GNSS, Inertial, and Multisensor Integrated Navigation Systems*, 2nd ed., ch. 2 and 5.
 """
 from __future__ import annotations
 
 import numpy as np
+
+from nespm_cli.nav.trig import sin_cos
 
 A = 6378137.0  # semi-major axis [m]
 F = 1.0 / 298.257223563  # flattening
@@ -24,7 +27,12 @@ def radii(lat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
     Groves eqs 2.105-2.106. (The papers call them R_n and R_e.)
     """
-    s2 = np.sin(lat) ** 2
+    return radii_of_sin(sin_cos(lat)[0])
+
+
+def radii_of_sin(sl: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`radii` from ``sl`` = sin L (of :func:`.trig.sin_cos`, for a caller that has it)."""
+    s2 = sl ** 2
     den = 1.0 - E2 * s2
     R_N = A * (1.0 - E2) / (den * np.sqrt(den))  # den^1.5; sqrt is correctly rounded everywhere, pow is not
     R_E = A / np.sqrt(den)
@@ -38,11 +46,12 @@ def gravity_n(pos: np.ndarray) -> np.ndarray:
     north component (Groves eqs 2.134 and 2.140).
     """
     lat, h = pos[..., 0], pos[..., 2]
-    s2 = np.sin(lat) ** 2
+    sl, cl = sin_cos(lat)
+    s2 = sl ** 2
     g0 = GAMMA_E * (1.0 + K_SOMIGLIANA * s2) / np.sqrt(1.0 - E2 * s2)
     m = OMEGA_IE**2 * A**2 * B / MU
     g_down = g0 * (1.0 - 2.0 / A * (1.0 + F + m - 2.0 * F * s2) * h + 3.0 * h * h / A**2)
-    g_north = -8.08e-9 * h * np.sin(2.0 * lat)
+    g_north = -8.08e-9 * h * (2.0 * sl * cl)  # sin 2L
     return np.stack([g_north, np.zeros_like(g_down), g_down], axis=-1)
 
 
@@ -50,14 +59,15 @@ def gravity_down_gradient(pos: np.ndarray) -> np.ndarray:
     """``∂g_D/∂D`` [1/s²] (...,) of :func:`gravity_n` at ``pos`` (..., 3): the vertical gravity
     gradient, about +2g/R = 3.1e-6 s⁻² (gravity grows downwards; D = −h). Exact for the model above."""
     lat, h = pos[..., 0], pos[..., 2]
-    s2 = np.sin(lat) ** 2
+    s2 = sin_cos(lat)[0] ** 2
     g0 = GAMMA_E * (1.0 + K_SOMIGLIANA * s2) / np.sqrt(1.0 - E2 * s2)
     m = OMEGA_IE**2 * A**2 * B / MU
     return g0 * (2.0 / A * (1.0 + F + m - 2.0 * F * s2) - 6.0 * h / A**2)
 
 
 def transport_rates(
-    lat: np.ndarray, h: np.ndarray, v_n: np.ndarray, R_N: np.ndarray, R_E: np.ndarray
+    lat: np.ndarray, h: np.ndarray, v_n: np.ndarray, R_N: np.ndarray, R_E: np.ndarray,
+    sc: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Earth rate ``w_ie^n`` and transport rate ``w_en^n`` [rad/s] (..., 3) in NED.
 
@@ -69,9 +79,10 @@ def transport_rates(
     * ``w_en^n = [v_E/(R_E+h), -v_N/(R_N+h), -v_E tan L/(R_E+h)]`` (Groves eq 5.44), with
       ``tan L`` evaluated as ``sin L / cos L``.
 
-    Both outputs have the broadcast batch shape of ``lat`` and ``v_n``.
+    Both outputs have the broadcast batch shape of ``lat`` and ``v_n``. ``sc``: ``sin_cos(lat)`` if the
+    caller has it.
     """
-    cl, sl = np.cos(lat), np.sin(lat)
+    sl, cl = sin_cos(lat) if sc is None else sc
     zero = np.zeros_like(lat * v_n[..., 0])
     w_ie = np.stack([OMEGA_IE * cl + zero, zero, -OMEGA_IE * sl + zero], axis=-1)
     vN, vE = v_n[..., 0], v_n[..., 1]
@@ -112,7 +123,7 @@ def lat_rate(v_N: np.ndarray, h: np.ndarray, R_N: np.ndarray) -> np.ndarray:
 
 def lon_rate(v_E: np.ndarray, lat: np.ndarray, h: np.ndarray, R_E: np.ndarray) -> np.ndarray:
     """``dlambda/dt = v_E / ((R_E + h) cos L)`` [rad/s] (eq 30 with the 1/cos L it omits; Groves eq 5.56)."""
-    return v_E / ((R_E + h) * np.cos(lat))
+    return v_E / ((R_E + h) * sin_cos(lat)[1])
 
 
 def d_w_en_d_v(pos: np.ndarray) -> np.ndarray:
@@ -130,6 +141,6 @@ def ned_offset(pos: np.ndarray, pos0: np.ndarray) -> np.ndarray:
     """Local NED offset [m] (..., 3) of ``pos`` from ``pos0`` (small-distance approximation)."""
     R_N, R_E = radii(pos0[..., 0])
     dN = (pos[..., 0] - pos0[..., 0]) * (R_N + pos0[..., 2])
-    dE = (pos[..., 1] - pos0[..., 1]) * (R_E + pos0[..., 2]) * np.cos(pos0[..., 0])
+    dE = (pos[..., 1] - pos0[..., 1]) * (R_E + pos0[..., 2]) * sin_cos(pos0[..., 0])[1]
     dD = -(pos[..., 2] - pos0[..., 2])
     return np.stack([dN, dE, dD], axis=-1)

@@ -40,6 +40,7 @@ from typing import Iterator
 import numpy as np
 
 from nespm_cli.nav.earth import A, B, E2, F, GAMMA_E, K_SOMIGLIANA, MU, OMEGA_IE
+from nespm_cli.nav.trig import sin_cos_core
 from nespm_cli.nav.user_cache import cache_base, sources_digest
 
 try:  # numba is a dependency; without it the filters run the NumPy reference (filters.kernels)
@@ -57,7 +58,7 @@ class KernelCacheWarning(UserWarning):
 
 #: the files (relative to the package) whose text the compiled kernels depend on: their code, what
 #: they inline, the earth constants they freeze. A new kernel module must be listed here.
-KERNEL_SOURCES = ("nav/earth.py", "nav/kernels.py", "filters/transition_kernel.py", "filters/transition_kernel_12.py",
+KERNEL_SOURCES = ("nav/earth.py", "nav/trig.py", "nav/kernels.py", "filters/transition_kernel.py", "filters/transition_kernel_12.py",
                   "filters/points_kernel.py")
 #: the kernels (filters.kernels names) this process has already used: no cache check on later calls
 READY: set[str] = set()
@@ -266,6 +267,10 @@ def helper(f=None, *, python: bool = False):
     return njit(**opts) if f is None else njit(**opts)(f)
 
 
+#: ``(sin x, cos x)`` of a latitude, compiled from :func:`nespm_cli.nav.trig.sin_cos_core` (the same bits; arithmetic
+#: only, so it vectorises in a loop over points)
+sin_cos_t = helper(python=True)(sin_cos_core)
+
 SERIES2 = 1e-4  # rotations._SERIES2: squared angle below which the exp series is used
 GRAV_M = OMEGA_IE**2 * A**2 * B / MU  # gravity_n's m
 
@@ -313,7 +318,7 @@ def earth_t(lat, h, vN, vE):
     starts (eq 25): :func:`cycle_t` hands them on instead of computing them twice (the
     reference computes them twice, from the same inputs, so to the same bits).
     """
-    sl, cl = math.sin(lat), math.cos(lat)
+    sl, cl = sin_cos_t(lat)
     den = 1.0 - E2 * (sl * sl)
     R_N = A * (1.0 - E2) / (den * math.sqrt(den))
     R_E = A / math.sqrt(den)
@@ -322,11 +327,11 @@ def earth_t(lat, h, vN, vE):
 
 
 @helper
-def gravity_t(lat, h, sl):
-    """``(g_N, g_D)`` [m/s²] of earth.gravity_n at latitude ``lat`` [rad] (``sl = sin lat``), height ``h`` [m]."""
+def gravity_t(h, sl, cl):
+    """``(g_N, g_D)`` [m/s²] of earth.gravity_n at height ``h`` [m] and latitude ``L`` (``sl``, ``cl`` = sin L, cos L)."""
     s2 = sl * sl
     g0 = GAMMA_E * (1.0 + K_SOMIGLIANA * s2) / math.sqrt(1.0 - E2 * s2)
-    gN = -8.08e-9 * h * math.sin(2.0 * lat)
+    gN = -8.08e-9 * h * (2.0 * sl * cl)
     gD = g0 * (1.0 - 2.0 / A * (1.0 + F + GRAV_M - 2.0 * F * s2) * h + 3.0 * h * h / A**2)
     return gN, gD
 
@@ -352,7 +357,7 @@ def cycle_t(x, f0, f1, f2, w0, w1, w2, dt):
     p2 = (w2 - ((c02 * u0 + c12 * u1) + c22 * u2)) * half
     C = (c00, c01, c02, c10, c11, c12, c20, c21, c22)
     s00, s01, s02, s10, s11, s12, s20, s21, s22 = mul_t(C, exp_t(p0, p1, p2))
-    gN, gD = gravity_t(lat, h, sl)
+    gN, gD = gravity_t(h, sl, cl)
     # eqs 26-27: v_dot = C* f + g - (w_en + 2 w_ie) x v
     a0, a1, a2 = en0 + 2.0 * ie0, en1 + 2.0 * ie1, en2 + 2.0 * ie2
     vd0 = (((s00 * f0 + s01 * f1) + s02 * f2) + gN) - (a1 * v2 - a2 * v1)

@@ -21,6 +21,7 @@ import numpy as np
 from nespm_cli.errors import NespmError
 from nespm_cli.nav.earth import ned_offset, radii
 from nespm_cli.nav.rotations import attitude_minus, attitude_plus
+from nespm_cli.nav.trig import sin_cos
 
 #: block -> (size, unit, component labels); the order in which blocks sit in the state vector
 BLOCKS = {
@@ -142,7 +143,7 @@ def position_plus(pos: np.ndarray, dp: np.ndarray) -> np.ndarray:
     (the inverse of :func:`nespm_cli.nav.earth.ned_offset` about ``pos``)."""
     R_N, R_E = radii(pos[..., 0])
     lat = pos[..., 0] + dp[..., 0] / (R_N + pos[..., 2])
-    lon = pos[..., 1] + dp[..., 1] / ((R_E + pos[..., 2]) * np.cos(pos[..., 0]))
+    lon = pos[..., 1] + dp[..., 1] / ((R_E + pos[..., 2]) * sin_cos(pos[..., 0])[1])
     return np.stack([lat, lon, pos[..., 2] - dp[..., 2]], axis=-1)
 
 

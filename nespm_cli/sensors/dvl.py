@@ -20,10 +20,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from nespm_cli.nav.dvl import dvl_velocity
-from nespm_cli.nav.earth import radii, transport_rates
+from nespm_cli.nav.earth import radii_of_sin, transport_rates
 from nespm_cli.nav.rotations import exp_so3_minus_identity, skew, so3_left_jacobian
 from nespm_cli.nav.state import LAYOUT_12, NavState, StateLayout
 from nespm_cli.nav.strapdown import cross
+from nespm_cli.nav.trig import sin_cos
 from nespm_cli.sensors.measurement import Measurement
 from nespm_cli.sensors.source import Context, Sensor, SensorOptions, Truth
 
@@ -42,8 +43,9 @@ def source_label(source: str, data_dir) -> str:
 
 def body_rate(nav: NavState, w_ib_comp: np.ndarray) -> np.ndarray:
     """Body rate relative to NED (B, 3) [rad/s] from the compensated gyro output ``w_ib_comp`` (B, 3)."""
-    R_N, R_E = radii(nav.pos[..., 0])
-    w_ie, w_en = transport_rates(nav.pos[..., 0], nav.pos[..., 2], nav.v_n, R_N, R_E)
+    sc = sin_cos(nav.pos[..., 0])
+    R_N, R_E = radii_of_sin(sc[0])
+    w_ie, w_en = transport_rates(nav.pos[..., 0], nav.pos[..., 2], nav.v_n, R_N, R_E, sc)
     return w_ib_comp - (np.swapaxes(nav.C_bn, -1, -2) @ (w_ie + w_en)[..., None])[..., 0]
 
 
