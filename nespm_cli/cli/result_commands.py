@@ -36,7 +36,8 @@ def report(
         from nespm_cli.reports.dispatch import write_report
 
         path = write_report(out_dir, baseline, n_boot=n_boot, practical_pct=practical, beside=tuple(beside or ()),
-                            all_runs=all_runs, consistent_share=consistent_share)
+                            all_runs=all_runs, consistent_share=consistent_share,
+                            figure_jobs=None)  # a second process draws half the tracks' figures where there are 2 cores
     text = path.read_text(encoding="utf-8")
     if print_all:
         typer.echo(text)

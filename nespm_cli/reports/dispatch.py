@@ -66,7 +66,7 @@ def warn_if_unfinished(out_dir: Path) -> None:
 
 def write_report(out_dir: Path, reference: str | None = None, n_boot: int = 2000,
                  practical_pct: float = PRACTICAL_PCT, beside=(), all_runs: str = "median",
-                 consistent_share: float | None = None) -> Path:
+                 consistent_share: float | None = None, figure_jobs: int | None = 1) -> Path:
     """Write ``out_dir/report.md`` and its figures; return the report path.
 
     ``reference`` is the mc report's reference filter and the sweep report's baseline (it does
@@ -76,7 +76,9 @@ def write_report(out_dir: Path, reference: str | None = None, n_boot: int = 2000
     ``median`` (default), where a run was lost, the comparison over every run with lost runs ranked
     worst (:mod:`nespm_cli.reports.all_runs`); ``none`` leaves it out. ``consistent_share``: the least
     share of epochs inside the bounds for a block or sensor to be consistent (an mc folder's report;
-    default :data:`~nespm_cli.reports.block_consistency.CONSISTENT_SHARE`).
+    default :data:`~nespm_cli.reports.block_consistency.CONSISTENT_SHARE`). ``figure_jobs``: processes
+    drawing an mc folder's figures (default 1: here; None: 2 where the machine has two cores and the folder two
+    tracks or more, what ``nespm report`` does: :mod:`nespm_cli.reports.figure_worker`); the same files.
     """
     if all_runs not in ALL_RUNS:
         raise NespmError(f"--all-runs: choose {' or '.join(ALL_RUNS)}, got {all_runs!r}")
@@ -109,4 +111,4 @@ def write_report(out_dir: Path, reference: str | None = None, n_boot: int = 2000
             raise NespmError(f"--beside {b}: not a folder written by 'nespm mc'")
     share = {} if consistent_share is None else {"consistent_share": consistent_share}
     return write_mc_report(out_dir, reference, n_boot=n_boot, practical_pct=practical_pct, beside=beside,
-                           all_runs=all_runs, **share)
+                           all_runs=all_runs, figure_jobs=figure_jobs, **share)

@@ -17,6 +17,7 @@ from nespm_cli.data.atomic import write_text_atomic
 from nespm_cli.experiments.progress import phase
 from nespm_cli.reports.block_consistency import CONSISTENT_SHARE, block_consistency, check_share
 from nespm_cli.reports.comparisons import compare_filters
+from nespm_cli.reports.figure_worker import FigureWorker, figure_processes
 from nespm_cli.reports.mc_figures import figure_notes, plot_track_figures
 from nespm_cli.reports.efficiency_runs import needs_series, series_files
 from nespm_cli.reports.pcrb import pcrb_md
@@ -54,7 +55,7 @@ __all__ = [
 
 def write_mc_report(out_dir: Path, reference: str | None = None, n_boot: int = 2000,
                     practical_pct: float = PRACTICAL_PCT, beside: Sequence[Path] = (), all_runs: str = "median",
-                    consistent_share: float = CONSISTENT_SHARE) -> Path:
+                    consistent_share: float = CONSISTENT_SHARE, figure_jobs: int | None = 1) -> Path:
     """Write ``out_dir/report.md`` and ``out_dir/figures/*.png`` of a Monte Carlo folder; return the
     report path.
 
@@ -64,7 +65,10 @@ def write_mc_report(out_dir: Path, reference: str | None = None, n_boot: int = 2
     verdict calls practically meaningful. ``beside``: other Monte Carlo folders whose numbers
     are set beside this one's (:func:`beside_md`), e.g. the synthetic-IMU run of a recorded one.
     ``consistent_share``: the least share of epochs inside the bounds for a block to be consistent
-    (:mod:`~nespm_cli.reports.block_consistency`).
+    (:mod:`~nespm_cli.reports.block_consistency`). ``figure_jobs``: processes drawing the figures, 1 (default:
+    here) or 2 (the later half of the tracks in a second process), None: 2 where the machine has two cores and
+    the folder two tracks or more (:func:`~nespm_cli.reports.figure_worker.figure_processes`; ``nespm report``);
+    the same files either way.
     """
     check_share(consistent_share)
     check_practical_pct(practical_pct)
@@ -78,12 +82,23 @@ def write_mc_report(out_dir: Path, reference: str | None = None, n_boot: int = 2
     beside_text = (beside_md(metrics, folder_label(out_dir, manifest), others, scenario_of(metrics, manifest))
                    if others else "")
     seed = 0
+    figures: list[Path] = []
+    drawing = epochs is not None and not epochs.empty
+    fig_args = (epochs, metrics, out_dir / "figures", scenario_of(metrics, manifest), manifest)
+    tracks = sorted(epochs["track"].unique()) if drawing else []
+    mine, theirs, worker = None, [], None
+    if drawing and len(tracks) > 1 and figure_processes(figure_jobs, len(tracks)) > 1:  # the later tracks beside
+        mine, theirs = tracks[:(len(tracks) + 1) // 2], tracks[(len(tracks) + 1) // 2:]
+        worker = FigureWorker(plot_track_figures, *fig_args, theirs)
     phase(f"tables and paired bootstrap intervals ({n_boot} resamples)")
     table = filter_table(metrics, reference, n_boot=n_boot, seed=seed)
     tt = track_table(metrics)
-    figures: list[Path] = []
-    if epochs is not None and not epochs.empty:
-        figures = plot_track_figures(epochs, metrics, out_dir / "figures", scenario_of(metrics, manifest), manifest)
+    if drawing:
+        figures = plot_track_figures(*fig_args, mine)
+    if worker is not None:
+        phase("figures: waiting for the second process")
+        drawn = worker.result()
+        figures += drawn if drawn is not None else plot_track_figures(*fig_args, theirs)
     phase("verdict and report.md")
     text = render_report(metrics, manifest, table, tt, figures, out_dir, n_boot, seed,
                          practical_pct=practical_pct, beside=beside_text, all_runs=all_runs,

@@ -106,14 +106,16 @@ def _track_figure(
 
 def plot_track_figures(
     epochs: pd.DataFrame, metrics: pd.DataFrame, fig_dir: Path, scenario: str | None = None,
-    manifest: dict | None = None,
+    manifest: dict | None = None, tracks: Sequence[int] | None = None,
 ) -> list[Path]:
     """Write the PNGs of every track into ``fig_dir``; return their paths, track by track in the order
     of :data:`FIGURE_KINDS`: ``axes_<filter>_track<N>.png`` (with the per-axis columns),
     ``anees_track<N>.png`` (with the per-block NEES), ``anis_track<N>.png`` (with an ANIS; the sensors'
     measurement sizes from ``manifest``), ``hpe_distance_track<N>.png`` and ``final_track<N>.png`` (with
     the horizontal-position columns), ``vel_track<N>.png``, ``att_track<N>.png``, ``hpe_track<N>.png``
-    (with ``hpe_mean``) and ``path_track<N>.png``.
+    (with ``hpe_mean``) and ``path_track<N>.png``. ``tracks``: only these (the filters' order, colours
+    and everything else still taken from all of ``epochs`` and ``metrics``, so a track's files do not
+    depend on which others are drawn with it).
     """
     use_agg()
     fig_dir.mkdir(parents=True, exist_ok=True)
@@ -124,6 +126,8 @@ def plot_track_figures(
     dims = sensor_dims(manifest or {}, anis_sensors(epochs))
     paths: list[Path] = []
     for track in sorted(pd.unique(epochs["track"])):
+        if tracks is not None and track not in tracks:
+            continue
         ep = epochs[epochs["track"] == track]
         present = [f for f in filters if (ep["filter"] == f).any()]
         tail = f"track {track}, {int(runs.get(track, 0))} runs, scenario {scenario or DASH}"
