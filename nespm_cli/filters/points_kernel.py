@@ -10,7 +10,7 @@ kernel and the NumPy reference ``strapdown.na_cycle`` (tests/test_points_kernel.
 sine and cosine are :func:`nespm_cli.nav.trig.sin_cos`, arithmetic that vectorises with the rest; only
 the rare rotation above 0.01 rad (Rodrigues' sine and cosine) runs in a scalar loop between the vector
 ones. Measured: ~2.4x the scalar kernel per point-cycle with the C library's latitude sines in a scalar
-loop, 0.71x of that since (benchmarks/README.md).
+loop, 0.73x of that since (benchmarks/README.md).
 """
 from __future__ import annotations
 
