@@ -14,7 +14,8 @@ from nespm_cli.reports.mc import write_mc_report
 
 
 def test_processes_given_or_by_cores_and_tracks(monkeypatch):
-    assert figure_processes(1, 5) == 1 and figure_processes(3, 1) == 3 and figure_processes(0, 4) == 1
+    assert figure_processes(1, 5) == 1 and figure_processes(0, 4) == 1
+    assert figure_processes(2, 2) == 2 and figure_processes(3, 5) == 2 and figure_processes(3, 1) == 1
     monkeypatch.setattr(figure_worker.os, "cpu_count", lambda: 2)
     assert figure_processes(None, 2) == 2 and figure_processes(None, 1) == 1
     monkeypatch.setattr(figure_worker.os, "cpu_count", lambda: 1)

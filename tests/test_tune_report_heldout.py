@@ -199,7 +199,8 @@ def test_a_tie_in_training_is_not_resolved_by_the_search(tuned, tmp_path):
     """One search per filter: where the two tuned filters' training scores lie within the searches'
     resolution (the tolerance, or what a search stopped short by), the comparison row says "not resolved by
     the search" with both figures; where they lie further apart, it does not."""
-    from nespm_cli.reports.tune.searches import resolution, search_tie, training_score
+    from nespm_cli.reports.tune.searches import resolution, search_tie
+    from nespm_cli.tuning.flat import training_score
 
     shutil.copytree(tuned, tmp_path / "t")
     tuned = tmp_path / "t"

@@ -18,11 +18,11 @@ import threading
 from typing import Any, Callable
 
 def figure_processes(jobs: int | None, tracks: int) -> int:
-    """How many processes draw the figures of ``tracks`` tracks: ``jobs`` if given (at least 1), else 2
-    where the machine has two cores or more and there are two tracks or more, else 1."""
-    if jobs is not None:
-        return max(1, int(jobs))
-    return 2 if tracks >= 2 and (os.cpu_count() or 1) >= 2 else 1
+    """How many processes draw the figures of ``tracks`` tracks, 1 or 2 (this one and a :class:`FigureWorker`; a
+    track is the unit of work, so 1 for a single track): ``jobs`` if given, else 2 where the machine has two
+    cores or more."""
+    wanted = int(jobs) if jobs is not None else (os.cpu_count() or 1)
+    return 2 if wanted >= 2 and tracks >= 2 else 1
 
 
 class FigureWorker:

@@ -87,7 +87,7 @@ def write_mc_report(out_dir: Path, reference: str | None = None, n_boot: int = 2
     fig_args = (epochs, metrics, out_dir / "figures", scenario_of(metrics, manifest), manifest)
     tracks = sorted(epochs["track"].unique()) if drawing else []
     mine, theirs, worker = None, [], None
-    if drawing and len(tracks) > 1 and figure_processes(figure_jobs, len(tracks)) > 1:  # the later tracks beside
+    if figure_processes(figure_jobs, len(tracks)) > 1:  # the later half of the tracks in a second process
         mine, theirs = tracks[:(len(tracks) + 1) // 2], tracks[(len(tracks) + 1) // 2:]
         worker = FigureWorker(plot_track_figures, *fig_args, theirs)
     phase(f"tables and paired bootstrap intervals ({n_boot} resamples)")

@@ -4,7 +4,7 @@
 * ``study.journal`` (:data:`JOURNAL_FILE`): Optuna's journal storage, one JSON operation per line,
   appended under a lock file and fsync'd; what ``nespm tune`` writes.
 * ``study.db`` (:data:`SQLITE_FILE`): the SQLite database ``nespm tune`` wrote before the journal
-  (7d-old folders and earlier): still read and continued where it is the folder's only study file.
+  (folders tuned before 2026-12-07): still read and continued where it is the folder's only study file.
 
 A file that cannot be a study (empty, another file, damaged or cut short) is one line naming it
 (:func:`check_study_file`), never a traceback and never an empty study.

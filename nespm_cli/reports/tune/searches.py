@@ -35,7 +35,7 @@ from nespm_cli.reports.markdown import fmt, fmt_imprv, fmt_pct, md_table
 from nespm_cli.reports.results import load_results, sensor_dims
 from nespm_cli.reports.stats import (ci_marks, improvement, lost_by_any, over_tracks, percentile_ci, posterior_view,
                                      resample_counts, track_rng, track_value)
-from nespm_cli.tuning.flat import training_score  # noqa: F401  (re-exported: the report's rule)
+from nespm_cli.tuning.flat import training_score
 from nespm_cli.tuning.heldout import tuned_dir
 from nespm_cli.tuning.objective import consistency
 from nespm_cli.tuning.refine import TOLERANCE, verdict
@@ -298,4 +298,4 @@ def searches_section(out_dir: Path, record: dict, n_boot: int) -> list[str]:
 
 __all__ = ["ACCURACY", "accuracy_key", "compare_searches", "consistency_scores", "convergence_of", "convergence_text",
            "convergence_word", "filter_values", "load_searches", "resolution", "search_errors", "search_tie",
-           "pick_sentence", "searches_section", "stopped_short", "training_score"]
+           "pick_sentence", "searches_section", "stopped_short"]
