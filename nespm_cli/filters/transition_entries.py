@@ -6,24 +6,23 @@ model.system_matrix's F, ukf-nespm.md's error model), shared by the unrolled Φ 
 """
 from __future__ import annotations
 
-import math
-
 from nespm_cli.nav.kernels import helper
 
 
 @helper
-def va_entries_t(x, f0, f1, f2, h):
+def va_entries_t(x, tan_lat, f0, f1, f2, h):
     """The non-structural entries of ``M = I + F dt`` on the velocity (rows 0-2) and attitude (rows 3-5)
-    rows, columns ``[dv, dpsi]``, at the solution tuple ``x`` (``nav.kernels.load_t``) with the
+    rows, columns ``[dv, dpsi]``, at the solution tuple ``x`` (``nav.kernels.load_t``) with ``tan_lat`` =
+    ``math.tan(x[0])`` (the caller's: a kernel with its lanes in SIMD takes it in a scalar loop), the
     bias-compensated specific force ``f0, f1, f2`` [m/s²] and the step ``h`` [s]:
     ``(m00, m01, m02, m10, m11, m12, m20, m21, n04, n05, n13, n15, n23, n24, q31, q40, q51, t34, t35, t43,
     t45, t53, t54)``: ``m`` the velocity block (``m22 = 1 + 0 dt`` is the caller's), ``n`` the velocity rows'
     attitude columns (``[f^n ×] dt``), ``q`` the attitude rows' velocity columns (``-J dt``), ``t`` the
     attitude block's off-diagonal (``-[ω_in ×] dt``)."""
-    lat, ht = x[0], x[2]
+    ht = x[2]
     J01 = 1.0 / (x[18] + ht)
     J10 = -1.0 / (x[17] + ht)
-    J21 = -math.tan(lat) / (x[18] + ht)
+    J21 = -tan_lat / (x[18] + ht)
     u0, u1, u2 = 2.0 * x[19] + x[22], 2.0 * x[20] + x[23], 2.0 * x[21] + x[24]
     a01, a02, a12 = u2, -u1, u0
     v0, v1, v2 = x[3], x[4], x[5]

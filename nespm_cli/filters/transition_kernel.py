@@ -333,7 +333,7 @@ def transition_span_position(pos, v, C, b_a, b_g, f, w, dt, j0, j1, Phi):
             f0, f1, f2 = f[r, j, 0] - ba0, f[r, j, 1] - ba1, f[r, j, 2] - ba2
             h = dt[j]
             (m00, m01, m02, m10, m11, m12, m20, m21, n04, n05, n13, n15, n23, n24, q31, q40, q51,
-             t34, t35, t43, t45, t53, t54) = va_entries_t(x, f0, f1, f2, h)
+             t34, t35, t43, t45, t53, t54) = va_entries_t(x, math.tan(x[0]), f0, f1, f2, h)
             g = gravity_gradient_t(x[0], x[2], x[15]) * h
             for i in range(3):
                 for k in range(3):
