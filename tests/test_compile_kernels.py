@@ -52,23 +52,27 @@ def _same_bits(a: np.ndarray, b: np.ndarray) -> bool:
 @needs_numba
 @pytest.mark.parametrize("seed", [1, 2])
 @pytest.mark.parametrize("span", [(0, 1), (0, 2), (5, 5), (3, 120)])
-def test_12_state_kernel_is_the_generic_loop_to_the_bit(seed, span):
-    """transition_span_12 against transition_span_common with the 12-state offsets: Φ and the propagated
-    solution, on spans of 1 and 2 steps (where Φ still holds exact zeros, whose sign is compared), an empty
-    span, and long spans through a pole, a fast rotation, a NaN and an infinite IMU sample."""
+@pytest.mark.parametrize("kernel,R", [("12", 10), ("lanes", 10), ("lanes", 37)])
+def test_12_state_kernel_is_the_generic_loop_to_the_bit(seed, span, kernel, R):
+    """transition_span_12 (run by run) and transition_lanes_12 (the runs in SIMD lanes: one block with
+    spare lanes, and two blocks, the second partly filled) against transition_span_common with the 12-state
+    offsets: Φ and the propagated solution, on spans of 1 and 2 steps (where Φ still holds exact zeros, whose
+    sign is compared), an empty span, and long spans through a pole, a fast rotation, a NaN and an infinite
+    IMU sample."""
     from nespm_cli.filters import transition_kernel as tk
     from nespm_cli.filters.transition_kernel_12 import transition_span_12
+    from nespm_cli.filters.transition_lanes_12 import transition_lanes_12
 
-    pos, v, C, b_a, b_g, f, w, dt = _inputs(seed)
+    pos, v, C, b_a, b_g, f, w, dt = _inputs(seed, R)
     j0, j1 = span
     out = []
-    for kernel in ("generic", "12"):
+    for name in ("generic", kernel):
         state = [pos.copy(), v.copy(), C.copy()]
         Phi = np.full((pos.shape[0], 12, 12), 7.0)
-        if kernel == "generic":
+        if name == "generic":
             tk.transition_span_common(*state, b_a, b_g, f, w, dt, j0, j1, Phi, LAYOUT_12.offsets())
         else:
-            transition_span_12(*state, b_a, b_g, f, w, dt, j0, j1, Phi)
+            (transition_span_12 if name == "12" else transition_lanes_12)(*state, b_a, b_g, f, w, dt, j0, j1, Phi)
         out.append((Phi, *state))
     for a, b in zip(*out):
         assert _same_bits(a, b)
@@ -81,16 +85,19 @@ def test_12_state_kernel_is_the_generic_loop_to_the_bit(seed, span):
 
 @needs_numba
 def test_kernels_transition_runs_the_12_state_kernel_for_the_papers_layout():
-    """kernels.transition picks the unrolled kernel for the 12 states ('transition') and the generic loop for
-    another layout ('transition-generic', warmed on one), with the same numbers as the generic loop."""
+    """kernels.transition picks the unrolled kernel for the 12 states ('transition'; from LANES_MIN runs the
+    runs in lanes, 'transition-lanes') and the generic loop for another layout ('transition-generic', warmed on
+    one), with the same numbers as the generic loop."""
     assert kernels.transition_kernel(False, LAYOUT_12) == "transition"
+    assert kernels.transition_kernel(False, LAYOUT_12, kernels.LANES_MIN - 1) == "transition"
+    assert kernels.transition_kernel(False, LAYOUT_12, kernels.LANES_MIN) == "transition-lanes"
     other = StateLayout(("vel", "att", "bg"))
-    assert kernels.transition_kernel(False, other) == "transition-generic"
+    assert kernels.transition_kernel(False, other) == kernels.transition_kernel(False, other, 100) == "transition-generic"
     assert kernels_for(["ekf"], other) == ("transition-generic",)
     assert kernels.transition_kernel(False, kernels.GENERIC_LAYOUT) == "transition-generic"
     from nespm_cli.filters import transition_kernel as tk
 
-    pos, v, C, b_a, b_g, f, w, dt = _inputs(3)
+    pos, v, C, b_a, b_g, f, w, dt = _inputs(3)  # 10 runs: the lanes
     a = [pos.copy(), v.copy(), C.copy()]
     b = [pos.copy(), v.copy(), C.copy()]
     Phi = kernels.transition(*a, b_a, b_g, f, w, dt, 0, 50)
@@ -110,13 +117,15 @@ def test_no_numba_level_inlining_in_the_kernel_sources():
 
 
 @needs_numba
-def test_cold_mc_compiles_its_two_kernels_once_each(tmp_path):
+@pytest.mark.parametrize("runs", [1, kernels.LANES_MIN])
+def test_cold_mc_compiles_its_kernels_once_each(tmp_path, runs):
     """A cold `mc` of the default filters (ekf, ukf, ukf-nespm, and the PCRB) compiles the 12-state Φ kernel
-    and the points kernel and nothing else of the top-level kernels, and every compiled function (kernels
-    and helpers) for exactly one signature: the cache folder holds one machine-code file per function."""
+    (from LANES_MIN runs in a chunk also its lanes, the PCRB keeping the run-by-run one) and the points
+    kernel and nothing else of the top-level kernels, and every compiled function (kernels and helpers)
+    for exactly one signature: the cache folder holds one machine-code file per function."""
     cache = tmp_path / "cache"
     env = {**env_without_data_dir(), "NESPM_CACHE_DIR": str(cache), "NESPM_KERNELS": "auto"}
-    argv = [*console_script(), "mc", "--tracks", "5", "--runs", "1", "--window", "0:20", "--jobs", "1",
+    argv = [*console_script(), "mc", "--tracks", "5", "--runs", str(runs), "--window", "0:20", "--jobs", "1",
             "--no-progress", "--out", str(tmp_path / "out")]
     run = subprocess.run(argv, env=env, capture_output=True, text=True)
     assert run.returncode == 0, run.stderr
@@ -124,5 +133,6 @@ def test_cold_mc_compiles_its_two_kernels_once_each(tmp_path):
     per_function = collections.Counter(re.sub(r"-\d+\.py\d+\.\d+\.nbc$", "", name) for name in data)
     assert per_function, data
     assert all(n == 1 for n in per_function.values()), per_function
-    kernels_compiled = {name.split(".")[1] for name in per_function if re.search(r"_span\w*$", name)}
-    assert kernels_compiled == {"transition_span_12", "points_span_soa"}, per_function
+    kernels_compiled = {name.split(".")[1] for name in per_function if re.search(r"\.(transition|points)_(span|lanes)\w*$", name)}
+    lanes = {"transition_lanes_12"} if runs >= kernels.LANES_MIN else set()
+    assert kernels_compiled == {"transition_span_12", "points_span_soa", *lanes}, per_function

@@ -110,6 +110,12 @@ def test_kernels_per_filter_and_layout():
     assert kernels_for(["iekf", "ckf-nespm"], LAYOUT_15) == (
         "transition-position", "transition-invariant-position", "points")
     assert kernels_for(["no-such-filter"]) == ("transition",)
+    # batches from LANES_MIN runs: the 12-state Φ with the runs in lanes, beside the PCRB's run by run
+    assert kernels_for(["ekf", "ukf-nespm"], runs=kernels.LANES_MIN) == ("transition", "transition-lanes", "points")
+    assert kernels_for(["ekf"], runs=kernels.LANES_MIN - 1) == ("transition",)
+    assert kernels_for(["ukf-nespm", "ins"], runs=100) == ("strapdown", "transition", "points")  # no Φ of theirs
+    assert kernels_for(["ekf"], LAYOUT_15, runs=100) == ("transition-position",)
+    assert kernels_for(["ekf"], runs=None) == ("transition", "transition-lanes")  # nespm warm-up: any batch
     with pytest.raises(Exception, match="unknown kernel"):
         kernels.warm_up(["no-such-kernel"])
 

@@ -32,7 +32,7 @@ def warm_up_cmd(
         if unknown or not chosen:
             raise NespmError(f"--filters: unknown filter {', '.join(unknown) or repr(filters_)}; choose from "
                              f"{', '.join(filter_names())}")
-        names = kernels_for(chosen, parse_layout(state))
+        names = kernels_for(chosen, parse_layout(state), runs=None)
     from nespm_cli.nav.kernels import cache_folder
 
     where = cache_folder()

@@ -107,10 +107,16 @@ def _f64(a: np.ndarray) -> np.ndarray:
 
 #: the compiled kernels by name (what :func:`warm_up`, :func:`kernels_cached` and the ready marks in
 #: the cache folder speak of): the free-inertial loop, Φ of the common error (the papers' 12 states
-#: unrolled; the 15 states with F's zeros skipped; any other layout, a plugin's, in the generic loop),
-#: Φ_inv of the iekf (12 / 15 states), the sigma/cubature points
-KERNELS = ("strapdown", "transition", "transition-position", "transition-generic", "transition-invariant",
-           "transition-invariant-position", "points")
+#: unrolled, run by run, or from :data:`LANES_MIN` runs in SIMD lanes; the 15 states with F's zeros
+#: skipped; any other layout, a plugin's, in the generic loop), Φ_inv of the iekf (12 / 15 states), the
+#: sigma/cubature points
+KERNELS = ("strapdown", "transition", "transition-lanes", "transition-position", "transition-generic",
+           "transition-invariant", "transition-invariant-position", "points")
+#: runs from which the papers' 12-state Φ runs with the runs in SIMD lanes ("transition-lanes",
+#: filters/transition_lanes_12.py), fewer run by run ("transition"): a block of lanes costs 32 runs'
+#: cycles whatever it holds; at 8 runs the two cost the same per run-step, from 24 the lanes about 0.3x
+#: (benchmarks/README.md). The same bits either way, so no number depends on the chunk size.
+LANES_MIN = 8
 #: a layout that only the generic Φ loop runs (what warm_up compiles "transition-generic" on)
 GENERIC_LAYOUT = StateLayout(("pos", "vel", "att"))
 
@@ -136,12 +142,14 @@ def strapdown(pos, v_n, C_bn, b_a, b_g, f, w, dt, j0: int, j1: int) -> None:
     run_kernel("strapdown", nk.strapdown_span, pos, v_n, C_bn, b_a, b_g, _f64(f), _f64(w), _f64(dt), j0, j1)
 
 
-def transition_kernel(invariant: bool, layout: StateLayout) -> str:
-    """The name (:data:`KERNELS`) of the kernel :func:`transition` runs for ``invariant`` and ``layout``."""
+def transition_kernel(invariant: bool, layout: StateLayout, runs: int = 1) -> str:
+    """The name (:data:`KERNELS`) of the kernel :func:`transition` runs for ``invariant``, ``layout`` and
+    a batch of ``runs`` runs."""
     if invariant:
         return "transition-invariant-position" if layout.has("pos") else "transition-invariant"
-    return ("transition" if layout.blocks == LAYOUT_12.blocks else
-            "transition-position" if layout.blocks == LAYOUT_15.blocks else "transition-generic")
+    if layout.blocks == LAYOUT_12.blocks:
+        return "transition-lanes" if runs >= LANES_MIN else "transition"
+    return "transition-position" if layout.blocks == LAYOUT_15.blocks else "transition-generic"
 
 
 def transition(pos, v_n, C_bn, b_a, b_g, f, w, dt, j0: int, j1: int, invariant: bool = False,
@@ -154,7 +162,7 @@ def transition(pos, v_n, C_bn, b_a, b_g, f, w, dt, j0: int, j1: int, invariant: 
     from nespm_cli.filters import transition_kernel as tk
 
     Phi = np.empty((pos.shape[0], layout.n, layout.n))
-    name, off = transition_kernel(invariant, layout), layout.offsets()
+    name, off = transition_kernel(invariant, layout, pos.shape[0]), layout.offsets()
     args = (pos, v_n, C_bn, b_a, b_g, _f64(f), _f64(w), _f64(dt), j0, j1, Phi)
     if name == "transition-invariant-position":
         if origin is None:
@@ -168,6 +176,10 @@ def transition(pos, v_n, C_bn, b_a, b_g, f, w, dt, j0: int, j1: int, invariant: 
         from nespm_cli.filters.transition_kernel_12 import transition_span_12
 
         run_kernel(name, transition_span_12, *args)
+    elif name == "transition-lanes":  # ... and from LANES_MIN runs, the runs in SIMD lanes (the same bits)
+        from nespm_cli.filters.transition_lanes_12 import transition_lanes_12
+
+        run_kernel(name, transition_lanes_12, *args)
     else:
         run_kernel(name, tk.transition_span_common, *args, off)
     return Phi
@@ -218,6 +230,10 @@ def warm_up(names=None) -> float:
             strapdown(pos.copy(), v.copy(), C.copy(), b, b, f, w, dt, 0, M)
         elif name == "points":
             points_through_cycle(pos, v, C, b, b, np.zeros((R, 24, 12)), f, w, dt, 0, M, LAYOUT_12)
+        elif name == "transition-lanes":
+            n = LANES_MIN
+            transition(np.repeat(pos, n, 0), np.repeat(v, n, 0), np.repeat(C, n, 0), np.repeat(b, n, 0),
+                       np.repeat(b, n, 0), np.repeat(f, n, 0), np.repeat(w, n, 0), dt, 0, M)
         elif name.startswith("transition"):
             layout = LAYOUT_15 if name.endswith("position") else GENERIC_LAYOUT if name.endswith("generic") else LAYOUT_12
             transition(pos.copy(), v.copy(), C.copy(), b, b, f, w, dt, 0, M, "invariant" in name, layout, pos)

@@ -1,122 +1,67 @@
-"""The papers' 12-state common-error Φ kernel, the runs in SIMD lanes (numba; called through :mod:`.kernels`).
+"""The papers' 12-state common-error Φ kernel, unrolled, run by run (numba; called through :mod:`.kernels`
+for fewer than ``kernels.LANES_MIN`` runs; from there :mod:`.transition_lanes_12`, the same bits).
 
 ``transition_span_12`` is :func:`nespm_cli.filters.transition_kernel.transition_span_common` for the
-layout ``[dv, dpsi, b_a, b_g]`` (offsets -1, 0, 3, 6, 9), restructured for the machine: up to
-:data:`~nespm_cli.filters.cycle_lanes.L` runs are the columns of one state table and of one table of Φ's
-changing rows (velocity and attitude, 6 x 12; the bias rows stay the identity), and each IMU step runs all
-of them at once, in loops over the runs that LLVM vectorises: F's entries
-(:func:`~nespm_cli.filters.transition_entries.va_entries_t`), Φ's rows column by column, then the
-navigation cycle (:func:`~nespm_cli.filters.cycle_lanes.cycles_soa`). Each entry of Φ's changing rows is
-the generic loop's sum in its order, ``0.0 + M[i, 0] Φ[0, k] + ... + M[i, 5] Φ[5, k] (+ M[i, k] for a bias
-column)``, F's structural zeros included as ``0.0 · dt`` terms: the same IEEE operations in the same
-order, so the same bits, zeros' signs included, and NaN where the loop gives NaN (its payload aside) for an
-inf or NaN input (tests/test_compile_kernels.py). The lanes' IMU samples and the latitude's tangent (a
-C-library call) are taken in a scalar loop. Measured: 0.33-0.4x the scalar kernel per run-step at 50
-runs, 2 blocks of 32 lanes (benchmarks/README.md); a single run pays for a block.
+layout ``[dv, dpsi, b_a, b_g]`` (offsets -1, 0, 3, 6, 9) with its loops written out: the 36 entries of
+the velocity/attitude block of ``I + F dt`` and the 18 of its bias columns are scalars, and each entry
+of Φ's changing rows is the same sum in the same order, ``0.0 + M[i, 0] Φ[0, k] + ... + M[i, 5] Φ[5, k]
+(+ M[i, k] for a bias column)``, F's structural zeros included as ``0.0 · dt`` terms. The same IEEE
+operations in the same order, so the same bits, zeros' signs included, and NaN where the loop gives NaN
+(its payload aside) for an inf or NaN input (tests/test_compile_kernels.py). Why: the generic loop's
+runtime bounds cost numba and LLVM about 1.3 CPU-s more to compile (benchmarks/README.md, the compile
+section), and every ``mc`` of the default filters compiles this kernel on a machine's first run.
 """
 from __future__ import annotations
 
 import math
 
-import numpy as np
-
-from nespm_cli.filters.cycle_lanes import (L, R0, R2, R3, R6, R9, R12, R25, R26, R27, R28, R29, R30, R52, R53,
-                                           R54, R55, R56, R57, ROWS, cycles_soa)
 from nespm_cli.filters.transition_entries import va_entries_t
-from nespm_cli.nav.kernels import helper, load_t, njit, store_t
-
-#: rows of the entries table: F's 23 entries of :func:`va_entries_t`, per lane
-ENTRIES = 23
-
-
-@helper
-def entries_t(E, s):
-    """The 23 entries of lane ``s`` in the entries table ``E``."""
-    return (E[s], E[L + s], E[2 * L + s], E[3 * L + s], E[4 * L + s], E[5 * L + s], E[6 * L + s], E[7 * L + s],
-            E[8 * L + s], E[9 * L + s], E[10 * L + s], E[11 * L + s], E[12 * L + s], E[13 * L + s], E[14 * L + s],
-            E[15 * L + s], E[16 * L + s], E[17 * L + s], E[18 * L + s], E[19 * L + s], E[20 * L + s],
-            E[21 * L + s], E[22 * L + s])
-
-
-@helper
-def column_t(e, z, m22, d33, d44, d55, V0, V1, V2, A0, A1, A2):
-    """Column k of Φ's new velocity and attitude rows, ``M[0:6, 0:6] Φ[0:6, k]`` summed as the generic loop
-    (``0.0 +`` each term in order, F's structural zeros as ``z`` = 0 · dt), from the 23 entries ``e`` of
-    :func:`va_entries_t`, the diagonal entries ``m22``, ``d33`` ... ``d55`` (1 + 0 · dt) and the column's
-    old entries ``V0 ... A2``."""
-    (m00, m01, m02, m10, m11, m12, m20, m21, n04, n05, n13, n15, n23, n24, q31, q40, q51,
-     t34, t35, t43, t45, t53, t54) = e
-    return (0.0 + m00 * V0 + m01 * V1 + m02 * V2 + z * A0 + n04 * A1 + n05 * A2,
-            0.0 + m10 * V0 + m11 * V1 + m12 * V2 + n13 * A0 + z * A1 + n15 * A2,
-            0.0 + m20 * V0 + m21 * V1 + m22 * V2 + n23 * A0 + n24 * A1 + z * A2,
-            0.0 + z * V0 + q31 * V1 + z * V2 + d33 * A0 + t34 * A1 + t35 * A2,
-            0.0 + q40 * V0 + z * V1 + z * V2 + t43 * A0 + d44 * A1 + t45 * A2,
-            0.0 + z * V0 + q51 * V1 + z * V2 + t53 * A0 + t54 * A1 + d55 * A2)
+from nespm_cli.nav.kernels import cycle_t, load_t, njit, store_t
 
 
 @njit(cache=True, error_model="numpy")
 def transition_span_12(pos, v, C, b_a, b_g, f, w, dt, j0, j1, Phi):
     """Steps ``[j0, j1)`` in place on the solution; Φ (R, 12, 12) = Π (I + F dt) into ``Phi`` for the
-    common error (model.system_matrix) of the 12 states: transition_span_common's numbers, the runs in
-    lanes of :data:`~nespm_cli.filters.cycle_lanes.L` (the last block's spare lanes copy its first run)."""
-    T = np.empty(ROWS * L)  # the state table (cycle_lanes)
-    P = np.empty(72 * L)  # Φ's rows 0-5: entry (i, k) of lane s at (12 i + k) L + s
-    E = np.empty(ENTRIES * L)  # F's entries at the step's start
-    tan_lat = np.empty(L)
-    M = 12 * L
-    for r0 in range(0, pos.shape[0], L):
-        n = min(L, pos.shape[0] - r0)
-        for s in range(L):
-            r = r0 + s if s < n else r0
-            x = load_t(pos[r], v[r], C[r])
-            for i in range(25):
-                T[i * L + s] = x[i]
-            T[R25 + s], T[R26 + s], T[R27 + s] = b_a[r, 0], b_a[r, 1], b_a[r, 2]
-            T[R28 + s], T[R29 + s], T[R30 + s] = b_g[r, 0], b_g[r, 1], b_g[r, 2]
-            for q in range(72):
-                P[q * L + s] = 1.0 if q % 13 == 0 else 0.0  # (i, k) with i == k: q = 13 i
+    common error (model.system_matrix) of the 12 states: transition_span_common's numbers, unrolled."""
+    for r in range(pos.shape[0]):
+        P = Phi[r]
+        for i in range(12):
+            for k in range(12):
+                P[i, k] = 1.0 if i == k else 0.0
+        x = load_t(pos[r], v[r], C[r])
+        ba0, ba1, ba2, bg0, bg1, bg2 = b_a[r, 0], b_a[r, 1], b_a[r, 2], b_g[r, 0], b_g[r, 1], b_g[r, 2]
         for j in range(j0, j1):
+            f0, f1, f2 = f[r, j, 0] - ba0, f[r, j, 1] - ba1, f[r, j, 2] - ba2
             h = dt[j]
-            for s in range(L):  # the lanes' bias-compensated IMU and tan(lat): gathers and calls, scalar
-                r = r0 + s if s < n else r0
-                T[R52 + s], T[R53 + s], T[R54 + s] = f[r, j, 0] - T[R25 + s], f[r, j, 1] - T[R26 + s], f[r, j, 2] - T[R27 + s]
-                T[R55 + s], T[R56 + s], T[R57 + s] = w[r, j, 0] - T[R28 + s], w[r, j, 1] - T[R29 + s], w[r, j, 2] - T[R30 + s]
-                tan_lat[s] = math.tan(T[R0 + s])
-            for s in range(L):  # system_rows_s then identity_plus_dt: M = I + F dt, its non-structural entries
-                x = (T[s], 0.0, T[R2 + s], T[R3 + s], T[R3 + L + s], T[R3 + 2 * L + s], T[R6 + s], T[R6 + L + s],
-                     T[R6 + 2 * L + s], T[R9 + s], T[R9 + L + s], T[R9 + 2 * L + s], T[R12 + s], T[R12 + L + s],
-                     T[R12 + 2 * L + s], 0.0, 0.0, T[17 * L + s], T[18 * L + s], T[19 * L + s], T[20 * L + s],
-                     T[21 * L + s], T[22 * L + s], T[23 * L + s], T[24 * L + s])
-                (E[s], E[L + s], E[2 * L + s], E[3 * L + s], E[4 * L + s], E[5 * L + s], E[6 * L + s], E[7 * L + s],
-                 E[8 * L + s], E[9 * L + s], E[10 * L + s], E[11 * L + s], E[12 * L + s], E[13 * L + s], E[14 * L + s],
-                 E[15 * L + s], E[16 * L + s], E[17 * L + s], E[18 * L + s], E[19 * L + s], E[20 * L + s],
-                 E[21 * L + s], E[22 * L + s]) = va_entries_t(x, tan_lat[s], T[R52 + s], T[R53 + s], T[R54 + s], h)
+            # system_rows_s: F's velocity and attitude rows, then identity_plus_dt: M = I + F dt
+            (m00, m01, m02, m10, m11, m12, m20, m21, n04, n05, n13, n15, n23, n24, q31, q40, q51,
+             t34, t35, t43, t45, t53, t54) = va_entries_t(x, math.tan(x[0]), f0, f1, f2, h)
             z = 0.0 * h  # a structural zero of F, times dt
             m22 = 0.0 * h + 1.0
             d33, d44, d55 = 0.0 * h + 1.0, 0.0 * h + 1.0, 0.0 * h + 1.0
-            for k in range(12):  # rows_step, column by column (a column of Φ's new rows reads only that column)
-                o = k * L
-                for s in range(L):
-                    d0, d1, d2, e0, e1, e2 = column_t(entries_t(E, s), z, m22, d33, d44, d55, P[o + s], P[o + M + s],
-                                                      P[o + 2 * M + s], P[o + 3 * M + s], P[o + 4 * M + s],
-                                                      P[o + 5 * M + s])
-                    P[o + s], P[o + M + s], P[o + 2 * M + s] = d0, d1, d2
-                    P[o + 3 * M + s], P[o + 4 * M + s], P[o + 5 * M + s] = e0, e1, e2
-            for c in range(3):  # the bias columns: + M[i, k] (-C dt: b_a into the velocity rows, b_g into the attitude rows)
-                ov, oa, oc = (6 + c) * L, (9 + c) * L, c * L
-                for s in range(L):
-                    c0, c1, c2 = -T[R6 + oc + s] * h, -T[R9 + oc + s] * h, -T[R12 + oc + s] * h
-                    P[ov + s], P[ov + M + s], P[ov + 2 * M + s] = P[ov + s] + c0, P[ov + M + s] + c1, P[ov + 2 * M + s] + c2
-                    P[ov + 3 * M + s], P[ov + 4 * M + s], P[ov + 5 * M + s] = P[ov + 3 * M + s] + z, P[ov + 4 * M + s] + z, P[ov + 5 * M + s] + z
-                    P[oa + s], P[oa + M + s], P[oa + 2 * M + s] = P[oa + s] + z, P[oa + M + s] + z, P[oa + 2 * M + s] + z
-                    P[oa + 3 * M + s], P[oa + 4 * M + s], P[oa + 5 * M + s] = P[oa + 3 * M + s] + c0, P[oa + 4 * M + s] + c1, P[oa + 5 * M + s] + c2
-            cycles_soa(T, n, h)
-        for s in range(n):
-            r = r0 + s
-            x = (T[s], T[L + s], T[R2 + s], T[R3 + s], T[R3 + L + s], T[R3 + 2 * L + s], T[R6 + s], T[R6 + L + s],
-                 T[R6 + 2 * L + s], T[R9 + s], T[R9 + L + s], T[R9 + 2 * L + s], T[R12 + s], T[R12 + L + s],
-                 T[R12 + 2 * L + s])
-            store_t(x, pos[r], v[r], C[r])
-            for i in range(12):
-                for k in range(12):
-                    Phi[r, i, k] = P[(12 * i + k) * L + s] if i < 6 else (1.0 if i == k else 0.0)
+            b00, b01, b02, b10, b11, b12 = -x[6] * h, -x[7] * h, -x[8] * h, -x[9] * h, -x[10] * h, -x[11] * h
+            b20, b21, b22 = -x[12] * h, -x[13] * h, -x[14] * h
+            # rows_step, column by column (a column of Φ's new rows reads only that column)
+            for k in range(12):
+                V0, V1, V2, A0, A1, A2 = P[0, k], P[1, k], P[2, k], P[3, k], P[4, k], P[5, k]
+                d0 = 0.0 + m00 * V0 + m01 * V1 + m02 * V2 + z * A0 + n04 * A1 + n05 * A2
+                d1 = 0.0 + m10 * V0 + m11 * V1 + m12 * V2 + n13 * A0 + z * A1 + n15 * A2
+                d2 = 0.0 + m20 * V0 + m21 * V1 + m22 * V2 + n23 * A0 + n24 * A1 + z * A2
+                e0 = 0.0 + z * V0 + q31 * V1 + z * V2 + d33 * A0 + t34 * A1 + t35 * A2
+                e1 = 0.0 + q40 * V0 + z * V1 + z * V2 + t43 * A0 + d44 * A1 + t45 * A2
+                e2 = 0.0 + z * V0 + q51 * V1 + z * V2 + t53 * A0 + t54 * A1 + d55 * A2
+                if k >= 6:  # the bias columns: + M[i, k] (-C dt: b_a into the velocity rows, b_g into the attitude rows)
+                    c = k - 6 if k < 9 else k - 9
+                    if c == 0:
+                        c0, c1, c2 = b00, b10, b20
+                    elif c == 1:
+                        c0, c1, c2 = b01, b11, b21
+                    else:
+                        c0, c1, c2 = b02, b12, b22
+                    if k < 9:
+                        d0, d1, d2, e0, e1, e2 = d0 + c0, d1 + c1, d2 + c2, e0 + z, e1 + z, e2 + z
+                    else:
+                        d0, d1, d2, e0, e1, e2 = d0 + z, d1 + z, d2 + z, e0 + c0, e1 + c1, e2 + c2
+                P[0, k], P[1, k], P[2, k], P[3, k], P[4, k], P[5, k] = d0, d1, d2, e0, e1, e2
+            x = cycle_t(x, f0, f1, f2, w[r, j, 0] - bg0, w[r, j, 1] - bg1, w[r, j, 2] - bg2, h)
+        store_t(x, pos[r], v[r], C[r])
