@@ -1,5 +1,5 @@
 """What a cold `mc` compiles (issue 41: its CPU at most 3x a warm one; benchmarks/README.md, the compile
-section): the papers' 12-state Φ kernel unrolled (filters/transition_kernel_12.py) gives the generic
+section): the papers' 12-state Φ kernel unrolled (filters/compiled/unrolled_12.py) gives the generic
 loop's bits; the default filters compile only their two kernels (the 12-state Φ and the points), each
 function once (one signature: nothing compiled twice for another array layout or integer type), never
 the generic Φ loop; the helpers are inlined by LLVM, not copied by numba at every call site. No timing
@@ -59,9 +59,9 @@ def test_12_state_kernel_is_the_generic_loop_to_the_bit(seed, span, kernel, R):
     offsets: Φ and the propagated solution, on spans of 1 and 2 steps (where Φ still holds exact zeros, whose
     sign is compared), an empty span, and long spans through a pole, a fast rotation, a NaN and an infinite
     IMU sample."""
-    from nespm_cli.filters import transition_kernel as tk
-    from nespm_cli.filters.transition_kernel_12 import transition_span_12
-    from nespm_cli.filters.transition_lanes_12 import transition_lanes_12
+    from nespm_cli.filters.compiled import spans as tk
+    from nespm_cli.filters.compiled.unrolled_12 import transition_span_12
+    from nespm_cli.filters.compiled.lanes_12 import transition_lanes_12
 
     pos, v, C, b_a, b_g, f, w, dt = _inputs(seed, R)
     j0, j1 = span
@@ -95,7 +95,7 @@ def test_kernels_transition_runs_the_12_state_kernel_for_the_papers_layout():
     assert kernels.transition_kernel(False, other) == kernels.transition_kernel(False, other, 100) == "transition-generic"
     assert kernels_for(["ekf"], other) == ("transition-generic",)
     assert kernels.transition_kernel(False, kernels.GENERIC_LAYOUT) == "transition-generic"
-    from nespm_cli.filters import transition_kernel as tk
+    from nespm_cli.filters.compiled import spans as tk
 
     pos, v, C, b_a, b_g, f, w, dt = _inputs(3)  # 10 runs: the lanes
     a = [pos.copy(), v.copy(), C.copy()]

@@ -1,12 +1,12 @@
-"""The points in SIMD lanes (filters/points_kernel.py): the same bits as the scalar point kernel."""
+"""The points in SIMD lanes (filters/compiled/points.py): the same bits as the scalar point kernel."""
 import numpy as np
 import pytest
 
 from nespm_cli.filters import kernels
 
-pk = pytest.importorskip("nespm_cli.filters.points_kernel")
-cl = pytest.importorskip("nespm_cli.filters.cycle_lanes")
-tk = pytest.importorskip("nespm_cli.filters.transition_kernel")
+pk = pytest.importorskip("nespm_cli.filters.compiled.points")
+cl = pytest.importorskip("nespm_cli.filters.compiled.cycle_lanes")
+tk = pytest.importorskip("nespm_cli.filters.compiled.spans")
 
 
 def _inputs(R=6, n=12, M=40, seed=3):

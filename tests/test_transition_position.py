@@ -4,7 +4,7 @@ bits, Φ and the propagated solution, over random states, biases and IMU samples
 import numpy as np
 import pytest
 
-from nespm_cli.filters import transition_kernel as tk
+from nespm_cli.filters.compiled import spans as tk
 from nespm_cli.filters.kernels import compiled_enabled
 from nespm_cli.nav.state import LAYOUT_15
 

@@ -30,7 +30,7 @@ Public array-level functions: the filter uses :func:`invariant_retraction` /
 :func:`invariant_retraction_with_position` (the feedback), :func:`common_from_invariant`,
 :func:`covariance_to_common`, :func:`covariance_to_invariant` and
 :func:`invariant_measurement_jacobian` (F_inv is :func:`nespm_cli.filters.model.invariant_system_matrix`,
-compiled in :mod:`nespm_cli.filters.transition_kernel`); a measurement gives its Jacobian in these
+compiled in :mod:`nespm_cli.filters.compiled.spans`); a measurement gives its Jacobian in these
 coordinates where it has a closed form free of the group position (``Measurement.H_invariant``: the
 DVL's, :mod:`nespm_cli.sensors.dvl`), else the filter uses ``H T`` (depth and fixes: their
 invariant Jacobian depends on ``p``). :func:`invariant_log` / :func:`invariant_log_with_position`

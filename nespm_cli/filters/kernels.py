@@ -113,7 +113,7 @@ def _f64(a: np.ndarray) -> np.ndarray:
 KERNELS = ("strapdown", "transition", "transition-lanes", "transition-position", "transition-generic",
            "transition-invariant", "transition-invariant-position", "points")
 #: runs from which the papers' 12-state Φ runs with the runs in SIMD lanes ("transition-lanes",
-#: filters/transition_lanes_12.py), fewer run by run ("transition"): a block of lanes costs 32 runs'
+#: filters/compiled/lanes_12.py), fewer run by run ("transition"): a block of lanes costs 32 runs'
 #: cycles whatever it holds; at 8 runs the two cost the same per run-step, from 24 the lanes about 0.3x
 #: (benchmarks/README.md). The same bits either way, so no number depends on the chunk size.
 LANES_MIN = 8
@@ -159,7 +159,7 @@ def transition(pos, v_n, C_bn, b_a, b_g, f, w, dt, j0: int, j1: int, invariant: 
     right-invariant :func:`nespm_cli.filters.model.invariant_system_matrix`) on the solution before
     each step. The invariant error with a position block (the iekf's 15 states) needs ``origin``
     (R, 3) ``[lat, lon, h]``: the group position is the solution's NED offset from it (docs/iekf.md)."""
-    from nespm_cli.filters import transition_kernel as tk
+    from nespm_cli.filters.compiled import spans as tk
 
     Phi = np.empty((pos.shape[0], layout.n, layout.n))
     name, off = transition_kernel(invariant, layout, pos.shape[0]), layout.offsets()
@@ -173,11 +173,11 @@ def transition(pos, v_n, C_bn, b_a, b_g, f, w, dt, j0: int, j1: int, invariant: 
     elif name == "transition-invariant":
         run_kernel(name, tk.transition_span_invariant, *args, off)
     elif name == "transition":  # the papers' 12 states: the generic loop unrolled (the same bits, less to compile)
-        from nespm_cli.filters.transition_kernel_12 import transition_span_12
+        from nespm_cli.filters.compiled.unrolled_12 import transition_span_12
 
         run_kernel(name, transition_span_12, *args)
     elif name == "transition-lanes":  # ... and from LANES_MIN runs, the runs in SIMD lanes (the same bits)
-        from nespm_cli.filters.transition_lanes_12 import transition_lanes_12
+        from nespm_cli.filters.compiled.lanes_12 import transition_lanes_12
 
         run_kernel(name, transition_lanes_12, *args)
     else:
@@ -195,8 +195,8 @@ def points_through_cycle(pos, v_n, C_bn, b_a, b_g, X, f, w, dt, j0: int, j1: int
     position offset from point 0, NED [m] (its ``dp`` plus the integral of its velocity offset);
     nothing is modified in place.
     """
-    from nespm_cli.filters import points_kernel as pk
-    from nespm_cli.filters import transition_kernel as tk
+    from nespm_cli.filters.compiled import points as pk
+    from nespm_cli.filters.compiled import spans as tk
 
     R, S = X.shape[0], X.shape[1] + 1
     out = np.empty((R, S, 3)), np.empty((R, S, 3)), np.empty((R, S, 3, 3))

@@ -58,9 +58,9 @@ class KernelCacheWarning(UserWarning):
 
 #: the files (relative to the package) whose text the compiled kernels depend on: their code, what
 #: they inline, the earth constants they freeze. A new kernel module must be listed here.
-KERNEL_SOURCES = ("nav/earth.py", "nav/trig.py", "nav/kernels.py", "filters/transition_kernel.py",
-                  "filters/transition_kernel_12.py", "filters/transition_lanes_12.py", "filters/points_kernel.py",
-                  "filters/cycle_lanes.py", "filters/transition_entries.py")
+KERNEL_SOURCES = ("nav/earth.py", "nav/trig.py", "nav/kernels.py", "filters/compiled/spans.py",
+                  "filters/compiled/unrolled_12.py", "filters/compiled/lanes_12.py", "filters/compiled/points.py",
+                  "filters/compiled/cycle_lanes.py", "filters/compiled/entries.py")
 #: the kernels (filters.kernels names) this process has already used: no cache check on later calls
 READY: set[str] = set()
 _folders: dict[tuple[str, str], Path | None] = {}

@@ -1,7 +1,7 @@
 """The scalar entries of ``I + F dt``'s velocity and attitude rows for the common error (numba helper;
 model.system_matrix's F, ukf-nespm.md's error model), shared by the unrolled Φ kernels of the papers'
-12 states (:mod:`.transition_kernel_12`) and of the 15 states (``transition_span_position`` in
-:mod:`.transition_kernel`). Each entry is the sum the generic loop (``system_rows_s`` then
+12 states (:mod:`.unrolled_12`) and of the 15 states (``transition_span_position`` in
+:mod:`.spans`). Each entry is the sum the generic loop (``system_rows_s`` then
 ``identity_plus_dt``) forms, in its order, so the kernels keep its bits (tests/test_compile_kernels.py).
 """
 from __future__ import annotations

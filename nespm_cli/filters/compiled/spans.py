@@ -1,8 +1,8 @@
-"""Compiled loops over one time-update span (numba; called through :mod:`.kernels`).
+"""Compiled loops over one time-update span (numba; called through :mod:`nespm_cli.filters.kernels`).
 
 ``transition_span_common`` is ``ErrorStateFilter.transition`` (model.system_matrix + na_cycle per IMU step)
 and ``points_span`` the sigma/cubature-point propagation of ukf-nespm.md eqs 35-38, one run (and
-point) at a time. Shapes as in :mod:`.kernels`; the error state is any layout of model.py, passed as
+point) at a time. Shapes as in :mod:`nespm_cli.filters.kernels`; the error state is any layout of model.py, passed as
 ``off``: the first index of the ``[pos, vel, att, ba, bg]`` blocks (-1 for an absent one,
 ``nav.state.StateLayout.offsets``).
 
@@ -10,7 +10,7 @@ point) at a time. Shapes as in :mod:`.kernels`; the error state is any layout of
 keeps its bias rows [0 I]; only the rows that change are formed (``transition_span_common``; the
 same sums, in the same order, as the dense product's top six rows); for the 15 states ``[dp, dv,
 dpsi, b_a, b_g]`` ``transition_span_position`` forms the same Φ bit for bit with F's structural zeros
-skipped (the papers' 12 states: :mod:`.transition_kernel_12`, the same sums unrolled, what ``kernels``
+skipped (the papers' 12 states: :mod:`.unrolled_12`, the same sums unrolled, what ``kernels``
 runs for them). The iekf's right-invariant error has ``transition_span_invariant`` (12 states) and
 ``transition_span_invariant_position`` (15: F_inv's ρ_p row is dense, and it needs each run's origin).
 """
@@ -20,7 +20,7 @@ import math
 
 import numpy as np
 
-from nespm_cli.filters.transition_entries import va_entries_t
+from nespm_cli.filters.compiled.entries import va_entries_t
 from nespm_cli.nav.earth import A, E2, F, GAMMA_E, K_SOMIGLIANA
 from nespm_cli.nav.kernels import (GRAV_M, cycle_t, earth_t, exp_t, gravity_t, helper, load_t, matrix_t, mul_t, njit, state_t,
                                    store_t)

@@ -1,7 +1,8 @@
-"""The papers' 12-state common-error Φ kernel, unrolled, run by run (numba; called through :mod:`.kernels`
-for fewer than ``kernels.LANES_MIN`` runs; from there :mod:`.transition_lanes_12`, the same bits).
+"""The papers' 12-state common-error Φ kernel, unrolled, run by run (numba; called through
+:mod:`nespm_cli.filters.kernels` for fewer than ``kernels.LANES_MIN`` runs; from there :mod:`.lanes_12`, the
+same bits).
 
-``transition_span_12`` is :func:`nespm_cli.filters.transition_kernel.transition_span_common` for the
+``transition_span_12`` is :func:`nespm_cli.filters.compiled.spans.transition_span_common` for the
 layout ``[dv, dpsi, b_a, b_g]`` (offsets -1, 0, 3, 6, 9) with its loops written out: the 36 entries of
 the velocity/attitude block of ``I + F dt`` and the 18 of its bias columns are scalars, and each entry
 of Φ's changing rows is the same sum in the same order, ``0.0 + M[i, 0] Φ[0, k] + ... + M[i, 5] Φ[5, k]
@@ -15,7 +16,7 @@ from __future__ import annotations
 
 import math
 
-from nespm_cli.filters.transition_entries import va_entries_t
+from nespm_cli.filters.compiled.entries import va_entries_t
 from nespm_cli.nav.kernels import cycle_t, load_t, njit, store_t
 
 

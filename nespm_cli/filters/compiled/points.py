@@ -1,10 +1,11 @@
 """The sigma/cubature points of one run through a time-update span, the points in SIMD lanes.
 
-``points_span_soa`` is :func:`nespm_cli.filters.transition_kernel.points_span` restructured for the
+``points_span_soa`` is :func:`nespm_cli.filters.compiled.spans.points_span` restructured for the
 machine: a run's 2n+1 points are the columns of one state table (structure of arrays, row stride
-:data:`~nespm_cli.filters.cycle_lanes.L`), and each IMU step runs the navigation cycle of all of them at
-once (:func:`~nespm_cli.filters.cycle_lanes.cycles_soa`), in loops over the points that LLVM vectorises. The operations of each point are those of ``nav.kernels.cycle_t``, in the
-same order (no contraction into fused multiply-adds, no reassociation): the same bits as the scalar
+:data:`~nespm_cli.filters.compiled.cycle_lanes.L`), and each IMU step runs the navigation cycle of all
+of them at once (:func:`~nespm_cli.filters.compiled.cycle_lanes.cycles_soa`), in loops over the points
+that LLVM vectorises. The operations of each point are those of ``nav.kernels.cycle_t``, in the same
+order (no contraction into fused multiply-adds, no reassociation): the same bits as the scalar
 kernel and the NumPy reference ``strapdown.na_cycle`` (tests/test_points_kernel.py). The latitude's
 sine and cosine are :func:`nespm_cli.nav.trig.sin_cos`, arithmetic that vectorises with the rest; only
 the rare rotation above 0.01 rad (Rodrigues' sine and cosine) runs in a scalar loop between the vector
@@ -15,15 +16,15 @@ from __future__ import annotations
 
 import numpy as np
 
-from nespm_cli.filters.cycle_lanes import L, R0, R1, R2, R3, R4, R5, R25, R26, R27, R28, R29, R30, R46, R47, R48, \
+from nespm_cli.filters.compiled.cycle_lanes import L, R0, R1, R2, R3, R4, R5, R25, R26, R27, R28, R29, R30, R46, R47, R48, \
     R52, R53, R54, R55, R56, R57, ROWS, cycles_soa
-from nespm_cli.filters.transition_kernel import point_start
+from nespm_cli.filters.compiled.spans import point_start
 from nespm_cli.nav.kernels import njit
 
 
 @njit(cache=True, error_model="numpy")
 def points_span_soa(pos, v, C, b_a, b_g, X, f, w, dt, j0, j1, pos_o, v_o, C_o, dp_o, off):
-    """transition_kernel.points_span, and with a position block (``off[0] >= 0``) points_span_position
+    """spans.points_span, and with a position block (``off[0] >= 0``) points_span_position
     into ``dp_o`` (R, S, 3) (the same arguments and the same bits; ``dp_o`` untouched without the block),
     with the points of a run in the columns of a state table, IMU step by IMU step (``cycle_lanes.cycles_soa``;
     rows 46-51 the position offsets and the velocity differences from point 0): at most :data:`L` points."""

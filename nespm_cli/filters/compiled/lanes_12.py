@@ -1,13 +1,14 @@
-"""The papers' 12-state common-error Φ kernel, the runs in SIMD lanes (numba; called through :mod:`.kernels`
-from ``kernels.LANES_MIN`` runs up; fewer run by run in :mod:`.transition_kernel_12`, the same bits).
+"""The papers' 12-state common-error Φ kernel, the runs in SIMD lanes (numba; called through
+:mod:`nespm_cli.filters.kernels` from ``kernels.LANES_MIN`` runs up; fewer run by run in :mod:`.unrolled_12`,
+the same bits).
 
-``transition_lanes_12`` is :func:`nespm_cli.filters.transition_kernel.transition_span_common` for the
+``transition_lanes_12`` is :func:`nespm_cli.filters.compiled.spans.transition_span_common` for the
 layout ``[dv, dpsi, b_a, b_g]`` (offsets -1, 0, 3, 6, 9), restructured for the machine: up to
-:data:`~nespm_cli.filters.cycle_lanes.L` runs are the columns of one state table and of one table of Φ's
+:data:`~nespm_cli.filters.compiled.cycle_lanes.L` runs are the columns of one state table and of one table of Φ's
 changing rows (velocity and attitude, 6 x 12; the bias rows stay the identity), and each IMU step runs all
 of them at once, in loops over the runs that LLVM vectorises: F's entries
-(:func:`~nespm_cli.filters.transition_entries.va_entries_t`), Φ's rows column by column, then the
-navigation cycle (:func:`~nespm_cli.filters.cycle_lanes.cycles_soa`). Each entry of Φ's changing rows is
+(:func:`~nespm_cli.filters.compiled.entries.va_entries_t`), Φ's rows column by column, then the
+navigation cycle (:func:`~nespm_cli.filters.compiled.cycle_lanes.cycles_soa`). Each entry of Φ's changing rows is
 the generic loop's sum in its order, ``0.0 + M[i, 0] Φ[0, k] + ... + M[i, 5] Φ[5, k] (+ M[i, k] for a bias
 column)``, F's structural zeros included as ``0.0 · dt`` terms: the same IEEE operations in the same
 order, so the same bits, zeros' signs included, and NaN where the loop gives NaN (its payload aside) for an
@@ -22,9 +23,9 @@ import math
 
 import numpy as np
 
-from nespm_cli.filters.cycle_lanes import (L, R0, R6, R9, R12, R25, R26, R27, R28, R29, R30, R52, R53, R54,
+from nespm_cli.filters.compiled.cycle_lanes import (L, R0, R6, R9, R12, R25, R26, R27, R28, R29, R30, R52, R53, R54,
                                            R55, R56, R57, ROWS, cycles_soa)
-from nespm_cli.filters.transition_entries import va_entries_t
+from nespm_cli.filters.compiled.entries import va_entries_t
 from nespm_cli.nav.kernels import helper, load_t, njit, store_t
 
 #: rows of the entries table: F's 23 entries of :func:`va_entries_t`, per lane
@@ -69,7 +70,7 @@ def column_t(e, z, m22, d33, d44, d55, V0, V1, V2, A0, A1, A2):
 def transition_lanes_12(pos, v, C, b_a, b_g, f, w, dt, j0, j1, Phi):
     """Steps ``[j0, j1)`` in place on the solution; Φ (R, 12, 12) = Π (I + F dt) into ``Phi`` for the
     common error (model.system_matrix) of the 12 states: transition_span_common's numbers, the runs in
-    lanes of :data:`~nespm_cli.filters.cycle_lanes.L` (the last block's spare lanes copy its first run)."""
+    lanes of :data:`~nespm_cli.filters.compiled.cycle_lanes.L` (the last block's spare lanes copy its first run)."""
     T = np.empty(ROWS * L)  # the state table (cycle_lanes)
     P = np.empty(72 * L)  # Φ's rows 0-5: entry (i, k) of lane s at (12 i + k) L + s
     E = np.empty(ENTRIES * L)  # F's entries at the step's start
@@ -114,10 +115,18 @@ def transition_lanes_12(pos, v, C, b_a, b_g, f, w, dt, j0, j1, Phi):
                 ov, oa, oc = (6 + c) * L, (9 + c) * L, c * L
                 for s in range(L):
                     c0, c1, c2 = -T[R6 + oc + s] * h, -T[R9 + oc + s] * h, -T[R12 + oc + s] * h
-                    P[ov + s], P[ov + M + s], P[ov + 2 * M + s] = P[ov + s] + c0, P[ov + M + s] + c1, P[ov + 2 * M + s] + c2
-                    P[ov + 3 * M + s], P[ov + 4 * M + s], P[ov + 5 * M + s] = P[ov + 3 * M + s] + z, P[ov + 4 * M + s] + z, P[ov + 5 * M + s] + z
-                    P[oa + s], P[oa + M + s], P[oa + 2 * M + s] = P[oa + s] + z, P[oa + M + s] + z, P[oa + 2 * M + s] + z
-                    P[oa + 3 * M + s], P[oa + 4 * M + s], P[oa + 5 * M + s] = P[oa + 3 * M + s] + c0, P[oa + 4 * M + s] + c1, P[oa + 5 * M + s] + c2
+                    P[ov + s] += c0
+                    P[ov + M + s] += c1
+                    P[ov + 2 * M + s] += c2
+                    P[ov + 3 * M + s] += z
+                    P[ov + 4 * M + s] += z
+                    P[ov + 5 * M + s] += z
+                    P[oa + s] += z
+                    P[oa + M + s] += z
+                    P[oa + 2 * M + s] += z
+                    P[oa + 3 * M + s] += c0
+                    P[oa + 4 * M + s] += c1
+                    P[oa + 5 * M + s] += c2
             cycles_soa(T, n, h)
         for s in range(n):
             r = r0 + s
