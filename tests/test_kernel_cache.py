@@ -108,7 +108,7 @@ def test_kernels_per_filter_and_layout():
     assert kernels_for(["ins"]) == ("strapdown", "transition")  # + the PCRB's Φ
     assert kernels_for(["iekf"]) == ("transition", "transition-invariant")
     assert kernels_for(["iekf", "ckf-nespm"], LAYOUT_15) == (
-        "transition-position", "transition-invariant-position", "points-wide")
+        "transition-position", "transition-invariant-position", "points")
     assert kernels_for(["no-such-filter"]) == ("transition",)
     # batches from LANES_MIN runs: the 12-state Φ with the runs in lanes, beside the PCRB's run by run
     assert kernels_for(["ekf", "ukf-nespm"], runs=kernels.LANES_MIN) == ("transition", "transition-lanes", "points")

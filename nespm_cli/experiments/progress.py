@@ -294,7 +294,7 @@ def kernels_for(filters, layout=None, runs: int | None = 1) -> tuple[str, ...]:
     registered filter adds nothing."""
     from nespm_cli.errors import NespmError
     from nespm_cli.filters.ins import InsFilter
-    from nespm_cli.filters.kernels import KERNELS, LANES_MIN, points_kernel, transition_kernel
+    from nespm_cli.filters.kernels import KERNELS, LANES_MIN, transition_kernel
     from nespm_cli.filters.protocol import ErrorStateFilter
     from nespm_cli.filters.registry import get_filter
     from nespm_cli.filters.ukf import UKFNespm
@@ -310,7 +310,7 @@ def kernels_for(filters, layout=None, runs: int | None = 1) -> tuple[str, ...]:
         if not isinstance(cls, type) or not issubclass(cls, ErrorStateFilter):
             continue
         if issubclass(cls, UKFNespm):
-            need.add(points_kernel(layout))
+            need.add("points")
         elif issubclass(cls, InsFilter):
             need.add("strapdown")
         elif getattr(cls, "invariant_error", False):

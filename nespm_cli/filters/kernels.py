@@ -109,12 +109,12 @@ def _f64(a: np.ndarray) -> np.ndarray:
 #: the cache folder speak of): the free-inertial loop, Φ of the common error (the papers' 12 states
 #: unrolled, run by run, or from :data:`LANES_MIN` runs in SIMD lanes; the 15 states with F's zeros
 #: skipped; any other layout, a plugin's, in the generic loop), Φ_inv of the iekf (12 / 15 states), the
-#: sigma/cubature points (up to 28: the 12 states' 25; up to 32: the 15 states' 31)
+#: sigma/cubature points
 KERNELS = ("strapdown", "transition", "transition-lanes", "transition-position", "transition-generic",
-           "transition-invariant", "transition-invariant-position", "points", "points-wide")
+           "transition-invariant", "transition-invariant-position", "points")
 #: runs from which the papers' 12-state Φ runs with the runs in SIMD lanes ("transition-lanes",
-#: filters/compiled/lanes_12.py), fewer run by run ("transition"): a block of lanes costs 28 runs'
-#: cycles whatever it holds; at 8 runs the lanes cost 0.85x per run-step, at 4 1.6x, from 24 about 0.3x
+#: filters/compiled/lanes_12.py), fewer run by run ("transition"): a block of lanes costs 32 runs'
+#: cycles whatever it holds; at 8 runs the two cost the same per run-step, from 24 the lanes about 0.3x
 #: (benchmarks/README.md). The same bits either way, so no number depends on the chunk size.
 LANES_MIN = 8
 #: a layout that only the generic Φ loop runs (what warm_up compiles "transition-generic" on)
@@ -150,15 +150,6 @@ def transition_kernel(invariant: bool, layout: StateLayout, runs: int = 1) -> st
     if layout.blocks == LAYOUT_12.blocks:
         return "transition-lanes" if runs >= LANES_MIN else "transition"
     return "transition-position" if layout.blocks == LAYOUT_15.blocks else "transition-generic"
-
-
-def points_kernel(layout: StateLayout) -> str:
-    """The name (:data:`KERNELS`) of the kernel :func:`points_through_cycle` runs for ``layout``'s 2n + 1 points:
-    ``points`` up to ``cycle_lanes.NARROW`` = 28 (the 12 states' 25), else ``points-wide`` (up to 32: the 15
-    states' 31; a plugin's layout with more runs the scalar loop, compiled where first used)."""
-    from nespm_cli.filters.compiled.cycle_lanes import NARROW
-
-    return "points" if 2 * layout.n + 1 <= NARROW else "points-wide"
 
 
 def transition(pos, v_n, C_bn, b_a, b_g, f, w, dt, j0: int, j1: int, invariant: bool = False,
@@ -211,10 +202,8 @@ def points_through_cycle(pos, v_n, C_bn, b_a, b_g, X, f, w, dt, j0: int, j1: int
     out = np.empty((R, S, 3)), np.empty((R, S, 3)), np.empty((R, S, 3, 3))
     args = (pos, v_n, C_bn, b_a, b_g, np.ascontiguousarray(X, dtype=float), _f64(f), _f64(w), _f64(dt), j0, j1)
     dp = np.zeros((R, S, 3))
-    if S <= pk.NARROW:  # the points in SIMD lanes (28 of them: the 12 states' 25); the same bits as the scalar kernels below
+    if S <= pk.L:  # the points in SIMD lanes; the same bits as the scalar kernels below
         run_kernel("points", pk.points_span_soa, *args, *out, dp, layout.offsets())
-    elif S <= pk.L:  # ... 32 lanes (the 15 states' 31)
-        run_kernel("points-wide", pk.points_span_wide, *args, *out, dp, layout.offsets())
     elif not layout.has("pos"):  # more than 32 points (a plugin's layout): compiled where first used
         tk.points_span(*args, *out, layout.offsets())
     else:
@@ -241,8 +230,6 @@ def warm_up(names=None) -> float:
             strapdown(pos.copy(), v.copy(), C.copy(), b, b, f, w, dt, 0, M)
         elif name == "points":
             points_through_cycle(pos, v, C, b, b, np.zeros((R, 24, 12)), f, w, dt, 0, M, LAYOUT_12)
-        elif name == "points-wide":
-            points_through_cycle(pos, v, C, b, b, np.zeros((R, 30, 15)), f, w, dt, 0, M, LAYOUT_15)
         elif name == "transition-lanes":
             n = LANES_MIN
             transition(np.repeat(pos, n, 0), np.repeat(v, n, 0), np.repeat(C, n, 0), np.repeat(b, n, 0),

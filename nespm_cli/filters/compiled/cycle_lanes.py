@@ -24,11 +24,7 @@ try:  # numba is a dependency; this module is imported only where it is installe
 except ImportError:  # pragma: no cover
     intrinsic = None
 
-L = 32  # the row stride of a state table, its most lanes: the most points of one run (12 states: 25, 15: 31)
-#: the lanes of a narrow table: up to 28 points (the papers' 12 states' 25) or a block of 28 runs; a multiple
-#: of 4 (whole SIMD vectors). Passed to :func:`cycles_soa` as a constant, it is compiled once for it: 0.85x
-#: the cycles of 32 lanes for the 25 points (benchmarks/README.md)
-NARROW = 28
+L = 32  # the row stride of the points' state table: the most points of one run (12 states: 25, 15: 31)
 #: ``Rk`` = k · L, where row k of the state table starts: a named constant, so numba types and lowers one
 #: addition per table access instead of ``k * L + s``'s two (~0.3 of the points kernel's 3.3 CPU-s to compile)
 (R0, R1, R2, R3, R4, R5, R6, R7, R8, R9, R10, R11, R12, R13, R14, R15, R16, R17, R18, R19, R20, R21, R22,
@@ -84,16 +80,15 @@ def rodrigues_fix(T, S):
 
 
 @njit(cache=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)  # called by kernels only
-def cycles_soa(T, S, dt, nl):
+def cycles_soa(T, S, dt):
     """One navigation cycle (nav.kernels.cycle_t: the same operations in the same order) of the S lanes
     whose states are the columns of the state table ``T`` (:data:`ROWS` · :data:`L`, module docstring), each
     with its bias-compensated IMU sample in rows :data:`RF` ... RF + 5, over the step ``dt`` [s]; rows 31-45
-    scratch. The loops without calls run over the first ``nl`` lanes, S ≤ nl ≤ :data:`L`, a constant
-    (:data:`NARROW` or :data:`L`: the function is compiled for it, a constant trip count that LLVM
-    vectorises; the lanes past the S hold finite copies, never read back), Rodrigues' sines and cosines
-    over the S lanes in a scalar loop between them."""
+    scratch. The loops without calls run over all :data:`L` lanes (a constant trip count, vectorised by
+    LLVM; the lanes past the S hold finite copies, never read back), Rodrigues' sines and cosines over
+    the S lanes in a scalar loop between them."""
     half = 0.5 * dt
-    for s in range(nl):  # eq 25 and the series coefficients of exp(w_nb* dt/2)
+    for s in range(L):  # eq 25 and the series coefficients of exp(w_nb* dt/2)
         u0, u1, u2 = T[R19 + s] + T[R22 + s], T[R20 + s] + T[R23 + s], T[R21 + s] + T[R24 + s]
         c00, c01, c02, c10, c11, c12, c20, c21, c22 = (T[R6 + s], T[R7 + s], T[R8 + s], T[R9 + s], T[R10 + s], T[R11 + s],
                                                        T[R12 + s], T[R13 + s], T[R14 + s])
@@ -104,7 +99,7 @@ def cycles_soa(T, S, dt, nl):
         a, b = series_ab(th2)
         T[R31 + s], T[R32 + s], T[R33 + s], T[R34 + s], T[R35 + s], T[R36 + s] = p0, p1, p2, th2, a, b
     rodrigues_fix(T, S)
-    for s in range(nl):  # eqs 24, 26-30
+    for s in range(L):  # eqs 24, 26-30
         lat, h = T[R0 + s], T[R2 + s]
         v0, v1, v2 = T[R3 + s], T[R4 + s], T[R5 + s]
         C = (T[R6 + s], T[R7 + s], T[R8 + s], T[R9 + s], T[R10 + s], T[R11 + s], T[R12 + s], T[R13 + s], T[R14 + s])
@@ -125,7 +120,7 @@ def cycles_soa(T, S, dt, nl):
         h1 = h + (-n2 + -v2) * half
         T[R38 + s] = lat + (v0 / (R_N + h) + n0 / (R_N + h1)) * half
         T[R39 + s], T[R40 + s], T[R41 + s], T[R42 + s] = h1, n0, n1, n2
-    for s in range(nl):  # earth_t at the new state, eq 32 and the series coefficients of exp(w_nb dt)
+    for s in range(L):  # earth_t at the new state, eq 32 and the series coefficients of exp(w_nb dt)
         lat1, h1, n0, n1 = T[R38 + s], T[R39 + s], T[R40 + s], T[R41 + s]
         sl, cl = sin_cos_t(lat1)
         den = 1.0 - E2 * (sl * sl)
@@ -147,7 +142,7 @@ def cycles_soa(T, S, dt, nl):
         T[R15 + s], T[R16 + s], T[R17 + s], T[R18 + s] = sl, cl, R_N, R_E
         T[R19 + s], T[R20 + s], T[R21 + s], T[R22 + s], T[R23 + s], T[R24 + s] = e4, e5, e6, e7, e8, e9
     rodrigues_fix(T, S)
-    for s in range(nl):  # eq 31: C_{k+1} = C exp(w_nb dt)
+    for s in range(L):  # eq 31: C_{k+1} = C exp(w_nb dt)
         C = (T[R6 + s], T[R7 + s], T[R8 + s], T[R9 + s], T[R10 + s], T[R11 + s], T[R12 + s], T[R13 + s], T[R14 + s])
         E = exp_from(T[R31 + s], T[R32 + s], T[R33 + s], T[R34 + s], T[R35 + s], T[R36 + s])
         c = mul_t(C, E)

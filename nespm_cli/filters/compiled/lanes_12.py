@@ -4,19 +4,18 @@ the same bits).
 
 ``transition_lanes_12`` is :func:`nespm_cli.filters.compiled.spans.transition_span_common` for the
 layout ``[dv, dpsi, b_a, b_g]`` (offsets -1, 0, 3, 6, 9), restructured for the machine: up to
-:data:`~nespm_cli.filters.compiled.cycle_lanes.NARROW` (28) runs are the columns of one state table and of
-one table of Φ's changing rows (velocity and attitude, 6 x 12; the bias rows stay the identity), and each
-IMU step runs all of them at once, in loops over the runs that LLVM vectorises: F's entries
-(:func:`~nespm_cli.filters.compiled.entries.va_entries_t`), Φ's rows column by column, then the navigation
-cycle (:func:`~nespm_cli.filters.compiled.cycle_lanes.cycles_soa`, compiled once for the 28 lanes of both
-this kernel and the 12-state points). Each entry of Φ's changing rows is the generic loop's sum in its
-order, ``0.0 + M[i, 0] Φ[0, k] + ... + M[i, 5] Φ[5, k] (+ M[i, k] for a bias column)``, F's structural
-zeros included as ``0.0 · dt`` terms: the same IEEE operations in the same order, so the same bits, zeros'
-signs included, and NaN where the loop gives NaN (its payload aside) for an inf or NaN input
-(tests/test_compile_kernels.py). The lanes' IMU samples and the latitude's tangent (a C-library call) are
-taken in a scalar loop. A block always computes 28 lanes (its spare lanes copy its first run), so a few
-runs pay for 28: measured per run-step, about 0.3x the scalar kernel from 24 runs up, 0.85x at 8, 1.6x
-at 4 and 5.9x at one run (benchmarks/README.md), hence ``kernels.LANES_MIN``.
+:data:`~nespm_cli.filters.compiled.cycle_lanes.L` runs are the columns of one state table and of one table of Φ's
+changing rows (velocity and attitude, 6 x 12; the bias rows stay the identity), and each IMU step runs all
+of them at once, in loops over the runs that LLVM vectorises: F's entries
+(:func:`~nespm_cli.filters.compiled.entries.va_entries_t`), Φ's rows column by column, then the
+navigation cycle (:func:`~nespm_cli.filters.compiled.cycle_lanes.cycles_soa`). Each entry of Φ's changing rows is
+the generic loop's sum in its order, ``0.0 + M[i, 0] Φ[0, k] + ... + M[i, 5] Φ[5, k] (+ M[i, k] for a bias
+column)``, F's structural zeros included as ``0.0 · dt`` terms: the same IEEE operations in the same
+order, so the same bits, zeros' signs included, and NaN where the loop gives NaN (its payload aside) for an
+inf or NaN input (tests/test_compile_kernels.py). The lanes' IMU samples and the latitude's tangent (a
+C-library call) are taken in a scalar loop. A block always computes 32 lanes (its spare lanes copy its
+first run), so a few runs pay for 32: measured per run-step, about 0.3x the scalar kernel from 24 runs
+up, 1.0x at 8, 1.9x at 4 and 6.8x at one run (benchmarks/README.md), hence ``kernels.LANES_MIN``.
 """
 from __future__ import annotations
 
@@ -24,8 +23,8 @@ import math
 
 import numpy as np
 
-from nespm_cli.filters.compiled.cycle_lanes import (L, NARROW, R0, R6, R9, R12, R25, R26, R27, R28, R29, R30, R52,
-                                                    R53, R54, R55, R56, R57, ROWS, cycles_soa)
+from nespm_cli.filters.compiled.cycle_lanes import (L, R0, R6, R9, R12, R25, R26, R27, R28, R29, R30, R52, R53, R54,
+                                           R55, R56, R57, ROWS, cycles_soa)
 from nespm_cli.filters.compiled.entries import va_entries_t
 from nespm_cli.nav.kernels import helper, load_t, njit, store_t
 
@@ -71,16 +70,15 @@ def column_t(e, z, m22, d33, d44, d55, V0, V1, V2, A0, A1, A2):
 def transition_lanes_12(pos, v, C, b_a, b_g, f, w, dt, j0, j1, Phi):
     """Steps ``[j0, j1)`` in place on the solution; Φ (R, 12, 12) = Π (I + F dt) into ``Phi`` for the
     common error (model.system_matrix) of the 12 states: transition_span_common's numbers, the runs in
-    blocks of :data:`~nespm_cli.filters.compiled.cycle_lanes.NARROW` lanes (the last block's spare lanes copy its
-    first run)."""
+    lanes of :data:`~nespm_cli.filters.compiled.cycle_lanes.L` (the last block's spare lanes copy its first run)."""
     T = np.empty(ROWS * L)  # the state table (cycle_lanes)
     P = np.empty(72 * L)  # Φ's rows 0-5: entry (i, k) of lane s at (12 i + k) L + s
     E = np.empty(ENTRIES * L)  # F's entries at the step's start
     tan_lat = np.empty(L)
     M = 12 * L
-    for r0 in range(0, pos.shape[0], NARROW):
-        n = min(NARROW, pos.shape[0] - r0)
-        for s in range(NARROW):
+    for r0 in range(0, pos.shape[0], L):
+        n = min(L, pos.shape[0] - r0)
+        for s in range(L):
             r = r0 + s if s < n else r0
             x = load_t(pos[r], v[r], C[r])
             for i in range(25):
@@ -91,12 +89,12 @@ def transition_lanes_12(pos, v, C, b_a, b_g, f, w, dt, j0, j1, Phi):
                 P[q * L + s] = 1.0 if q % 13 == 0 else 0.0  # (i, k) with i == k: q = 13 i
         for j in range(j0, j1):
             h = dt[j]
-            for s in range(NARROW):  # the lanes' bias-compensated IMU and tan(lat): gathers and calls, scalar
+            for s in range(L):  # the lanes' bias-compensated IMU and tan(lat): gathers and calls, scalar
                 r = r0 + s if s < n else r0
                 T[R52 + s], T[R53 + s], T[R54 + s] = f[r, j, 0] - T[R25 + s], f[r, j, 1] - T[R26 + s], f[r, j, 2] - T[R27 + s]
                 T[R55 + s], T[R56 + s], T[R57 + s] = w[r, j, 0] - T[R28 + s], w[r, j, 1] - T[R29 + s], w[r, j, 2] - T[R30 + s]
                 tan_lat[s] = math.tan(T[R0 + s])
-            for s in range(NARROW):  # system_rows_s then identity_plus_dt: M = I + F dt, its non-structural entries
+            for s in range(L):  # system_rows_s then identity_plus_dt: M = I + F dt, its non-structural entries
                 x = lane_t(T, s)
                 (E[s], E[L + s], E[2 * L + s], E[3 * L + s], E[4 * L + s], E[5 * L + s], E[6 * L + s], E[7 * L + s],
                  E[8 * L + s], E[9 * L + s], E[10 * L + s], E[11 * L + s], E[12 * L + s], E[13 * L + s], E[14 * L + s],
@@ -107,7 +105,7 @@ def transition_lanes_12(pos, v, C, b_a, b_g, f, w, dt, j0, j1, Phi):
             d33, d44, d55 = 0.0 * h + 1.0, 0.0 * h + 1.0, 0.0 * h + 1.0
             for k in range(12):  # rows_step, column by column (a column of Φ's new rows reads only that column)
                 o = k * L
-                for s in range(NARROW):
+                for s in range(L):
                     d0, d1, d2, e0, e1, e2 = column_t(entries_t(E, s), z, m22, d33, d44, d55, P[o + s], P[o + M + s],
                                                       P[o + 2 * M + s], P[o + 3 * M + s], P[o + 4 * M + s],
                                                       P[o + 5 * M + s])
@@ -115,7 +113,7 @@ def transition_lanes_12(pos, v, C, b_a, b_g, f, w, dt, j0, j1, Phi):
                     P[o + 3 * M + s], P[o + 4 * M + s], P[o + 5 * M + s] = e0, e1, e2
             for c in range(3):  # the bias columns: + M[i, k] (-C dt: b_a into the velocity rows, b_g into the attitude rows)
                 ov, oa, oc = (6 + c) * L, (9 + c) * L, c * L
-                for s in range(NARROW):
+                for s in range(L):
                     c0, c1, c2 = -T[R6 + oc + s] * h, -T[R9 + oc + s] * h, -T[R12 + oc + s] * h
                     P[ov + s] += c0
                     P[ov + M + s] += c1
@@ -129,7 +127,7 @@ def transition_lanes_12(pos, v, C, b_a, b_g, f, w, dt, j0, j1, Phi):
                     P[oa + 3 * M + s] += c0
                     P[oa + 4 * M + s] += c1
                     P[oa + 5 * M + s] += c2
-            cycles_soa(T, n, h, NARROW)
+            cycles_soa(T, n, h)
         for s in range(n):
             r = r0 + s
             store_t(lane_t(T, s), pos[r], v[r], C[r])
