@@ -66,6 +66,17 @@ def column_t(e, z, m22, d33, d44, d55, V0, V1, V2, A0, A1, A2):
             0.0 + z * V0 + q51 * V1 + z * V2 + t53 * A0 + t54 * A1 + d55 * A2)
 
 
+@helper
+def add_column(P, q, M, d0, d1, d2, e0, e1, e2):
+    """Φ's rows 0-5 of one lane and column (entry q of row 0, rows ``M`` apart) plus ``d0 ... e2``, in place."""
+    P[q] += d0
+    P[q + M] += d1
+    P[q + 2 * M] += d2
+    P[q + 3 * M] += e0
+    P[q + 4 * M] += e1
+    P[q + 5 * M] += e2
+
+
 @njit(cache=True, error_model="numpy")
 def transition_lanes_12(pos, v, C, b_a, b_g, f, w, dt, j0, j1, Phi):
     """Steps ``[j0, j1)`` in place on the solution; Φ (R, 12, 12) = Π (I + F dt) into ``Phi`` for the
@@ -115,18 +126,8 @@ def transition_lanes_12(pos, v, C, b_a, b_g, f, w, dt, j0, j1, Phi):
                 ov, oa, oc = (6 + c) * L, (9 + c) * L, c * L
                 for s in range(L):
                     c0, c1, c2 = -T[R6 + oc + s] * h, -T[R9 + oc + s] * h, -T[R12 + oc + s] * h
-                    P[ov + s] += c0
-                    P[ov + M + s] += c1
-                    P[ov + 2 * M + s] += c2
-                    P[ov + 3 * M + s] += z
-                    P[ov + 4 * M + s] += z
-                    P[ov + 5 * M + s] += z
-                    P[oa + s] += z
-                    P[oa + M + s] += z
-                    P[oa + 2 * M + s] += z
-                    P[oa + 3 * M + s] += c0
-                    P[oa + 4 * M + s] += c1
-                    P[oa + 5 * M + s] += c2
+                    add_column(P, ov + s, M, c0, c1, c2, z, z, z)
+                    add_column(P, oa + s, M, z, z, z, c0, c1, c2)
             cycles_soa(T, n, h)
         for s in range(n):
             r = r0 + s
