@@ -95,7 +95,8 @@ def write_mc_report(out_dir: Path, reference: str | None = None, n_boot: int = 2
     tt = track_table(metrics)
     if drawing:
         figures = plot_track_figures(*fig_args, mine)
-    phase("consistency and the PCRB")  # while the second process draws (if it still does)
+    phase("consistency, the PCRB and the pairwise comparisons")  # while the second process draws (if it still does)
+    comps = compare_filters(metrics, n_boot=n_boot, seed=seed, practical_pct=practical_pct)
     consistency = block_consistency(epochs, manifest, share=consistent_share)
     consistency_by_track = block_consistency(epochs, manifest, by_track=True, share=consistent_share)
     pcrb = pcrb_md(epochs, manifest, metrics, series_files(out_dir, manifest) if needs_series(epochs) else ())
@@ -107,7 +108,7 @@ def write_mc_report(out_dir: Path, reference: str | None = None, n_boot: int = 2
     text = render_report(metrics, manifest, table, tt, figures, out_dir, n_boot, seed,
                          practical_pct=practical_pct, beside=beside_text, all_runs=all_runs,
                          notes=figure_notes(epochs, metrics, manifest), consistency=consistency,
-                         consistency_by_track=consistency_by_track, pcrb=pcrb)
+                         consistency_by_track=consistency_by_track, pcrb=pcrb, comps=comps)
     path = out_dir / "report.md"
     write_text_atomic(path, text)
     return path

@@ -344,16 +344,20 @@ def render_report(
     consistency: pd.DataFrame | None = None,
     consistency_by_track: pd.DataFrame | None = None,
     pcrb: str = "",
+    comps: pd.DataFrame | None = None,
 ) -> str:
     """The full markdown text of ``report.md``: header, the link to docs/report.md, the Verdict
     (:func:`verdict.verdict_table` of :func:`compare_filters` with ``practical_pct``), the Caveats
     (each once; ``notes``: the figures' own, :func:`mc_figures.figure_notes`), the tables, the
     figures (:func:`mc_figures.figures_md`), the pairwise comparisons, the published tables and
-    ``beside`` (the :func:`beside_md` section, if any)."""
+    ``beside`` (the :func:`beside_md` section, if any). ``comps``: :func:`compare_filters` of ``metrics`` with
+    these ``n_boot``, ``seed``, ``practical_pct`` and ``min_pairs``, if the caller has it (formed here
+    otherwise; :func:`~nespm_cli.reports.mc.write_mc_report` forms it while the figures are drawn)."""
     scenario = scenario_of(metrics, manifest)
     ref = table.attrs["reference"]
-    comps = compare_filters(metrics, n_boot=n_boot, seed=seed, practical_pct=practical_pct,
-                            min_pairs=min_pairs)
+    if comps is None:
+        comps = compare_filters(metrics, n_boot=n_boot, seed=seed, practical_pct=practical_pct,
+                                min_pairs=min_pairs)
     vt = verdict_table(metrics, ref, n_boot=n_boot, seed=seed, practical_pct=practical_pct,
                        min_pairs=min_pairs, comps=comps, consistency=consistency)
     has_blocks = consistency is not None and not consistency.empty
