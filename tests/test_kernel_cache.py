@@ -114,7 +114,8 @@ def test_kernels_per_filter_and_layout():
     assert kernels_for(["ekf", "ukf-nespm"], runs=kernels.LANES_MIN) == ("transition", "transition-lanes", "points")
     assert kernels_for(["ekf"], runs=kernels.LANES_MIN - 1) == ("transition",)
     assert kernels_for(["ukf-nespm", "ins"], runs=100) == ("strapdown", "transition", "points")  # no Φ of theirs
-    assert kernels_for(["ekf"], LAYOUT_15, runs=100) == ("transition-position",)
+    assert kernels_for(["ekf"], LAYOUT_15, runs=100) == ("transition-position", "transition-position-lanes")
+    assert kernels_for(["ekf"], LAYOUT_15, runs=kernels.LANES_MIN) == ("transition-position",)  # 15 states: from 12
     assert kernels_for(["ekf"], runs=None) == ("transition", "transition-lanes")  # nespm warm-up: any batch
     with pytest.raises(Exception, match="unknown kernel"):
         kernels.warm_up(["no-such-kernel"])

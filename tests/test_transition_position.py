@@ -36,3 +36,46 @@ def test_position_kernel_is_bit_identical_to_generic(seed):
         assert np.array_equal(a, b)
     assert np.abs(out[0][0][:, 9:, :] - np.eye(15)[9:]).max() == 0.0  # bias rows stay identity rows
     assert np.abs(out[0][0][:, :9, :9] - np.eye(9)).max() > 1e-3  # the product did move Φ
+
+
+def _same_bits(a: np.ndarray, b: np.ndarray) -> bool:
+    """Equal to the bit, zeros' signs included."""
+    return np.array_equal(a, b) and np.array_equal(np.signbit(a), np.signbit(b))
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+@pytest.mark.parametrize("R,span", [(12, (3, 250)), (37, (0, 1)), (37, (0, 2)), (9, (4, 4))])
+def test_position_lanes_are_the_run_by_run_kernel_to_the_bit(seed, R, span):
+    """transition_lanes_15 (the runs in SIMD lanes: one block with spare lanes, two blocks) against
+    transition_span_position: Φ and the propagated solution to the bit, zeros' signs included (spans of one
+    and two steps, where Φ still holds exact zeros, an empty span, a long one); and kernels.transition picks
+    it from LANES_MIN_15 runs."""
+    if not compiled_enabled():
+        pytest.skip("numba not available")
+    from nespm_cli.filters import kernels
+    from nespm_cli.filters.compiled.lanes_15 import transition_lanes_15
+
+    rng = np.random.default_rng(seed)
+    M = 250
+    pos = np.column_stack([rng.uniform(-1.3, 1.3, R), rng.uniform(-3, 3, R), rng.uniform(-500, 10, R)])
+    v = 3.0 * rng.standard_normal((R, 3))
+    v[0] = 0.0  # zero velocity: F's entries from it are exact zeros
+    C = np.stack([np.linalg.qr(rng.standard_normal((3, 3)))[0] for _ in range(R)])
+    b_a, b_g = 0.05 * rng.standard_normal((R, 3)), 1e-3 * rng.standard_normal((R, 3))
+    f = np.tile([0.0, 0.0, -9.8], (R, M, 1)) + 0.5 * rng.standard_normal((R, M, 3))
+    w = 0.05 * rng.standard_normal((R, M, 3))
+    w[1, 5] = 4.0  # a rotation above 0.01 rad per step: the Rodrigues branch
+    dt = rng.uniform(0.005, 0.02, M)
+    out = []
+    for kernel in (tk.transition_span_position, transition_lanes_15):
+        s = [pos.copy(), v.copy(), C.copy()]
+        Phi = np.full((R, 15, 15), 7.0)
+        kernel(*s, b_a, b_g, f, w, dt, *span, Phi)
+        out.append((Phi, *s))
+    for a, b in zip(*out):
+        assert _same_bits(a, b)
+    if span[1] - span[0] <= 2 and span[1] > span[0]:
+        assert np.any(out[0][0] == 0.0)  # exact zeros were compared
+    assert kernels.lanes_from(LAYOUT_15) == kernels.LANES_MIN_15
+    assert kernels.transition_kernel(False, LAYOUT_15, R) == (
+        "transition-position-lanes" if R >= kernels.LANES_MIN_15 else "transition-position")

@@ -288,13 +288,13 @@ def kernels_for(filters, layout=None, runs: int | None = 1) -> tuple[str, ...]:
     """The kernels (:data:`nespm_cli.filters.kernels.KERNELS`) that running ``filters`` (names) with the error-state ``layout``
     on batches of up to ``runs`` runs uses: the points for the sigma-point NESPM filters, Φ_inv for the
     iekf, the free-inertial loop for ins, and Φ of the common error for every other error-state filter
-    (for ``runs`` from ``kernels.LANES_MIN``, the 12 states' with the runs in lanes) and always run by
+    (for ``runs`` from ``kernels.lanes_from(layout)``, the 12 or 15 states' with the runs in lanes) and always run by
     run (the PCRB's Φ along the truth). ``runs=None``: any batch (``nespm warm-up``). ``layout``: a
     :class:`~nespm_cli.nav.state.StateLayout` (default the papers' 12 states). A name that is not a
     registered filter adds nothing."""
     from nespm_cli.errors import NespmError
     from nespm_cli.filters.ins import InsFilter
-    from nespm_cli.filters.kernels import KERNELS, LANES_MIN, transition_kernel
+    from nespm_cli.filters.kernels import KERNELS, lanes_from, transition_kernel
     from nespm_cli.filters.protocol import ErrorStateFilter
     from nespm_cli.filters.registry import get_filter
     from nespm_cli.filters.ukf import UKFNespm
@@ -316,7 +316,7 @@ def kernels_for(filters, layout=None, runs: int | None = 1) -> tuple[str, ...]:
         elif getattr(cls, "invariant_error", False):
             need.add(transition_kernel(True, layout))
         else:
-            need.add(transition_kernel(False, layout, LANES_MIN if runs is None else runs))
+            need.add(transition_kernel(False, layout, lanes_from(layout) if runs is None else runs))
     return tuple(k for k in KERNELS if k in need)
 
 

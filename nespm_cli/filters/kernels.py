@@ -108,15 +108,18 @@ def _f64(a: np.ndarray) -> np.ndarray:
 #: the compiled kernels by name (what :func:`warm_up`, :func:`kernels_cached` and the ready marks in
 #: the cache folder speak of): the free-inertial loop, Φ of the common error (the papers' 12 states
 #: unrolled, run by run, or from :data:`LANES_MIN` runs in SIMD lanes; the 15 states with F's zeros
-#: skipped; any other layout, a plugin's, in the generic loop), Φ_inv of the iekf (12 / 15 states), the
+#: skipped, likewise; any other layout, a plugin's, in the generic loop), Φ_inv of the iekf (12 / 15 states), the
 #: sigma/cubature points
-KERNELS = ("strapdown", "transition", "transition-lanes", "transition-position", "transition-generic",
-           "transition-invariant", "transition-invariant-position", "points")
+KERNELS = ("strapdown", "transition", "transition-lanes", "transition-position", "transition-position-lanes",
+           "transition-generic", "transition-invariant", "transition-invariant-position", "points")
 #: runs from which the papers' 12-state Φ runs with the runs in SIMD lanes ("transition-lanes",
 #: filters/compiled/lanes_12.py), fewer run by run ("transition"): a block of lanes costs 32 runs'
 #: cycles whatever it holds; at 8 runs the two cost the same per run-step, from 24 the lanes about 0.3x
 #: (benchmarks/README.md). The same bits either way, so no number depends on the chunk size.
 LANES_MIN = 8
+#: ... and for the 15 states' Φ ("transition-position-lanes", filters/compiled/lanes_15.py), whose block costs
+#: more: at 8 runs the lanes cost 1.3x per run-step, at 10 1.05x, at 12 0.87x, from 24 about 0.5x
+LANES_MIN_15 = 12
 #: a layout that only the generic Φ loop runs (what warm_up compiles "transition-generic" on)
 GENERIC_LAYOUT = StateLayout(("pos", "vel", "att"))
 
@@ -142,14 +145,23 @@ def strapdown(pos, v_n, C_bn, b_a, b_g, f, w, dt, j0: int, j1: int) -> None:
     run_kernel("strapdown", nk.strapdown_span, pos, v_n, C_bn, b_a, b_g, _f64(f), _f64(w), _f64(dt), j0, j1)
 
 
+def lanes_from(layout: StateLayout) -> int:
+    """The runs from which ``layout``'s common-error Φ runs with the runs in SIMD lanes: :data:`LANES_MIN`,
+    :data:`LANES_MIN_15` for the 15 states (any other layout never: the generic loop)."""
+    return LANES_MIN_15 if layout.blocks == LAYOUT_15.blocks else LANES_MIN
+
+
 def transition_kernel(invariant: bool, layout: StateLayout, runs: int = 1) -> str:
     """The name (:data:`KERNELS`) of the kernel :func:`transition` runs for ``invariant``, ``layout`` and
     a batch of ``runs`` runs."""
     if invariant:
         return "transition-invariant-position" if layout.has("pos") else "transition-invariant"
+    lanes = runs >= lanes_from(layout)
     if layout.blocks == LAYOUT_12.blocks:
-        return "transition-lanes" if runs >= LANES_MIN else "transition"
-    return "transition-position" if layout.blocks == LAYOUT_15.blocks else "transition-generic"
+        return "transition-lanes" if lanes else "transition"
+    if layout.blocks == LAYOUT_15.blocks:
+        return "transition-position-lanes" if lanes else "transition-position"
+    return "transition-generic"
 
 
 def transition(pos, v_n, C_bn, b_a, b_g, f, w, dt, j0: int, j1: int, invariant: bool = False,
@@ -170,6 +182,10 @@ def transition(pos, v_n, C_bn, b_a, b_g, f, w, dt, j0: int, j1: int, invariant: 
         run_kernel(name, tk.transition_span_invariant_position, *args, off, np.ascontiguousarray(origin, dtype=np.float64))
     elif name == "transition-position":  # the 15 states: F's zeros skipped
         run_kernel(name, tk.transition_span_position, *args)
+    elif name == "transition-position-lanes":  # ... and from LANES_MIN runs, the runs in SIMD lanes (the same bits)
+        from nespm_cli.filters.compiled.lanes_15 import transition_lanes_15
+
+        run_kernel(name, transition_lanes_15, *args)
     elif name == "transition-invariant":
         run_kernel(name, tk.transition_span_invariant, *args, off)
     elif name == "transition":  # the papers' 12 states: the generic loop unrolled (the same bits, less to compile)
@@ -230,10 +246,11 @@ def warm_up(names=None) -> float:
             strapdown(pos.copy(), v.copy(), C.copy(), b, b, f, w, dt, 0, M)
         elif name == "points":
             points_through_cycle(pos, v, C, b, b, np.zeros((R, 24, 12)), f, w, dt, 0, M, LAYOUT_12)
-        elif name == "transition-lanes":
-            n = LANES_MIN
+        elif name.endswith("lanes"):
+            layout = LAYOUT_15 if "position" in name else LAYOUT_12
+            n = lanes_from(layout)
             transition(np.repeat(pos, n, 0), np.repeat(v, n, 0), np.repeat(C, n, 0), np.repeat(b, n, 0),
-                       np.repeat(b, n, 0), np.repeat(f, n, 0), np.repeat(w, n, 0), dt, 0, M)
+                       np.repeat(b, n, 0), np.repeat(f, n, 0), np.repeat(w, n, 0), dt, 0, M, layout=layout)
         elif name.startswith("transition"):
             layout = LAYOUT_15 if name.endswith("position") else GENERIC_LAYOUT if name.endswith("generic") else LAYOUT_12
             transition(pos.copy(), v.copy(), C.copy(), b, b, f, w, dt, 0, M, "invariant" in name, layout, pos)

@@ -59,8 +59,8 @@ class KernelCacheWarning(UserWarning):
 #: the files (relative to the package) whose text the compiled kernels depend on: their code, what
 #: they inline, the earth constants they freeze. A new kernel module must be listed here.
 KERNEL_SOURCES = ("nav/earth.py", "nav/trig.py", "nav/kernels.py", "filters/compiled/spans.py",
-                  "filters/compiled/unrolled_12.py", "filters/compiled/lanes_12.py", "filters/compiled/points.py",
-                  "filters/compiled/cycle_lanes.py", "filters/compiled/entries.py")
+                  "filters/compiled/unrolled_12.py", "filters/compiled/lanes_12.py", "filters/compiled/lanes_15.py",
+                  "filters/compiled/points.py", "filters/compiled/cycle_lanes.py", "filters/compiled/entries.py")
 #: the kernels (filters.kernels names) this process has already used: no cache check on later calls
 READY: set[str] = set()
 _folders: dict[tuple[str, str], Path | None] = {}

@@ -7,6 +7,7 @@ the NumPy reference), never directly by a filter.
 * :mod:`.entries` — F's entries on the velocity and attitude rows, shared by the unrolled Φ kernels;
 * :mod:`.unrolled_12` — the papers' 12-state Φ written out, run by run;
 * :mod:`.lanes_12` — the same with the runs in SIMD lanes (from ``kernels.LANES_MIN`` runs);
+* :mod:`.lanes_15` — the 15 states' Φ with the runs in SIMD lanes (from ``kernels.LANES_MIN_15`` runs);
 * :mod:`.cycle_lanes` — the navigation cycle of a table of states in SIMD lanes;
 * :mod:`.points` — a run's sigma/cubature points through the cycle in SIMD lanes.
 

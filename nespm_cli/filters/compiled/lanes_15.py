@@ -1,0 +1,112 @@
+"""The 15-state common-error Φ kernel (position in the state), the runs in SIMD lanes (numba; called through
+:mod:`nespm_cli.filters.kernels` from ``kernels.LANES_MIN`` runs up; fewer run by run in
+:func:`.spans.transition_span_position`, the same bits).
+
+``transition_lanes_15`` is :func:`.spans.transition_span_position` for the layout ``[dp, dv, dpsi, b_a, b_g]``
+(offsets 0, 3, 6, 9, 12) restructured as :mod:`.lanes_12`: up to :data:`~.cycle_lanes.L` runs are the columns
+of one state table and of one table of Φ's changing rows (position, velocity and attitude, 9 x 15; the bias
+rows stay the identity), and each IMU step forms F's entries (with the vertical gravity gradient), Φ's
+columns and the navigation cycle of all lanes in vectorised loops. Each entry of Φ's changing rows is
+``transition_span_position``'s sum in its order (F's structural zeros skipped, the bias columns' ``-C dt``
+before the gravity gradient's term, the position rows the integral of the velocity rows): the same bits
+(tests/test_transition_position.py).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from nespm_cli.filters.compiled.cycle_lanes import (L, R0, R2, R6, R9, R12, R15, R25, R26, R27, R28, R29, R30, R52,
+                                                    R53, R54, R55, R56, R57, ROWS, cycles_soa)
+from nespm_cli.filters.compiled.entries import va_entries_t
+from nespm_cli.filters.compiled.lanes_12 import ENTRIES, entries_t, lane_t
+from nespm_cli.filters.compiled.spans import gravity_gradient_t
+from nespm_cli.nav.kernels import helper, load_t, njit, store_t
+
+
+@helper
+def column_15_t(e, V0, V1, V2, A0, A1, A2):
+    """Column k of Φ's new velocity and attitude rows of the 15 states, F's zeros skipped, the sums of
+    ``spans.transition_span_position`` (before a bias column's ``-C dt`` and the gravity gradient's term),
+    from the 23 entries ``e`` of :func:`va_entries_t` and the column's old entries ``V0 ... A2``."""
+    (m00, m01, m02, m10, m11, m12, m20, m21, n04, n05, n13, n15, n23, n24, q31, q40, q51,
+     t34, t35, t43, t45, t53, t54) = e
+    return (m00 * V0 + m01 * V1 + m02 * V2 + n04 * A1 + n05 * A2,
+            m10 * V0 + m11 * V1 + m12 * V2 + n13 * A0 + n15 * A2,
+            m20 * V0 + m21 * V1 + V2 + n23 * A0 + n24 * A1,
+            q31 * V1 + A0 + t34 * A1 + t35 * A2,
+            q40 * V0 + t43 * A0 + A1 + t45 * A2,
+            q51 * V1 + t53 * A0 + t54 * A1 + A2)
+
+
+@helper
+def put_column_15(P, q, M, h, g, p2, V0, V1, V2, d0, d1, d2, e0, e1, e2):
+    """Write one lane's column (entry q of row 0, rows ``M`` apart) of Φ's rows 0-8: the position rows plus
+    ``h`` times the old velocity rows, the velocity rows ``d`` (``d2`` plus ``g`` times the old ``p2``), the
+    attitude rows ``e``."""
+    P[q] += h * V0
+    P[q + M] += h * V1
+    P[q + 2 * M] += h * V2
+    P[q + 3 * M], P[q + 4 * M], P[q + 5 * M] = d0, d1, d2 + g * p2
+    P[q + 6 * M], P[q + 7 * M], P[q + 8 * M] = e0, e1, e2
+
+
+@njit(cache=True, error_model="numpy")
+def transition_lanes_15(pos, v, C, b_a, b_g, f, w, dt, j0, j1, Phi):
+    """Steps ``[j0, j1)`` in place on the solution; Φ (R, 15, 15) = Π (I + F dt) into ``Phi`` for the
+    common error of the 15 states: transition_span_position's numbers, the runs in lanes of
+    :data:`~.cycle_lanes.L` (the last block's spare lanes copy its first run)."""
+    T = np.empty(ROWS * L)  # the state table (cycle_lanes)
+    P = np.empty(135 * L)  # Φ's rows 0-8: entry (i, k) of lane s at (15 i + k) L + s
+    E = np.empty((ENTRIES + 1) * L)  # F's entries at the step's start, then g dt
+    tan_lat = np.empty(L)
+    M = 15 * L
+    G = ENTRIES * L
+    for r0 in range(0, pos.shape[0], L):
+        n = min(L, pos.shape[0] - r0)
+        for s in range(L):
+            r = r0 + s if s < n else r0
+            x = load_t(pos[r], v[r], C[r])
+            for i in range(25):
+                T[i * L + s] = x[i]
+            T[R25 + s], T[R26 + s], T[R27 + s] = b_a[r, 0], b_a[r, 1], b_a[r, 2]
+            T[R28 + s], T[R29 + s], T[R30 + s] = b_g[r, 0], b_g[r, 1], b_g[r, 2]
+            for q in range(135):
+                P[q * L + s] = 1.0 if q % 16 == 0 else 0.0  # (i, k) with i == k: q = 16 i
+        for j in range(j0, j1):
+            h = dt[j]
+            for s in range(L):  # the lanes' bias-compensated IMU and tan(lat): gathers and calls, scalar
+                r = r0 + s if s < n else r0
+                T[R52 + s], T[R53 + s], T[R54 + s] = f[r, j, 0] - T[R25 + s], f[r, j, 1] - T[R26 + s], f[r, j, 2] - T[R27 + s]
+                T[R55 + s], T[R56 + s], T[R57 + s] = w[r, j, 0] - T[R28 + s], w[r, j, 1] - T[R29 + s], w[r, j, 2] - T[R30 + s]
+                tan_lat[s] = math.tan(T[R0 + s])
+            for s in range(L):  # F's entries as in transition_span_position, and the gravity gradient times dt
+                (E[s], E[L + s], E[2 * L + s], E[3 * L + s], E[4 * L + s], E[5 * L + s], E[6 * L + s], E[7 * L + s],
+                 E[8 * L + s], E[9 * L + s], E[10 * L + s], E[11 * L + s], E[12 * L + s], E[13 * L + s], E[14 * L + s],
+                 E[15 * L + s], E[16 * L + s], E[17 * L + s], E[18 * L + s], E[19 * L + s], E[20 * L + s],
+                 E[21 * L + s], E[22 * L + s]) = va_entries_t(lane_t(T, s), tan_lat[s], T[R52 + s], T[R53 + s],
+                                                              T[R54 + s], h)
+                E[G + s] = gravity_gradient_t(T[R0 + s], T[R2 + s], T[R15 + s]) * h
+            for k in range(15):  # column by column (a column of Φ's new rows reads only that column)
+                o = k * L
+                c = (k - 9 if k < 12 else k - 12) * L  # a bias column's column of C
+                for s in range(L):
+                    p2 = P[o + 2 * M + s]
+                    V0, V1, V2 = P[o + 3 * M + s], P[o + 4 * M + s], P[o + 5 * M + s]
+                    d0, d1, d2, e0, e1, e2 = column_15_t(entries_t(E, s), V0, V1, V2, P[o + 6 * M + s],
+                                                         P[o + 7 * M + s], P[o + 8 * M + s])
+                    if k >= 9:  # + M[i, k]: -C dt, b_a into the velocity rows, b_g into the attitude rows
+                        c0, c1, c2 = -T[R6 + c + s] * h, -T[R9 + c + s] * h, -T[R12 + c + s] * h
+                        if k < 12:
+                            d0, d1, d2 = d0 + c0, d1 + c1, d2 + c2
+                        else:
+                            e0, e1, e2 = e0 + c0, e1 + c1, e2 + c2
+                    put_column_15(P, o + s, M, h, E[G + s], p2, V0, V1, V2, d0, d1, d2, e0, e1, e2)
+            cycles_soa(T, n, h)
+        for s in range(n):
+            r = r0 + s
+            store_t(lane_t(T, s), pos[r], v[r], C[r])
+            for i in range(15):
+                for k in range(15):
+                    Phi[r, i, k] = P[(15 * i + k) * L + s] if i < 9 else (1.0 if i == k else 0.0)
