@@ -17,7 +17,7 @@ import pytest
 from conftest import console_script, env_without_data_dir
 from nespm_cli.experiments.progress import kernels_for
 from nespm_cli.filters import kernels
-from nespm_cli.nav.state import LAYOUT_12, StateLayout
+from nespm_cli.nav.state import LAYOUT_12, LAYOUT_15, StateLayout
 
 PACKAGE = Path(kernels.__file__).resolve().parents[1]
 
@@ -82,6 +82,34 @@ def test_12_state_kernel_is_the_generic_loop_to_the_bit(seed, span, kernel, R):
     if j1 - j0 > 2:
         assert np.isnan(Phi).any() and np.isfinite(Phi[0]).all()  # the NaN run compared, the clean run finite
 
+
+
+@needs_numba
+@pytest.mark.parametrize("seed", [1, 2])
+@pytest.mark.parametrize("R,span", [(12, (3, 120)), (37, (0, 1)), (37, (0, 2)), (9, (5, 5))])
+def test_15_state_lanes_are_the_run_by_run_kernel_to_the_bit(seed, R, span):
+    """transition_lanes_15 (the runs in SIMD lanes: one block with spare lanes, two blocks) against
+    transition_span_position (F's zeros skipped; itself the generic loop's numbers, tests/test_transition_position.py):
+    Φ and the propagated solution to the bit, zeros' signs included, on spans of one and two steps (where Φ
+    still holds exact zeros), an empty span and a long one through a pole, a fast rotation, a NaN and an
+    infinite IMU sample; kernels.transition picks it from LANES_MIN_15 runs."""
+    from nespm_cli.filters.compiled import spans as tk
+    from nespm_cli.filters.compiled.lanes_15 import transition_lanes_15
+
+    pos, v, C, b_a, b_g, f, w, dt = _inputs(seed, R)
+    out = []
+    for kernel in (tk.transition_span_position, transition_lanes_15):
+        state = [pos.copy(), v.copy(), C.copy()]
+        Phi = np.full((R, 15, 15), 7.0)
+        kernel(*state, b_a, b_g, f, w, dt, *span, Phi)
+        out.append((Phi, *state))
+    for a, b in zip(*out):
+        assert _same_bits(a, b)
+    if span[1] - span[0] in (1, 2):
+        assert np.any(out[0][0] == 0.0)  # exact zeros were compared
+    assert kernels.lanes_from(LAYOUT_15) == kernels.LANES_MIN_15
+    assert kernels.transition_kernel(False, LAYOUT_15, R) == (
+        "transition-position-lanes" if R >= kernels.LANES_MIN_15 else "transition-position")
 
 @needs_numba
 def test_kernels_transition_runs_the_12_state_kernel_for_the_papers_layout():

@@ -51,6 +51,39 @@ def entries_t(E, s):
 
 
 @helper
+def load_block(T, pos, v, C, b_a, b_g, r0, n):
+    """The state table ``T`` of the block of ``n`` runs from run ``r0``: rows 0-24 each run's cycle tuple
+    (``nav.kernels.load_t``), 25-30 its ``b_a``, ``b_g``; the spare lanes a copy of run ``r0``."""
+    for s in range(L):
+        r = r0 + s if s < n else r0
+        x = load_t(pos[r], v[r], C[r])
+        for i in range(25):
+            T[i * L + s] = x[i]
+        T[R25 + s], T[R26 + s], T[R27 + s] = b_a[r, 0], b_a[r, 1], b_a[r, 2]
+        T[R28 + s], T[R29 + s], T[R30 + s] = b_g[r, 0], b_g[r, 1], b_g[r, 2]
+
+
+@helper
+def imu_block(T, f, w, j, r0, n, tan_lat):
+    """IMU step ``j`` of the block's runs into rows 52-57 (``f_b − b_a``, ``w_ib_b − b_g``) and ``tan_lat``
+    (L,) the tangent of each lane's latitude: gathers and C-library calls, a scalar loop."""
+    for s in range(L):
+        r = r0 + s if s < n else r0
+        T[R52 + s], T[R53 + s], T[R54 + s] = f[r, j, 0] - T[R25 + s], f[r, j, 1] - T[R26 + s], f[r, j, 2] - T[R27 + s]
+        T[R55 + s], T[R56 + s], T[R57 + s] = w[r, j, 0] - T[R28 + s], w[r, j, 1] - T[R29 + s], w[r, j, 2] - T[R30 + s]
+        tan_lat[s] = math.tan(T[R0 + s])
+
+
+@helper
+def entries_into(E, T, s, tan_lat, h):
+    """Lane ``s``'s 23 entries of F (:func:`va_entries_t`, at its state and IMU sample in ``T``) into ``E``."""
+    (E[s], E[L + s], E[2 * L + s], E[3 * L + s], E[4 * L + s], E[5 * L + s], E[6 * L + s], E[7 * L + s],
+     E[8 * L + s], E[9 * L + s], E[10 * L + s], E[11 * L + s], E[12 * L + s], E[13 * L + s], E[14 * L + s],
+     E[15 * L + s], E[16 * L + s], E[17 * L + s], E[18 * L + s], E[19 * L + s], E[20 * L + s],
+     E[21 * L + s], E[22 * L + s]) = va_entries_t(lane_t(T, s), tan_lat, T[R52 + s], T[R53 + s], T[R54 + s], h)
+
+
+@helper
 def column_t(e, z, m22, d33, d44, d55, V0, V1, V2, A0, A1, A2):
     """Column k of Φ's new velocity and attitude rows, ``M[0:6, 0:6] Φ[0:6, k]`` summed as the generic loop
     (``0.0 +`` each term in order, F's structural zeros as ``z`` = 0 · dt), from the 23 entries ``e`` of
@@ -89,28 +122,15 @@ def transition_lanes_12(pos, v, C, b_a, b_g, f, w, dt, j0, j1, Phi):
     M = 12 * L
     for r0 in range(0, pos.shape[0], L):
         n = min(L, pos.shape[0] - r0)
+        load_block(T, pos, v, C, b_a, b_g, r0, n)
         for s in range(L):
-            r = r0 + s if s < n else r0
-            x = load_t(pos[r], v[r], C[r])
-            for i in range(25):
-                T[i * L + s] = x[i]
-            T[R25 + s], T[R26 + s], T[R27 + s] = b_a[r, 0], b_a[r, 1], b_a[r, 2]
-            T[R28 + s], T[R29 + s], T[R30 + s] = b_g[r, 0], b_g[r, 1], b_g[r, 2]
             for q in range(72):
                 P[q * L + s] = 1.0 if q % 13 == 0 else 0.0  # (i, k) with i == k: q = 13 i
         for j in range(j0, j1):
             h = dt[j]
-            for s in range(L):  # the lanes' bias-compensated IMU and tan(lat): gathers and calls, scalar
-                r = r0 + s if s < n else r0
-                T[R52 + s], T[R53 + s], T[R54 + s] = f[r, j, 0] - T[R25 + s], f[r, j, 1] - T[R26 + s], f[r, j, 2] - T[R27 + s]
-                T[R55 + s], T[R56 + s], T[R57 + s] = w[r, j, 0] - T[R28 + s], w[r, j, 1] - T[R29 + s], w[r, j, 2] - T[R30 + s]
-                tan_lat[s] = math.tan(T[R0 + s])
+            imu_block(T, f, w, j, r0, n, tan_lat)
             for s in range(L):  # system_rows_s then identity_plus_dt: M = I + F dt, its non-structural entries
-                x = lane_t(T, s)
-                (E[s], E[L + s], E[2 * L + s], E[3 * L + s], E[4 * L + s], E[5 * L + s], E[6 * L + s], E[7 * L + s],
-                 E[8 * L + s], E[9 * L + s], E[10 * L + s], E[11 * L + s], E[12 * L + s], E[13 * L + s], E[14 * L + s],
-                 E[15 * L + s], E[16 * L + s], E[17 * L + s], E[18 * L + s], E[19 * L + s], E[20 * L + s],
-                 E[21 * L + s], E[22 * L + s]) = va_entries_t(x, tan_lat[s], T[R52 + s], T[R53 + s], T[R54 + s], h)
+                entries_into(E, T, s, tan_lat[s], h)
             z = 0.0 * h  # a structural zero of F, times dt
             m22 = 0.0 * h + 1.0
             d33, d44, d55 = 0.0 * h + 1.0, 0.0 * h + 1.0, 0.0 * h + 1.0

@@ -13,16 +13,12 @@ before the gravity gradient's term, the position rows the integral of the veloci
 """
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
-from nespm_cli.filters.compiled.cycle_lanes import (L, R0, R2, R6, R9, R12, R15, R25, R26, R27, R28, R29, R30, R52,
-                                                    R53, R54, R55, R56, R57, ROWS, cycles_soa)
-from nespm_cli.filters.compiled.entries import va_entries_t
-from nespm_cli.filters.compiled.lanes_12 import ENTRIES, entries_t, lane_t
+from nespm_cli.filters.compiled.cycle_lanes import L, R0, R2, R6, R9, R12, R15, ROWS, cycles_soa
+from nespm_cli.filters.compiled.lanes_12 import ENTRIES, entries_into, entries_t, imu_block, lane_t, load_block
 from nespm_cli.filters.compiled.spans import gravity_gradient_t
-from nespm_cli.nav.kernels import helper, load_t, njit, store_t
+from nespm_cli.nav.kernels import helper, njit, store_t
 
 
 @helper
@@ -65,28 +61,15 @@ def transition_lanes_15(pos, v, C, b_a, b_g, f, w, dt, j0, j1, Phi):
     G = ENTRIES * L
     for r0 in range(0, pos.shape[0], L):
         n = min(L, pos.shape[0] - r0)
+        load_block(T, pos, v, C, b_a, b_g, r0, n)
         for s in range(L):
-            r = r0 + s if s < n else r0
-            x = load_t(pos[r], v[r], C[r])
-            for i in range(25):
-                T[i * L + s] = x[i]
-            T[R25 + s], T[R26 + s], T[R27 + s] = b_a[r, 0], b_a[r, 1], b_a[r, 2]
-            T[R28 + s], T[R29 + s], T[R30 + s] = b_g[r, 0], b_g[r, 1], b_g[r, 2]
             for q in range(135):
                 P[q * L + s] = 1.0 if q % 16 == 0 else 0.0  # (i, k) with i == k: q = 16 i
         for j in range(j0, j1):
             h = dt[j]
-            for s in range(L):  # the lanes' bias-compensated IMU and tan(lat): gathers and calls, scalar
-                r = r0 + s if s < n else r0
-                T[R52 + s], T[R53 + s], T[R54 + s] = f[r, j, 0] - T[R25 + s], f[r, j, 1] - T[R26 + s], f[r, j, 2] - T[R27 + s]
-                T[R55 + s], T[R56 + s], T[R57 + s] = w[r, j, 0] - T[R28 + s], w[r, j, 1] - T[R29 + s], w[r, j, 2] - T[R30 + s]
-                tan_lat[s] = math.tan(T[R0 + s])
+            imu_block(T, f, w, j, r0, n, tan_lat)
             for s in range(L):  # F's entries as in transition_span_position, and the gravity gradient times dt
-                (E[s], E[L + s], E[2 * L + s], E[3 * L + s], E[4 * L + s], E[5 * L + s], E[6 * L + s], E[7 * L + s],
-                 E[8 * L + s], E[9 * L + s], E[10 * L + s], E[11 * L + s], E[12 * L + s], E[13 * L + s], E[14 * L + s],
-                 E[15 * L + s], E[16 * L + s], E[17 * L + s], E[18 * L + s], E[19 * L + s], E[20 * L + s],
-                 E[21 * L + s], E[22 * L + s]) = va_entries_t(lane_t(T, s), tan_lat[s], T[R52 + s], T[R53 + s],
-                                                              T[R54 + s], h)
+                entries_into(E, T, s, tan_lat[s], h)
                 E[G + s] = gravity_gradient_t(T[R0 + s], T[R2 + s], T[R15 + s]) * h
             for k in range(15):  # column by column (a column of Φ's new rows reads only that column)
                 o = k * L
