@@ -1,4 +1,4 @@
-"""The 15-state common-error Φ kernel (transition_kernel.transition_span_position, F's structural
+"""The 15-state common-error Φ kernel (compiled.spans.transition_span_position, F's structural
 zeros skipped) against the generic row loop (transition_span_common with the 15-state offsets): the same
 bits, Φ and the propagated solution, over random states, biases and IMU samples."""
 import numpy as np

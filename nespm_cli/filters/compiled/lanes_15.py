@@ -9,7 +9,7 @@ rows stay the identity), and each IMU step forms F's entries (with the vertical 
 columns and the navigation cycle of all lanes in vectorised loops. Each entry of Φ's changing rows is
 ``transition_span_position``'s sum in its order (F's structural zeros skipped, the bias columns' ``-C dt``
 before the gravity gradient's term, the position rows the integral of the velocity rows): the same bits
-(tests/test_transition_position.py).
+(tests/test_compile_kernels.py).
 """
 from __future__ import annotations
 
