@@ -408,11 +408,11 @@ def run_cells(cells: list[Cell], options: dict, out_dir: str | Path, execution: 
     todo = [Task(chunk_key(c, n, f0), (_absolute(c), n, f0, str(out.resolve()), f1, fs),
                  len(fs) * (track_epochs(c.spec, n) - 1))
             for c, n, f0, f1 in tasks for fs in [missing(c, n, f0)] if fs]
+    sizes = [t.args[4] - t.args[2] for t in todo]  # runs per chunk (the largest decides which Φ kernel runs)
     if todo and ex.local:  # before the progress bar: its ETA starts with the chunks
-        runs = max(t.args[4] - t.args[2] for t in todo)  # the largest chunk: which Φ kernel it runs
         compile_kernels(label, ex.progress, kernels=tuple(dict.fromkeys(
-            k for c in cells for k in kernels_for(c.spec.filters, c.spec.filter_config.layout, runs))))
-    folder.run(run_chunk_keyed, todo, ex, label, detail=chunk_detail([t.args[4] - t.args[2] for t in todo]))
+            k for c in cells for k in kernels_for(c.spec.filters, c.spec.filter_config.layout, max(sizes)))))
+    folder.run(run_chunk_keyed, todo, ex, label, detail=chunk_detail(sizes))
     recover_timings(folder.manifest["chunk_seconds"], tasks, out / "chunks")
     metrics, epochs = assemble(folder, tasks, tuple(k for k, _ in cells[0].columns))
     if has_truth(first):

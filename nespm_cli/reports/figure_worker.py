@@ -17,6 +17,7 @@ import os
 import threading
 from typing import Any, Callable
 
+
 def figure_processes(jobs: int | None, tracks: int) -> int:
     """How many processes draw the figures of ``tracks`` tracks, 1 or 2 (this one and a :class:`FigureWorker`; a
     track is the unit of work, so 1 for a single track): ``jobs`` if given, else 2 where the machine has two

@@ -84,6 +84,28 @@ def entries_into(E, T, s, tan_lat, h):
 
 
 @helper
+def identity_rows(P, rows, m):
+    """Every lane's ``rows`` changing rows of Φ (m x m) set to the identity's: entry (i, k) of lane s at
+    (m i + k) L + s, 1 where i == k (q = (m + 1) i)."""
+    for s in range(L):
+        for q in range(rows * m):
+            P[q * L + s] = 1.0 if q % (m + 1) == 0 else 0.0
+
+
+@helper
+def store_block(T, P, rows, pos, v, C, Phi, r0, n):
+    """The block of ``n`` runs from ``r0`` back: each run's solution from the state table ``T``, its Φ
+    (``Phi[r]``, m x m) from the ``rows`` changing rows in ``P`` and the identity's below them."""
+    m = Phi.shape[1]
+    for s in range(n):
+        r = r0 + s
+        store_t(lane_t(T, s), pos[r], v[r], C[r])
+        for i in range(m):
+            for k in range(m):
+                Phi[r, i, k] = P[(m * i + k) * L + s] if i < rows else (1.0 if i == k else 0.0)
+
+
+@helper
 def column_t(e, z, m22, d33, d44, d55, V0, V1, V2, A0, A1, A2):
     """Column k of Φ's new velocity and attitude rows, ``M[0:6, 0:6] Φ[0:6, k]`` summed as the generic loop
     (``0.0 +`` each term in order, F's structural zeros as ``z`` = 0 · dt), from the 23 entries ``e`` of
@@ -123,9 +145,7 @@ def transition_lanes_12(pos, v, C, b_a, b_g, f, w, dt, j0, j1, Phi):
     for r0 in range(0, pos.shape[0], L):
         n = min(L, pos.shape[0] - r0)
         load_block(T, pos, v, C, b_a, b_g, r0, n)
-        for s in range(L):
-            for q in range(72):
-                P[q * L + s] = 1.0 if q % 13 == 0 else 0.0  # (i, k) with i == k: q = 13 i
+        identity_rows(P, 6, 12)
         for j in range(j0, j1):
             h = dt[j]
             imu_block(T, f, w, j, r0, n, tan_lat)
@@ -149,9 +169,4 @@ def transition_lanes_12(pos, v, C, b_a, b_g, f, w, dt, j0, j1, Phi):
                     add_column(P, ov + s, M, c0, c1, c2, z, z, z)
                     add_column(P, oa + s, M, z, z, z, c0, c1, c2)
             cycles_soa(T, n, h)
-        for s in range(n):
-            r = r0 + s
-            store_t(lane_t(T, s), pos[r], v[r], C[r])
-            for i in range(12):
-                for k in range(12):
-                    Phi[r, i, k] = P[(12 * i + k) * L + s] if i < 6 else (1.0 if i == k else 0.0)
+        store_block(T, P, 6, pos, v, C, Phi, r0, n)

@@ -16,9 +16,10 @@ from __future__ import annotations
 import numpy as np
 
 from nespm_cli.filters.compiled.cycle_lanes import L, R0, R2, R6, R9, R12, R15, ROWS, cycles_soa
-from nespm_cli.filters.compiled.lanes_12 import ENTRIES, entries_into, entries_t, imu_block, lane_t, load_block
+from nespm_cli.filters.compiled.lanes_12 import (ENTRIES, entries_into, entries_t, identity_rows, imu_block, load_block,
+                                                 store_block)
 from nespm_cli.filters.compiled.spans import gravity_gradient_t
-from nespm_cli.nav.kernels import helper, njit, store_t
+from nespm_cli.nav.kernels import helper, njit
 
 
 @helper
@@ -62,9 +63,7 @@ def transition_lanes_15(pos, v, C, b_a, b_g, f, w, dt, j0, j1, Phi):
     for r0 in range(0, pos.shape[0], L):
         n = min(L, pos.shape[0] - r0)
         load_block(T, pos, v, C, b_a, b_g, r0, n)
-        for s in range(L):
-            for q in range(135):
-                P[q * L + s] = 1.0 if q % 16 == 0 else 0.0  # (i, k) with i == k: q = 16 i
+        identity_rows(P, 9, 15)
         for j in range(j0, j1):
             h = dt[j]
             imu_block(T, f, w, j, r0, n, tan_lat)
@@ -87,9 +86,4 @@ def transition_lanes_15(pos, v, C, b_a, b_g, f, w, dt, j0, j1, Phi):
                             e0, e1, e2 = e0 + c0, e1 + c1, e2 + c2
                     put_column_15(P, o + s, M, h, E[G + s], p2, V0, V1, V2, d0, d1, d2, e0, e1, e2)
             cycles_soa(T, n, h)
-        for s in range(n):
-            r = r0 + s
-            store_t(lane_t(T, s), pos[r], v[r], C[r])
-            for i in range(15):
-                for k in range(15):
-                    Phi[r, i, k] = P[(15 * i + k) * L + s] if i < 9 else (1.0 if i == k else 0.0)
+        store_block(T, P, 9, pos, v, C, Phi, r0, n)
