@@ -1,5 +1,5 @@
 """One navigation cycle of many states at once, the states in SIMD lanes (numba; :mod:`.points`,
-:mod:`.unrolled_12`).
+:mod:`.lanes_12`, :mod:`.lanes_15`).
 
 A state table ``T`` holds up to :data:`L` states as its columns (structure of arrays, row stride
 :data:`L`): rows 0-24 the 25-tuple of ``nav.kernels.cycle_t``, 25-30 ``b_a``, ``b_g`` (the points'
@@ -8,8 +8,9 @@ kernel's), 31-45 scratch, 46-51 the caller's, 52-57 each lane's bias-compensated
 over the lanes that LLVM vectorises (the row stride is a compile-time constant, so the rows provably do
 not overlap), with the operations of ``cycle_t`` in the same order (no contraction into fused
 multiply-adds, no reassociation): the same bits as the scalar kernel and the NumPy reference
-``strapdown.na_cycle``. The lanes are a run's sigma/cubature points (:mod:`.points`: one IMU
-sample, each point's biases) or the runs themselves (:mod:`.unrolled_12`: each run's IMU).
+``strapdown.na_cycle``. The lanes are sigma/cubature points (:mod:`.points`: of one run or of up to
+three, each point with its run's IMU sample and its own biases) or the runs themselves (:mod:`.lanes_12`,
+:mod:`.lanes_15`: each run's IMU).
 """
 from __future__ import annotations
 

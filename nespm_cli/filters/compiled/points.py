@@ -1,9 +1,9 @@
-"""The sigma/cubature points of one run through a time-update span, the points in SIMD lanes.
+"""The sigma/cubature points of a batch through a time-update span, the points in SIMD lanes.
 
 ``points_span_soa`` is :func:`nespm_cli.filters.compiled.spans.points_span` restructured for the
-machine: a run's 2n+1 points are the columns of one state table (structure of arrays, row stride
-:data:`~nespm_cli.filters.compiled.cycle_lanes.L`), and each IMU step runs the navigation cycle of all
-of them at once (:func:`~nespm_cli.filters.compiled.cycle_lanes.cycles_soa`), in loops over the points
+machine: points are the columns of a state table (structure of arrays, row stride
+:data:`~nespm_cli.filters.compiled.cycle_lanes.L` = 32), and each IMU step runs the navigation cycle of all
+of them at once (:func:`~nespm_cli.filters.compiled.cycle_lanes.cycles_soa`), in loops over the lanes
 that LLVM vectorises. The operations of each point are those of ``nav.kernels.cycle_t``, in the same
 order (no contraction into fused multiply-adds, no reassociation): the same bits as the scalar
 kernel and the NumPy reference ``strapdown.na_cycle`` (tests/test_points_kernel.py). The latitude's
@@ -11,6 +11,12 @@ sine and cosine are :func:`nespm_cli.nav.trig.sin_cos`, arithmetic that vectoris
 the rare rotation above 0.01 rad (Rodrigues' sine and cosine) runs in a scalar loop between the vector
 ones. Measured: ~2.4x the scalar kernel per point-cycle with the C library's latitude sines in a scalar
 loop, 0.73x of that since (benchmarks/README.md).
+
+A table costs its 32 lanes whatever they hold. Without a position block the batch's points fill the
+tables in order, a run's points running on into the next table (the 12 states' 25 points: 25 tables
+for 32 runs instead of 32; each lane takes its own run's IMU sample, at most three runs a table), 0.80x
+per run-step at 50 runs; with one (31 points, and the position offsets need point 0 in the table) and
+for a layout of 16 points or fewer, a table holds one run.
 """
 from __future__ import annotations
 
@@ -26,44 +32,61 @@ from nespm_cli.nav.kernels import njit
 def points_span_soa(pos, v, C, b_a, b_g, X, f, w, dt, j0, j1, pos_o, v_o, C_o, dp_o, off):
     """spans.points_span, and with a position block (``off[0] >= 0``) points_span_position
     into ``dp_o`` (R, S, 3) (the same arguments and the same bits; ``dp_o`` untouched without the block),
-    with the points of a run in the columns of a state table, IMU step by IMU step (``cycle_lanes.cycles_soa``;
-    rows 46-51 the position offsets and the velocity differences from point 0): at most :data:`L` points."""
+    with the points in the columns of state tables, IMU step by IMU step (``cycle_lanes.cycles_soa``;
+    rows 46-51 the position offsets and the velocity differences from point 0): at most :data:`L` points
+    per run. Without the position block a table holds the next :data:`L` points of the batch, whatever
+    their runs (each lane with its run's IMU sample): the 12 states' 25 points per run fill 25 of 32 lanes
+    on average instead of 25 of every 32. With it a table holds one run's points, point 0 in lane 0."""
     S = X.shape[1] + 1
     position = off[0] >= 0
+    per = S if position or 2 * S <= L else L  # lanes of a table in use, but the last table's
+    R = pos.shape[0]
     T = np.empty(ROWS * L)
-    for r in range(pos.shape[0]):
-        for s in range(S):
-            x, ba0, ba1, ba2, bg0, bg1, bg2, d0, d1, d2 = point_start(pos, v, C, b_a, b_g, X, r, s, off)
+    for k0 in range(0, R * S, per):
+        n = min(per, R * S - k0)
+        ra, p0 = k0 // S, k0 % S  # a table's first run and its first point there; the next runs follow
+        rb, rc = min(ra + 1, R - 1), min(ra + 2, R - 1)
+        sb, sc = min(S - p0, L), min(2 * S - p0, L)  # the lanes where the second and third runs start
+        for s in range(n):
+            r, p = ra + (p0 + s) // S, (p0 + s) % S
+            x, ba0, ba1, ba2, bg0, bg1, bg2, d0, d1, d2 = point_start(pos, v, C, b_a, b_g, X, r, p, off)
             for i in range(25):
                 T[i * L + s] = x[i]
             T[R46 + s], T[R47 + s], T[R48 + s] = d0, d1, d2
             T[R25 + s], T[R26 + s], T[R27 + s], T[R28 + s], T[R29 + s], T[R30 + s] = ba0, ba1, ba2, bg0, bg1, bg2
-        for s in range(L):
-            if s >= S:  # the lanes past the last point: a copy of point 0, finite, never read back
-                for i in range(31):
-                    T[i * L + s] = T[i * L]
-                T[R46 + s], T[R47 + s], T[R48 + s] = 0.0, 0.0, 0.0
+        for s in range(n, L):  # the lanes past the last point: a copy of lane 0, finite, never read back
+            for i in range(31):
+                T[i * L + s] = T[i * L]
+            T[R46 + s], T[R47 + s], T[R48 + s] = 0.0, 0.0, 0.0
         for j in range(j0, j1):
             if position:  # eqs 28-30 in deviation form: the velocity difference from point 0 before the step
                 for s in range(L):
                     for i in range(3):
                         T[(49 + i) * L + s] = T[(3 + i) * L + s] - T[(3 + i) * L]
-            F0, F1, F2, W0, W1, W2 = f[r, j, 0], f[r, j, 1], f[r, j, 2], w[r, j, 0], w[r, j, 1], w[r, j, 2]
-            for s in range(L):  # each point's bias-compensated IMU sample (eq 38)
-                T[R52 + s], T[R53 + s], T[R54 + s] = F0 - T[R25 + s], F1 - T[R26 + s], F2 - T[R27 + s]
-                T[R55 + s], T[R56 + s], T[R57 + s] = W0 - T[R28 + s], W1 - T[R29 + s], W2 - T[R30 + s]
-            cycles_soa(T, S, dt[j])
+            a0, a1, a2, a3, a4, a5 = f[ra, j, 0], f[ra, j, 1], f[ra, j, 2], w[ra, j, 0], w[ra, j, 1], w[ra, j, 2]
+            b0, b1, b2, b3, b4, b5 = f[rb, j, 0], f[rb, j, 1], f[rb, j, 2], w[rb, j, 0], w[rb, j, 1], w[rb, j, 2]
+            c0, c1, c2, c3, c4, c5 = f[rc, j, 0], f[rc, j, 1], f[rc, j, 2], w[rc, j, 0], w[rc, j, 1], w[rc, j, 2]
+            for s in range(L):
+                A, B = s < sb, s < sc
+                T[R52 + s] = (a0 if A else (b0 if B else c0)) - T[R25 + s]
+                T[R53 + s] = (a1 if A else (b1 if B else c1)) - T[R26 + s]
+                T[R54 + s] = (a2 if A else (b2 if B else c2)) - T[R27 + s]
+                T[R55 + s] = (a3 if A else (b3 if B else c3)) - T[R28 + s]
+                T[R56 + s] = (a4 if A else (b4 if B else c4)) - T[R29 + s]
+                T[R57 + s] = (a5 if A else (b5 if B else c5)) - T[R30 + s]
+            cycles_soa(T, n, dt[j])
             if position:  # ... and after it: the trapezoid
                 half = 0.5 * dt[j]
                 for s in range(L):
                     for i in range(3):
                         T[(46 + i) * L + s] += (T[(49 + i) * L + s] + (T[(3 + i) * L + s] - T[(3 + i) * L])) * half
-        for s in range(S):
-            pos_o[r, s, 0], pos_o[r, s, 1], pos_o[r, s, 2] = T[R0 + s], T[R1 + s], T[R2 + s]
-            v_o[r, s, 0], v_o[r, s, 1], v_o[r, s, 2] = T[R3 + s], T[R4 + s], T[R5 + s]
+        for s in range(n):
+            r, p = ra + (p0 + s) // S, (p0 + s) % S
+            pos_o[r, p, 0], pos_o[r, p, 1], pos_o[r, p, 2] = T[R0 + s], T[R1 + s], T[R2 + s]
+            v_o[r, p, 0], v_o[r, p, 1], v_o[r, p, 2] = T[R3 + s], T[R4 + s], T[R5 + s]
             for i in range(3):
                 for k in range(3):
-                    C_o[r, s, i, k] = T[(6 + 3 * i + k) * L + s]
+                    C_o[r, p, i, k] = T[(6 + 3 * i + k) * L + s]
             if position:
                 for i in range(3):
-                    dp_o[r, s, i] = T[(46 + i) * L + s] if s > 0 else 0.0
+                    dp_o[r, p, i] = T[(46 + i) * L + s] if p > 0 else 0.0
