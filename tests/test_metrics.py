@@ -2,6 +2,7 @@
 the existing per-run columns are unchanged by them."""
 from __future__ import annotations
 
+import warnings
 from types import SimpleNamespace
 
 import numpy as np
@@ -200,3 +201,23 @@ def test_cep_over_time_is_the_quantile_of_the_runs_at_each_epoch():
     np.testing.assert_allclose(c50 / sigma, 1.1774, rtol=0.02)
     np.testing.assert_allclose(r95 / sigma, np.sqrt(-2 * np.log(0.05)), rtol=0.02)
     assert c50[-1] == pytest.approx(cep(hpe[:, -1], 0.5), rel=1e-6)
+
+
+def test_cep_over_time_takes_numpys_quantiles_epoch_by_epoch_where_runs_were_lost():
+    """epoch_cep takes the epochs without a lost run together (np.quantile) and only the others through
+    np.nanquantile: the same bits as np.nanquantile over every epoch, whatever was lost (one run at some
+    epochs, every run at one, none at all, no run)."""
+    from nespm_cli.experiments.assembly import epoch_cep
+
+    rng = np.random.default_rng(3)
+    for R, N in [(100, 60), (7, 20), (1, 5), (0, 4)]:
+        hpe = 3.0 * np.abs(rng.standard_normal((R, N))).astype(np.float32).astype(float)
+        if R > 3:
+            hpe[2, 5:12] = np.nan
+            hpe[:, 15] = np.nan
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            ref = np.nanquantile(hpe, [0.5, 0.95], axis=0) if R else np.full((2, N), np.nan)
+        c50, r95 = epoch_cep(hpe)
+        assert np.array_equal(c50, ref[0], equal_nan=True) and np.array_equal(r95, ref[1], equal_nan=True)
+        assert np.isnan(c50).sum() == (N if R == 0 else 1 if R > 3 else 0)

@@ -189,9 +189,14 @@ def epoch_cep(hpe: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     lost (NaN: left out; NaN where no run counts). The runs' errors are kept as float32 (4 bytes per
     run and epoch of one track and filter) until the quantiles are taken."""
     x = np.asarray(hpe, dtype=float)
-    with np.errstate(all="ignore"), warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)  # an epoch without a run: NaN
-        q = np.nanquantile(x, [0.5, 0.95], axis=0) if x.size else np.full((2, x.shape[1]), np.nan)
+    if not x.size:
+        return np.full(x.shape[1], np.nan), np.full(x.shape[1], np.nan)
+    q = np.quantile(x, [0.5, 0.95], axis=0)  # NumPy's nanquantile takes the epochs one by one (apply_along_axis)
+    lost = np.isnan(x).any(axis=0)  # ... so only the epochs where a run was lost go through it
+    if lost.any():
+        with np.errstate(all="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # an epoch without a run: NaN
+            q[:, lost] = np.nanquantile(x[:, lost], [0.5, 0.95], axis=0)
     return q[0], q[1]
 
 
