@@ -137,7 +137,7 @@ def test_kernels_transition_runs_the_12_state_kernel_for_the_papers_layout():
 def test_no_numba_level_inlining_in_the_kernel_sources():
     """The helpers are `nav.kernels.helper` (inlined by LLVM, compiled once per process), never numba's
     `inline="always"`, which copies and re-types the helper at every call site."""
-    from nespm_cli.nav.kernels import KERNEL_SOURCES
+    from nespm_cli.nav.kernel_cache import KERNEL_SOURCES
 
     for rel in KERNEL_SOURCES:
         text = (PACKAGE / rel).read_text(encoding="utf-8")

@@ -1,4 +1,4 @@
-"""The per-user kernel cache (nav.kernels.cache_folder, filters.kernels.kernels_cached / warm_up):
+"""The per-user kernel cache (nav.kernel_cache.cache_folder, filters.kernels.kernels_cached / warm_up):
 a second command with the cache warm neither says nor does any compiling; the cache folder is named
 by the kernels' text (a clone elsewhere shares it, an edit does not); an unwritable folder falls back
 without a traceback; the kernels a command needs per filter and layout; the common-error Φ kernel
@@ -45,10 +45,20 @@ def test_warm_cache_no_compile_line_and_nothing_compiled(tmp_path):
     assert second.returncode == 0, second.stderr
     assert "compil" not in second.stderr, second.stderr
     assert _folder_files(folders[0]) == before  # loaded, not compiled: no index or machine code rewritten
+    # what the parent of an mc does before its workers start (the cache check, the manifest's versions)
+    # does not import numba (~0.2 s): the workers that run the kernels do
+    code = ("import sys; from nespm_cli.experiments.progress import compile_kernels; "
+            "from nespm_cli.experiments.store import versions; "
+            "print(compile_kernels('mc', stream=None, kernels=('transition',)), versions()['numba'], 'numba' in sys.modules); "
+            "import numba; print(numba.__version__)")
+    parent = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
+    assert parent.returncode == 0, parent.stderr
+    checked, version = parent.stdout.split("\n")[:2]
+    assert checked == f"None {version} False"
 
 
 def _folder_of(package_parent: Path, env: dict) -> str:
-    code = "from nespm_cli.nav.kernels import cache_folder; print(cache_folder())"
+    code = "from nespm_cli.nav.kernel_cache import cache_folder; print(cache_folder())"
     out = subprocess.run([sys.executable, "-c", code], cwd=package_parent, env={**env, "PYTHONPATH": str(package_parent)},
                          capture_output=True, text=True)
     assert out.returncode == 0, out.stderr
@@ -74,22 +84,22 @@ def test_unwritable_cache_folder_falls_back(tmp_path, monkeypatch):
     """NESPM_CACHE_DIR under a regular file: no folder, no ready marks, kernels_cached None (every
     process compiles or uses numba's own place), and the compile check says nothing; no exception."""
     from nespm_cli.experiments.progress import compile_kernels
-    from nespm_cli.nav import kernels as nk
+    from nespm_cli.nav import kernel_cache as kc
 
     if not kernels.compiled_enabled():
         pytest.skip("the compiled kernels are not in use here")
     blocker = tmp_path / "file"
     blocker.write_text("not a folder")
     monkeypatch.setenv("NESPM_CACHE_DIR", str(blocker / "cache"))
-    assert nk.cache_base() == blocker / "cache"
-    assert nk.cache_folder() is None and nk.ready_mark("transition") is None
+    assert kc.cache_base() == blocker / "cache"
+    assert kc.cache_folder() is None and kc.ready_mark("transition") is None
     assert kernels.kernels_cached(("transition",)) is None
     assert compile_kernels("mc", stream=None, kernels=("transition",)) is None
 
 
 def test_platform_default_and_override(monkeypatch, tmp_path):
     """NESPM_CACHE_DIR wins over NUMBA_CACHE_DIR, which wins over $XDG_CACHE_HOME/nespm."""
-    from nespm_cli.nav import kernels as nk
+    from nespm_cli.nav import user_cache as nk
 
     for var in ("NESPM_CACHE_DIR", "NUMBA_CACHE_DIR"):
         monkeypatch.delenv(var, raising=False)
@@ -122,8 +132,8 @@ def test_kernels_per_filter_and_layout():
 
 
 def test_kernel_sources_list_every_compiled_module():
-    """The cache key hashes nav.kernels.KERNEL_SOURCES: every module that compiles with njit is in it."""
-    from nespm_cli.nav.kernels import KERNEL_SOURCES
+    """The cache key hashes nav.kernel_cache.KERNEL_SOURCES: every module that compiles with njit is in it."""
+    from nespm_cli.nav.kernel_cache import KERNEL_SOURCES
 
     compiled = {p.relative_to(PACKAGE).as_posix() for p in PACKAGE.rglob("*.py")
                 if re.search(r"^@njit", p.read_text(encoding="utf-8"), re.M)}

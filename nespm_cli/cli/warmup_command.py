@@ -33,7 +33,7 @@ def warm_up_cmd(
             raise NespmError(f"--filters: unknown filter {', '.join(unknown) or repr(filters_)}; choose from "
                              f"{', '.join(filter_names())}")
         names = kernels_for(chosen, parse_layout(state), runs=None)
-    from nespm_cli.nav.kernels import cache_folder
+    from nespm_cli.nav.kernel_cache import cache_folder
 
     where = cache_folder()
     cached = kernels_cached(names)

@@ -68,9 +68,9 @@ def versions() -> dict:
            "scipy": scipy.__version__, "pandas": pd.__version__, "pyarrow": pyarrow.__version__,
            "joblib": joblib.__version__, "kernels": kernel_backend()}
     if out["kernels"] == "numba":
-        import numba
+        from nespm_cli.nav.kernel_cache import numba_version
 
-        out["numba"] = numba.__version__
+        out["numba"] = numba_version()  # the package's metadata: the parent of an mc does not import numba
     from importlib.metadata import PackageNotFoundError, version
     from importlib.util import find_spec
 

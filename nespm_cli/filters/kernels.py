@@ -25,7 +25,7 @@ installed, ``numba`` requires it, ``numpy`` never uses it. It is read from the c
 ``--kernels`` sets, so that worker processes inherit it). It never changes a result beyond
 round-off (tests: 1e-9), so it is not part of an experiment's identity (like ``--jobs``).
 
-Compiled once per user, machine and kernel text (:func:`nespm_cli.nav.kernels.cache_folder`), and
+Compiled once per user, machine and kernel text (:func:`nespm_cli.nav.kernel_cache.cache_folder`), and
 only what is used: each kernel (:data:`KERNELS`) compiles on its first call, the first process to
 need it holding a lock in the cache folder so that concurrent workers do not compile it twice, and
 is then marked ready there, so :func:`kernels_cached` is a few file tests. A command compiles what
@@ -127,12 +127,12 @@ GENERIC_LAYOUT = StateLayout(("pos", "vel", "att"))
 def run_kernel(name: str, kernel, *args):
     """``kernel(*args)``: the first call of kernel ``name`` in a process that finds it not yet compiled
     holds its lock in the cache folder, so concurrent workers compile it once (the others wait, then
-    load it), and marks it ready (:func:`nespm_cli.nav.kernels.first_use`); later calls go straight in."""
-    from nespm_cli.nav import kernels as nk
+    load it), and marks it ready (:func:`nespm_cli.nav.kernel_cache.first_use`); later calls go straight in."""
+    from nespm_cli.nav.kernel_cache import READY, first_use
 
-    if name in nk.READY:
+    if name in READY:
         return kernel(*args)
-    with nk.first_use(name):
+    with first_use(name):
         return kernel(*args)
 
 
@@ -261,16 +261,16 @@ def warm_up(names=None) -> float:
 
 def kernels_cached(names=None) -> bool | None:
     """Whether the kernels ``names`` (default: all of :data:`KERNELS`) are compiled into the per-user
-    cache folder for this CPU (their ready marks, :func:`nespm_cli.nav.kernels.is_ready`): True,
+    cache folder for this CPU (their ready marks, :func:`nespm_cli.nav.kernel_cache.is_ready`): True,
     False, or None where the compiled kernels are not in use or cannot be cached here (then every
-    process compiles its own). Imports numba (~0.3 s; the mc parent imports it anyway), compiles
+    process compiles its own). Does not import numba (the mc parent leaves it to its workers), compiles
     nothing, reads no cache index: a few file tests.
     """
     if not compiled_enabled():
         return None
-    from nespm_cli.nav import kernels as nk
+    from nespm_cli.nav.kernel_cache import is_ready
 
-    marks = [nk.is_ready(name) for name in (KERNELS if names is None else names)]
+    marks = [is_ready(name) for name in (KERNELS if names is None else names)]
     if any(m is None for m in marks):
         return None
     return all(marks)

@@ -7,9 +7,9 @@ IMU steps agrees with the reference: bit for bit for the cycle itself (the refer
 products are elementwise sums in the same order, :mod:`.products`), and to 1e-9 on whole
 filter runs (tests/test_kernels.py; measured 0 for the sigma-point filters, ~1e-14 for the
 Φ-based ones). Each compiled function is cached on disk (``cache=True``) in a per-user folder,
-:func:`cache_folder` (``$NESPM_CACHE_DIR``, else ``$NUMBA_CACHE_DIR``, else the platform's cache
+:func:`~nespm_cli.nav.kernel_cache.cache_folder` (``$NESPM_CACHE_DIR``, else ``$NUMBA_CACHE_DIR``, else the platform's cache
 folder: ``$XDG_CACHE_HOME/nespm`` or ``~/.cache/nespm``), in a subfolder named by a hash of the
-kernels' source text (:data:`KERNEL_SOURCES`), so every install and clone of the same kernels on
+kernels' source text (:data:`~nespm_cli.nav.kernel_cache.KERNEL_SOURCES`), so every install and clone of the same kernels on
 the machine shares one compile, and an edit to any of them (a constant, an inlined helper)
 compiles afresh; numba's own locations are the fallback where that folder is not writable.
 
@@ -26,68 +26,24 @@ quantities (10, :func:`earth_t`); :func:`load_t` / :func:`store_t` convert from 
 from __future__ import annotations
 
 import functools
-import hashlib
 import math
 import os
-import platform
-import sys
-import tempfile
 import warnings
-from contextlib import contextmanager
 from pathlib import Path
-from typing import Iterator
 
 import numpy as np
 
 from nespm_cli.nav.earth import A, B, E2, F, GAMMA_E, K_SOMIGLIANA, MU, OMEGA_IE
+from nespm_cli.nav.kernel_cache import NO_CACHE, cache_folder, source_key
 from nespm_cli.nav.trig import sin_cos_core
-from nespm_cli.nav.user_cache import cache_base, sources_digest
 
 try:  # numba is a dependency; without it the filters run the NumPy reference (filters.kernels)
     import numba
 except ImportError:  # pragma: no cover - exercised only where numba is not installed
     numba = None
 
-#: why compiled kernels are not cached on disk in this process (empty: they are)
-NO_CACHE: list[str] = []
-
-
 class KernelCacheWarning(UserWarning):
     """numba found no writable place to cache the compiled kernels (printed as one warning line)."""
-
-
-#: the files (relative to the package) whose text the compiled kernels depend on: their code, what
-#: they inline, the earth constants they freeze. A new kernel module must be listed here.
-KERNEL_SOURCES = ("nav/earth.py", "nav/trig.py", "nav/kernels.py", "filters/compiled/spans.py",
-                  "filters/compiled/unrolled_12.py", "filters/compiled/lanes_12.py", "filters/compiled/lanes_15.py",
-                  "filters/compiled/points.py", "filters/compiled/cycle_lanes.py", "filters/compiled/entries.py")
-#: the kernels (filters.kernels names) this process has already used: no cache check on later calls
-READY: set[str] = set()
-_folders: dict[tuple[str, str], Path | None] = {}
-
-
-@functools.lru_cache(maxsize=None)
-def source_key() -> str:
-    """16 hex digits of SHA-256 over :data:`KERNEL_SOURCES` (their text, not their path or mtime), the
-    Python minor version and numba's version: the name of the cache subfolder and numba's source stamp."""
-    seed = f"py{sys.version_info[0]}.{sys.version_info[1]} numba {getattr(numba, '__version__', '')}"
-    return sources_digest(seed, KERNEL_SOURCES)
-
-
-def cache_folder() -> Path | None:
-    """The kernels' cache folder, ``cache_base()/kernels-<source_key()>``, created on the first call
-    (the first kernel module's import) and checked writable; None where it cannot be (numba's own
-    locations then, or no cache: :func:`njit`). Never raises."""
-    key = (str(cache_base()), source_key())
-    if key not in _folders:
-        folder = cache_base() / f"kernels-{key[1]}"
-        try:
-            folder.mkdir(parents=True, exist_ok=True)
-            tempfile.TemporaryFile(dir=folder).close()
-        except (OSError, ValueError):
-            folder = None
-        _folders[key] = folder
-    return _folders[key]
 
 
 class FolderLocator:
@@ -149,79 +105,6 @@ def use_folder_cache(dispatcher) -> bool:
     except (RuntimeError, AttributeError, OSError):  # no locator, or another numba
         return False
     return True
-
-
-@functools.lru_cache(maxsize=None)
-def cpu_tag() -> str:
-    """8 hex digits naming this machine's CPU (architecture, model and flags where /proc/cpuinfo tells):
-    numba keys its machine code by the CPU, so a cache folder shared by two machines keeps one
-    readiness mark per CPU."""
-    text = f"{platform.system()} {platform.machine()} {platform.processor()}"
-    try:
-        with open("/proc/cpuinfo", encoding="ascii", errors="replace") as fh:
-            seen = set()
-            for line in fh:
-                key = line.split(":", 1)[0].strip()
-                if key in ("model name", "flags", "Features", "CPU part") and key not in seen:
-                    seen.add(key)
-                    text += line
-    except OSError:
-        pass
-    return hashlib.sha256(text.encode()).hexdigest()[:8]
-
-
-def ready_mark(name: str) -> Path | None:
-    """The file that says kernel ``name`` (a filters.kernels name) is compiled into the cache folder
-    for this CPU; None where kernels are not cached in the folder (then nothing is marked)."""
-    folder = cache_folder()
-    if folder is None or NO_CACHE:
-        return None
-    return folder / "ready" / f"{name}-{cpu_tag()}"
-
-
-def is_ready(name: str) -> bool | None:
-    """Whether kernel ``name`` is compiled and cached here (a file test, no numba call); None: no cache."""
-    mark = ready_mark(name)
-    return None if mark is None else (name in READY or mark.exists())
-
-
-@contextmanager
-def first_use(name: str) -> Iterator[None]:
-    """Around a call of kernel ``name``: the first in this process whose kernel is not marked ready
-    holds a lock file in the cache folder (other processes wait instead of compiling the same
-    kernel at the same time, then load it) and marks the kernel ready after the call. Later calls,
-    and calls where the kernel is marked, pass straight through."""
-    mark = None if name in READY else ready_mark(name)
-    if mark is None or mark.exists():
-        yield
-        READY.add(name)
-        return
-    with _lock(mark.parent.parent / "locks" / f"{name}.lock"):
-        yield
-        try:
-            mark.parent.mkdir(exist_ok=True)
-            mark.touch()
-        except OSError:
-            pass
-    READY.add(name)
-
-
-@contextmanager
-def _lock(path: Path) -> Iterator[None]:
-    """An exclusive advisory lock on ``path`` (fcntl; no lock where there is none, or on an OS error)."""
-    try:
-        import fcntl
-
-        path.parent.mkdir(exist_ok=True)
-        fh = open(path, "a")
-    except (ImportError, OSError):
-        yield
-        return
-    try:
-        fcntl.flock(fh, fcntl.LOCK_EX)
-        yield
-    finally:
-        fh.close()  # releases the lock
 
 
 def njit(*args, **kwargs):
