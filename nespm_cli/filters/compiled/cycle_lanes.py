@@ -48,6 +48,19 @@ if intrinsic is not None:
 
         return sig, codegen
 
+    @intrinsic
+    def pick(typingctx, lane, first, x, y):
+        """``x`` where ``lane < first``, else ``y`` (int64 lane and bound, float64 values): LLVM's ``select``
+        on a comparison, without the branch a conditional expression gives numba's IR (vectorised either way;
+        this compiles faster)."""
+        sig = types.float64(types.int64, types.int64, types.float64, types.float64)
+
+        def codegen(context, builder, signature, args):
+            lane, first, x, y = args
+            return builder.select(builder.icmp_signed("<", lane, first), x, y)
+
+        return sig, codegen
+
 
 @helper(python=True)
 def div_by(x, q, r):

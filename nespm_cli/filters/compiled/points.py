@@ -23,7 +23,7 @@ from __future__ import annotations
 import numpy as np
 
 from nespm_cli.filters.compiled.cycle_lanes import L, R0, R1, R2, R3, R4, R5, R25, R26, R27, R28, R29, R30, R46, R47, R48, \
-    R52, R53, R54, R55, R56, R57, ROWS, cycles_soa
+    R52, R53, R54, R55, R56, R57, ROWS, cycles_soa, pick
 from nespm_cli.filters.compiled.spans import point_start
 from nespm_cli.nav.kernels import njit
 
@@ -47,13 +47,14 @@ def points_span_soa(pos, v, C, b_a, b_g, X, f, w, dt, j0, j1, pos_o, v_o, C_o, d
         ra, p0 = k0 // S, k0 % S  # a table's first run and its first point there; the next runs follow
         rb, rc = min(ra + 1, R - 1), min(ra + 2, R - 1)
         sb, sc = min(S - p0, L), min(2 * S - p0, L)  # the lanes where the second and third runs start
+        r, p = ra, p0
         for s in range(n):
-            r, p = ra + (p0 + s) // S, (p0 + s) % S
             x, ba0, ba1, ba2, bg0, bg1, bg2, d0, d1, d2 = point_start(pos, v, C, b_a, b_g, X, r, p, off)
             for i in range(25):
                 T[i * L + s] = x[i]
             T[R46 + s], T[R47 + s], T[R48 + s] = d0, d1, d2
             T[R25 + s], T[R26 + s], T[R27 + s], T[R28 + s], T[R29 + s], T[R30 + s] = ba0, ba1, ba2, bg0, bg1, bg2
+            r, p = (r + 1, 0) if p == S - 1 else (r, p + 1)
         for s in range(n, L):  # the lanes past the last point: a copy of lane 0, finite, never read back
             for i in range(31):
                 T[i * L + s] = T[i * L]
@@ -66,22 +67,21 @@ def points_span_soa(pos, v, C, b_a, b_g, X, f, w, dt, j0, j1, pos_o, v_o, C_o, d
             a0, a1, a2, a3, a4, a5 = f[ra, j, 0], f[ra, j, 1], f[ra, j, 2], w[ra, j, 0], w[ra, j, 1], w[ra, j, 2]
             b0, b1, b2, b3, b4, b5 = f[rb, j, 0], f[rb, j, 1], f[rb, j, 2], w[rb, j, 0], w[rb, j, 1], w[rb, j, 2]
             c0, c1, c2, c3, c4, c5 = f[rc, j, 0], f[rc, j, 1], f[rc, j, 2], w[rc, j, 0], w[rc, j, 1], w[rc, j, 2]
-            for s in range(L):
-                A, B = s < sb, s < sc
-                T[R52 + s] = (a0 if A else (b0 if B else c0)) - T[R25 + s]
-                T[R53 + s] = (a1 if A else (b1 if B else c1)) - T[R26 + s]
-                T[R54 + s] = (a2 if A else (b2 if B else c2)) - T[R27 + s]
-                T[R55 + s] = (a3 if A else (b3 if B else c3)) - T[R28 + s]
-                T[R56 + s] = (a4 if A else (b4 if B else c4)) - T[R29 + s]
-                T[R57 + s] = (a5 if A else (b5 if B else c5)) - T[R30 + s]
+            for s in range(L):  # each point's IMU sample, its run's, compensated with its own biases (eq 38)
+                T[R52 + s] = pick(s, sb, a0, pick(s, sc, b0, c0)) - T[R25 + s]
+                T[R53 + s] = pick(s, sb, a1, pick(s, sc, b1, c1)) - T[R26 + s]
+                T[R54 + s] = pick(s, sb, a2, pick(s, sc, b2, c2)) - T[R27 + s]
+                T[R55 + s] = pick(s, sb, a3, pick(s, sc, b3, c3)) - T[R28 + s]
+                T[R56 + s] = pick(s, sb, a4, pick(s, sc, b4, c4)) - T[R29 + s]
+                T[R57 + s] = pick(s, sb, a5, pick(s, sc, b5, c5)) - T[R30 + s]
             cycles_soa(T, n, dt[j])
             if position:  # ... and after it: the trapezoid
                 half = 0.5 * dt[j]
                 for s in range(L):
                     for i in range(3):
                         T[(46 + i) * L + s] += (T[(49 + i) * L + s] + (T[(3 + i) * L + s] - T[(3 + i) * L])) * half
+        r, p = ra, p0
         for s in range(n):
-            r, p = ra + (p0 + s) // S, (p0 + s) % S
             pos_o[r, p, 0], pos_o[r, p, 1], pos_o[r, p, 2] = T[R0 + s], T[R1 + s], T[R2 + s]
             v_o[r, p, 0], v_o[r, p, 1], v_o[r, p, 2] = T[R3 + s], T[R4 + s], T[R5 + s]
             for i in range(3):
@@ -90,3 +90,4 @@ def points_span_soa(pos, v, C, b_a, b_g, X, f, w, dt, j0, j1, pos_o, v_o, C_o, d
             if position:
                 for i in range(3):
                     dp_o[r, p, i] = T[(46 + i) * L + s] if p > 0 else 0.0
+            r, p = (r + 1, 0) if p == S - 1 else (r, p + 1)
