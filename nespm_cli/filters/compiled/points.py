@@ -35,11 +35,12 @@ def points_span_soa(pos, v, C, b_a, b_g, X, f, w, dt, j0, j1, pos_o, v_o, C_o, d
     with the points in the columns of state tables, IMU step by IMU step (``cycle_lanes.cycles_soa``;
     rows 46-51 the position offsets and the velocity differences from point 0): at most :data:`L` points
     per run. Without the position block a table holds the next :data:`L` points of the batch, whatever
-    their runs (each lane with its run's IMU sample): the 12 states' 25 points per run fill 25 of 32 lanes
-    on average instead of 25 of every 32. With it a table holds one run's points, point 0 in lane 0."""
+    their runs (each lane with its run's IMU sample, at most three runs a table): the 12 states' 25 points
+    per run fill every lane but the last table's, instead of 25 of every 32. With it, or with 16 points or
+    fewer (more than three runs would share a table), a table holds one run's points, point 0 in lane 0."""
     S = X.shape[1] + 1
     position = off[0] >= 0
-    per = S if position or 2 * S <= L else L  # lanes of a table in use, but the last table's
+    per = S if position or 2 * S <= L else L  # the lanes of a table in use (the last table's: fewer)
     R = pos.shape[0]
     T = np.empty(ROWS * L)
     for k0 in range(0, R * S, per):
