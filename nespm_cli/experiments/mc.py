@@ -21,6 +21,7 @@ import numpy as np
 import pandas as pd
 
 from nespm_cli.data.corruption import draw, imu_errors, true_biases
+from nespm_cli.data.parquet_files import write_parquet_atomic
 from nespm_cli.data.tracks import resolve_data_dir, track_files
 from nespm_cli.errors import NespmError
 from nespm_cli.experiments.accepted import accepted_residuals
@@ -38,8 +39,7 @@ from nespm_cli.experiments.spec import (NO_TRUTH, Spec, couple_filter, filter_co
                                         load_filters, needs_noise_std, track_inputs, validate)
 from nespm_cli.experiments.progress import compile_kernels, kernels_for
 from nespm_cli.experiments.suite import load_sensors, sensor_plugin_files, sensor_suite, suite_record
-from nespm_cli.experiments.store import (GROWABLE, ResultsFolder, Task, chunk_firsts, file_hashes, run_blocks,
-                                        write_parquet_atomic)
+from nespm_cli.experiments.store import GROWABLE, ResultsFolder, Task, chunk_firsts, file_hashes, run_blocks
 from nespm_cli.filters import FilterConfig, initial_nav, run_filter
 from nespm_cli.filters.kernels import kernel_backend
 from nespm_cli.filters.options import training_overlap

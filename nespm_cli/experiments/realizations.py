@@ -10,9 +10,10 @@ import numpy as np
 import pandas as pd
 
 from nespm_cli.data.corruption import check_seed, CorruptionConfig, draw, imu_errors, Realization, segment_index
+from nespm_cli.data.parquet_files import write_parquet_atomic
 from nespm_cli.errors import NespmError
 from nespm_cli.experiments.inputs import prepared
-from nespm_cli.experiments.store import write_json_atomic, write_parquet_atomic
+from nespm_cli.experiments.store import write_json_atomic
 from nespm_cli.data.tracks import available_tracks, load_track, resolve_data_dir
 from nespm_cli.filters.oracle import OracleNoise
 from nespm_cli.nav.synthesis import ImuTruth

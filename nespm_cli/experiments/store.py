@@ -28,7 +28,7 @@ from typing import Callable, Iterable
 import numpy as np
 
 from nespm_cli import __version__
-from nespm_cli.data.atomic import write_atomic, write_text_atomic
+from nespm_cli.data.atomic import write_text_atomic
 from nespm_cli.errors import NespmError
 from nespm_cli.experiments.chunks import chunk_problem, experiment_digest
 from nespm_cli.experiments.folder_kind import refuse_other_kind
@@ -43,10 +43,6 @@ class ChunkWarning(UserWarning):
 
 
 # --- atomic files (nespm_cli.data.atomic) ---------------------------------------------------
-
-def write_parquet_atomic(df: pd.DataFrame, path: Path) -> None:
-    write_atomic(path, lambda tmp: df.to_parquet(tmp, index=False))
-
 
 def write_json_atomic(obj, path: Path) -> None:
     write_text_atomic(path, json.dumps(obj, indent=2))

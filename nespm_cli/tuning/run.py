@@ -185,7 +185,8 @@ def run_tune(t: TuneSpec, out: str | Path, jobs: int = 1, report: Callable[[str,
 
     from nespm_cli.data.atomic import write_text_atomic
     from nespm_cli.experiments.backend import check_backend, check_scheduler
-    from nespm_cli.experiments.store import FolderLock, write_json_atomic, write_parquet_atomic
+    from nespm_cli.data.parquet_files import write_parquet_atomic
+    from nespm_cli.experiments.store import FolderLock, write_json_atomic
 
     t, train, space = check(t)
     check_backend(backend)
