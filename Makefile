@@ -19,7 +19,7 @@ $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
 	$(BIN)/pip install --progress-bar on -e '.[test,dask,onnx]'
-	@echo "setup: done; the filters' kernels compile on the first run (about a minute, once per machine)"
+	@echo "setup: done; the filters' kernels compile on the first run (seconds: 6 s for the main job's, once per machine)"
 	touch $@
 
 # The filters' numba kernels compiled into the per-user cache (~/.cache/nespm, or $NESPM_CACHE_DIR): once
