@@ -27,7 +27,7 @@ import struct
 from pathlib import Path
 
 from nespm_cli.data.atomic import write_atomic
-from nespm_cli.data.parquet_files import dictionary_columns
+from nespm_cli.data.parquet_files import parquet_writer
 from nespm_cli.errors import NespmError
 
 IDENTITY_KEY = b"nespm.chunk"
@@ -67,7 +67,7 @@ def write_chunk(df: pd.DataFrame, path: Path, experiment: str) -> None:
     def write(tmp: Path) -> None:
         with open(tmp, "wb") as f:
             sink = _HashingSink(f)
-            writer = pq.ParquetWriter(sink, table.schema, use_dictionary=dictionary_columns(table.schema))
+            writer = parquet_writer(sink, table.schema)
             try:
                 writer.write_table(table)  # every data page reaches the sink here; the footer at close
                 ident = {"experiment": experiment, "name": path.name, "rows": len(df), "sha256": sink.sha.hexdigest()}
@@ -162,7 +162,7 @@ def concat_parquet(paths: list[Path], out: Path) -> int:
                 table = table.replace_schema_metadata({k: v for k, v in (table.schema.metadata or {}).items()
                                                        if k != IDENTITY_KEY})
                 if writer is None:
-                    writer = pq.ParquetWriter(tmp, table.schema, use_dictionary=dictionary_columns(table.schema))
+                    writer = parquet_writer(tmp, table.schema)
                 elif table.schema != writer.schema:
                     table = table.cast(writer.schema)
                 writer.write_table(table)

@@ -7,10 +7,10 @@ from typing import Callable
 import numpy as np
 import pandas as pd
 
+from nespm_cli.data.parquet_files import write_parquet_atomic
 from nespm_cli.errors import NespmError
 from nespm_cli.experiments.mc import simulate
 from nespm_cli.experiments.spec import NO_TRUTH, Spec, filter_config_of, track_inputs, validate
-from nespm_cli.data.parquet_files import write_parquet_atomic
 from nespm_cli.experiments.metrics import divergence, run_metrics, sensor_nis, sensor_rejections, truth_free_metrics
 from nespm_cli.nav.rotations import dcm_to_euler
 from nespm_cli.nav.state import parse_layout

@@ -38,13 +38,13 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from nespm_cli.data.parquet_files import write_parquet_atomic
 from nespm_cli.errors import NespmError
 from nespm_cli.experiments.backend import Execution
 from nespm_cli.experiments.chunks import write_chunk
 from nespm_cli.experiments.gp_ukf.model import TRUE_H, TrueModel, simulate_prepared
 from nespm_cli.experiments.gp_ukf.spec import EXPERIMENT, FILTERS, STATE_UNITS, GPSpec, validate
 from nespm_cli.experiments.gp_ukf.training import load_models, train_models
-from nespm_cli.data.parquet_files import write_parquet_atomic
 from nespm_cli.experiments.store import ResultsFolder, Task
 from nespm_cli.filters.gp_ukf import gp_ukf, ideal_ukf
 from nespm_cli.nav.rotations import wrap_angle

@@ -12,11 +12,11 @@ from pathlib import Path
 
 import numpy as np
 
+from nespm_cli.data.atomic import write_atomic
 from nespm_cli.errors import NespmError
 from nespm_cli.experiments.gp_ukf.model import (MEAS_COLUMNS, MeasuredStateGP, TrueModel, ideal_Q, ideal_R,
                                                 simulate_prepared)
 from nespm_cli.experiments.gp_ukf.spec import GPSpec
-from nespm_cli.data.atomic import write_atomic
 from nespm_cli.filters.gp_ukf import GPUKFModels, narx_training_data
 from nespm_cli.learn.gp import GPModel, theta_default
 
