@@ -154,7 +154,7 @@ def transition_lanes_12(pos, v, C, b_a, b_g, f, w, dt, j0, j1, Phi):
             z = 0.0 * h  # a structural zero of F, times dt
             m22 = 0.0 * h + 1.0
             d33, d44, d55 = 0.0 * h + 1.0, 0.0 * h + 1.0, 0.0 * h + 1.0
-            for k in range(12):  # rows_step, column by column (a column of Φ's new rows reads only that column)
+            for k in range(12):  # transition_span_common's row loop, column by column (a column reads only itself)
                 o = k * L
                 for s in range(L):
                     d0, d1, d2, e0, e1, e2 = column_t(entries_t(E, s), z, m22, d33, d44, d55, P[o + s], P[o + M + s],

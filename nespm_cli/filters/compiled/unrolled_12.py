@@ -42,7 +42,7 @@ def transition_span_12(pos, v, C, b_a, b_g, f, w, dt, j0, j1, Phi):
             d33, d44, d55 = 0.0 * h + 1.0, 0.0 * h + 1.0, 0.0 * h + 1.0
             b00, b01, b02, b10, b11, b12 = -x[6] * h, -x[7] * h, -x[8] * h, -x[9] * h, -x[10] * h, -x[11] * h
             b20, b21, b22 = -x[12] * h, -x[13] * h, -x[14] * h
-            # rows_step, column by column (a column of Φ's new rows reads only that column)
+            # transition_span_common's row loop, column by column (a column of Φ's new rows reads only that column)
             for k in range(12):
                 V0, V1, V2, A0, A1, A2 = P[0, k], P[1, k], P[2, k], P[3, k], P[4, k], P[5, k]
                 d0 = 0.0 + m00 * V0 + m01 * V1 + m02 * V2 + z * A0 + n04 * A1 + n05 * A2
