@@ -121,6 +121,33 @@ def test_predict_matches_forward_and_batch_independent():
     np.testing.assert_allclose(net.predict(x[10:11]), y[10:11], rtol=1e-12, atol=1e-12)
 
 
+def test_predict_sees_one_block_shape_whatever_the_count(monkeypatch):
+    """Every block of windows reaches the network as the same shape (``BLOCK`` windows, the last block
+    filled with zero windows), so a window's output cannot depend on how many windows share the call:
+    the chunk size and a run's place in its chunk never change the adaptive filters' Q. Before, the
+    last partial block was multiplied as a smaller product, whose float32 rounding moved the mc
+    metrics of anekf/anukf by 1.3e-6 between --chunk-size 1 and 4 (benchmarks/README.md)."""
+    from nespm_cli.learn import processnet as pn
+
+    seen = []
+    conv = pn.conv_forward
+
+    def spy(x, W, b):
+        seen.append(x.shape[0])
+        return conv(x, W, b)
+
+    monkeypatch.setattr(pn, "conv_forward", spy)
+    net = ProcessNet(seed=5)
+    x = np.random.default_rng(4).standard_normal((pn.BLOCK * 2 + 5, 100, 3))
+    for k in (1, 5, pn.BLOCK, pn.BLOCK + 1, len(x)):
+        seen.clear()
+        y = net.predict(x[:k])
+        assert y.shape == (k, 3) and np.isfinite(y).all()
+        assert set(seen) == {pn.BLOCK} and len(seen) == 4 * -(-k // pn.BLOCK)  # four convolutions a block
+    seen.clear()
+    np.testing.assert_allclose(net.predict(x[3:4]), net.forward(x[3:4]), rtol=1e-12, atol=1e-12)
+
+
 def test_he_init_statistics():
     net = ProcessNet(seed=0)
     for name, fan_in in (("W1", 9), ("W2", 90), ("W5", 750)):

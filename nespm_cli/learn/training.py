@@ -55,7 +55,7 @@ import numpy as np
 
 from nespm_cli.data.corruption import CorruptionConfig, draw, imu_errors, segment_index
 from nespm_cli.errors import NespmError
-from nespm_cli.learn.processnet import VALIDITY_CLIP, Adam, Normalizer, ProcessNet, load_nets, mse_loss, save_nets
+from nespm_cli.learn.processnet import BLOCK, VALIDITY_CLIP, Adam, Normalizer, ProcessNet, load_nets, mse_loss, save_nets
 from nespm_cli.data.corrections import apply_corrections
 from nespm_cli.data.tracks import load_track
 from nespm_cli.nav.synthesis import from_recorded, synthesize
@@ -321,7 +321,7 @@ def load_processnet(path) -> tuple[ProcessNet, ProcessNet, dict]:
 
 
 def predict_noise_std(acc_net: ProcessNet, gyro_net: ProcessNet, f_windows: np.ndarray, w_windows: np.ndarray,
-                      clip: tuple[float, float] | None = DEFAULT_CLIP, batch: int = 1024) -> tuple[np.ndarray, np.ndarray]:
+                      clip: tuple[float, float] | None = DEFAULT_CLIP, batch: int = BLOCK) -> tuple[np.ndarray, np.ndarray]:
     """Noise std of accelerometers and gyros from windows of their readings.
 
     Args:
