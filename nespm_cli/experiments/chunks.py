@@ -59,7 +59,6 @@ def write_chunk(df: pd.DataFrame, path: Path, experiment: str) -> None:
     """Write ``df`` to ``path`` atomically, with its identity (``experiment`` digest, name, rows and the
     SHA-256 of the data bytes, taken as they are written)."""
     import pyarrow as pa
-    import pyarrow.parquet as pq
 
     path = Path(path)
     table = pa.Table.from_pandas(df, preserve_index=False)
